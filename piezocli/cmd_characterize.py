@@ -1,1 +1,76 @@
-"""Placeholder: being written."""
+"""``piezopress characterize``, ``protocols`` and ``rig-keys``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from piezocli.main import cli, reports_errors
+from pipelines import characterize as char
+from pipelines import summary
+
+
+def _print_progress(ev: char.ProgressEvent) -> None:
+    p = ev.protocol
+    width = len(str(ev.total))
+    if not ev.done:
+        click.echo(
+            f"[{ev.index:>{width}}/{ev.total}] {p.name:<28} {p.kind:<9} {p.duration_s:8.2f} s at {p.sample_rate_hz:g} Hz ... ",
+            nl=False,
+        )
+    else:
+        click.echo(f"done in {ev.elapsed_s:.2f} s")
+
+
+@cli.command("characterize")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory for the runs (must not exist or be empty).")
+@click.option("--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_PLAN, show_default="protocols/characterize.toml", help="Protocol plan (TOML).")
+@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig configuration (TOML).")
+@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default="virtual", show_default=True, help="Which rig runs the plan.")
+@reports_errors
+def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_name: str) -> None:
+    """Run the scripted characterization protocols and save each run as Parquet.
+
+    The plan is checked completely against the rig's limits before anything runs. The
+    output directory gets one run per protocol and a manifest.json (files, sha256, plan,
+    rig, software version); existing data is never overwritten. Ctrl-C stops cleanly: the
+    drive returns to zero and the manifest records the interruption.
+
+    \b
+    Example:
+      piezopress characterize --out runs/press-2026-11-21
+      piezopress characterize --plan my-plan.toml --rig rigs/thesis-press.toml --out runs/x
+    """
+    result = char.characterize(out_dir, plan_path=plan_path, rig_path=rig_path, backend_name=backend_name, on_progress=_print_progress)
+    click.echo(f"\n{len(result.runs)} runs written to {result.out_dir} (manifest: {result.manifest_path.name})\n")
+    table = summary.characterization_table(result.out_dir)
+    click.echo(summary.format_table(table))
+    path = summary.write_table(table, result.out_dir / "characterization.csv")
+    click.echo(f"\nTable saved as {path}")
+
+
+@cli.command("protocols")
+def protocols_cmd() -> None:
+    """List the protocol kinds a plan may use and the keys of each.
+
+    \b
+    Example:
+      piezopress protocols
+    """
+    from piezopress.acquisition.plan import describe_kinds
+
+    click.echo(describe_kinds())
+
+
+@cli.command("rig-keys")
+def rig_keys_cmd() -> None:
+    """List every key of a rig file with its unit, default and allowed range.
+
+    \b
+    Example:
+      piezopress rig-keys
+    """
+    from piezopress.acquisition.rig_config import describe_keys
+
+    click.echo(describe_keys())

@@ -9,24 +9,29 @@ class RunFormatError(PiezopressError, ValueError):
     """A run file (or data frame) does not follow the run format."""
 
 
+def _problem_list(source: str, what: str, problems: list[str]) -> str:
+    # one problem: one line; several: a count, then one line each
+    if len(problems) == 1:
+        return f"{source}: {problems[0]}"
+    return f"{source}: {len(problems)} problem(s) in the {what}\n" + "\n".join(f"  - {p}" for p in problems)
+
+
 class PlanError(PiezopressError, ValueError):
-    """A protocol plan is invalid. ``problems`` lists every problem found, each on its own line."""
+    """A protocol plan is invalid. ``problems`` lists every problem found."""
 
     def __init__(self, source: str, problems: list[str]):
         self.source = source
         self.problems = list(problems)
-        head = f"{source}: {len(self.problems)} problem(s) in the plan"
-        super().__init__(head + "\n" + "\n".join(f"  - {p}" for p in self.problems))
+        super().__init__(_problem_list(source, "plan", self.problems))
 
 
 class ConfigError(PiezopressError, ValueError):
-    """A rig configuration file is invalid."""
+    """A rig configuration file is invalid. ``problems`` lists every problem found."""
 
     def __init__(self, source: str, problems: list[str]):
         self.source = source
         self.problems = list(problems)
-        head = f"{source}: {len(self.problems)} problem(s) in the rig configuration"
-        super().__init__(head + "\n" + "\n".join(f"  - {p}" for p in self.problems))
+        super().__init__(_problem_list(source, "rig configuration", self.problems))
 
 
 class MetricError(PiezopressError, ValueError):

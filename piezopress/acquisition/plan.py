@@ -1,0 +1,430 @@
+"""Characterization plans: human-editable TOML files describing scripted protocols.
+
+A plan is a ``[plan]`` table and a list of ``[[protocol]]`` tables::
+
+    [plan]
+    name = "thesis-characterization"
+    preload_n = 50.0            # default for every protocol
+
+    [[protocol]]
+    name = "triangle-0.1hz"
+    kind = "triangle"
+    freq_hz = 0.1
+    cycles = 3
+    peak_v = 150.0
+    sample_rate_hz = 1000.0
+
+The keys each kind accepts are data (:data:`KINDS`): the same table drives validation,
+defaults, documentation (``piezopress protocols``) and waveform generation. A plan is
+checked completely before anything runs, and every problem is reported at once with the
+file, the protocol and the key.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from piezopress.acquisition import waveforms
+from piezopress.errors import PlanError
+
+
+@dataclass(frozen=True)
+class DriveLimits:
+    """What a backend can safely do; plans are checked against it before anything runs."""
+
+    drive_min_v: float = 0.0
+    drive_max_v: float = 150.0
+    max_sample_rate_hz: float = 100_000.0
+    max_force_n: float = 800.0
+    max_duration_s: float = 3600.0
+    max_samples: int = 50_000_000
+
+
+@dataclass(frozen=True)
+class Key:
+    """One key of a protocol table: its type, default (``REQUIRED`` if none) and meaning."""
+
+    type: type | tuple[type, ...]
+    default: Any
+    help: str
+    unit: str = ""
+
+
+REQUIRED = object()
+DRIVE_MAX = object()  # default resolved to the backend's maximum drive
+_NUM = (int, float)
+
+COMMON_KEYS: dict[str, Key] = {
+    "name": Key(str, REQUIRED, "unique name of the protocol; names the run file"),
+    "kind": Key(str, REQUIRED, "protocol kind"),
+    "sample_rate_hz": Key(_NUM, REQUIRED, "sample rate of drive and measurement", "Hz"),
+    "preload_n": Key(_NUM, None, "preload of the stack against the load cell (default: [plan] preload_n)", "N"),
+    "description": Key(str, "", "free text"),
+}
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """A protocol kind: its run kind, its keys, a waveform builder and an extra check."""
+
+    run_kind: str
+    keys: dict[str, Key]
+    build: Callable[[Mapping[str, Any], float], np.ndarray]
+    check: Callable[[Mapping[str, Any], float], list[str]]
+    summary: str
+
+
+def _triangle_peaks(p: Mapping[str, Any]) -> np.ndarray:
+    if p.get("peaks_v") is not None:
+        return np.asarray(p["peaks_v"], dtype=np.float64)
+    rp = p.get("random_peaks")
+    if rp is not None:
+        rng = np.random.default_rng(int(rp["seed"]))
+        return rng.uniform(float(rp["min_v"]), float(rp["max_v"]), int(rp["count"]))
+    return np.full(int(p["cycles"]), float(p["peak_v"]))
+
+
+def _build_triangle(p: Mapping[str, Any], fs: float) -> np.ndarray:
+    return waveforms.triangle(p["freq_hz"], _triangle_peaks(p), p["low_v"], fs)
+
+
+def _check_periodic(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = []
+    if p["freq_hz"] <= 0:
+        problems.append(f"key 'freq_hz' = {p['freq_hz']} must be positive")
+    elif fs < 20 * p["freq_hz"]:
+        problems.append(
+            f"key 'sample_rate_hz' = {fs:g} is too low for freq_hz = {p['freq_hz']:g}: "
+            f"expected at least 20 samples per cycle ({20 * p['freq_hz']:g} Hz)"
+        )
+    if p.get("cycles") is not None and (not isinstance(p["cycles"], int) or p["cycles"] < 1):
+        problems.append(f"key 'cycles' = {p['cycles']!r} must be a whole number of at least 1")
+    return problems
+
+
+def _check_triangle(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = _check_periodic(p, fs)
+    given = [k for k in ("peaks_v", "random_peaks") if p.get(k) is not None]
+    if len(given) > 1:
+        problems.append("keys 'peaks_v' and 'random_peaks' exclude each other; give one")
+    if p.get("peaks_v") is not None:
+        peaks = p["peaks_v"]
+        if not isinstance(peaks, list) or not peaks or not all(isinstance(v, _NUM) and not isinstance(v, bool) for v in peaks):
+            problems.append(f"key 'peaks_v' = {peaks!r} must be a non-empty list of voltages")
+    rp = p.get("random_peaks")
+    if rp is not None:
+        need = {"count": int, "min_v": _NUM, "max_v": _NUM, "seed": int}
+        if not isinstance(rp, dict):
+            problems.append(f"key 'random_peaks' = {rp!r} must be a table {{count, min_v, max_v, seed}}")
+        else:
+            for k in sorted(set(rp) - set(need)):
+                problems.append(f"key 'random_peaks.{k}' is unknown; expected count, min_v, max_v, seed")
+            for k, t in need.items():
+                if k not in rp:
+                    problems.append(f"key 'random_peaks.{k}' is missing; expected count, min_v, max_v, seed")
+                elif not isinstance(rp[k], t) or isinstance(rp[k], bool):
+                    problems.append(f"key 'random_peaks.{k}' = {rp[k]!r} has the wrong type")
+            if not problems and rp["count"] < 1:
+                problems.append(f"key 'random_peaks.count' = {rp['count']} must be at least 1")
+            if not problems and rp["min_v"] > rp["max_v"]:
+                problems.append(f"key 'random_peaks': min_v = {rp['min_v']} is above max_v = {rp['max_v']}")
+    return problems
+
+
+def _check_step(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = []
+    for k in ("pre_s", "post_s"):
+        if p[k] < 0:
+            problems.append(f"key '{k}' = {p[k]} must not be negative")
+    if p["hold_s"] * fs < 10:
+        problems.append(f"key 'hold_s' = {p['hold_s']} lasts fewer than 10 samples at {fs:g} Hz; expected a longer hold")
+    if p["pre_s"] > 0 and p["pre_s"] * fs < 1:
+        problems.append(f"key 'pre_s' = {p['pre_s']} is shorter than one sample at {fs:g} Hz")
+    return problems
+
+
+def _check_staircase(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = []
+    if not isinstance(p["count"], int) or p["count"] < 1:
+        problems.append(f"key 'count' = {p['count']!r} must be a whole number of at least 1")
+    if p["ramp_s"] * fs < 1:
+        problems.append(f"key 'ramp_s' = {p['ramp_s']} is shorter than one sample at {fs:g} Hz; expected at least {1 / fs:g} s")
+    if p["dwell_s"] * fs < 10:
+        problems.append(f"key 'dwell_s' = {p['dwell_s']} lasts fewer than 10 samples at {fs:g} Hz")
+    if p["pre_s"] < 0:
+        problems.append(f"key 'pre_s' = {p['pre_s']} must not be negative")
+    return problems
+
+
+def _check_custom(p: Mapping[str, Any], fs: float) -> list[str]:
+    pts = p["points"]
+    ok = isinstance(pts, list) and len(pts) >= 2 and all(
+        isinstance(q, list) and len(q) == 2 and all(isinstance(x, _NUM) and not isinstance(x, bool) for x in q) for q in pts
+    )
+    if not ok:
+        return [f"key 'points' must be a list of at least two [t_s, volts] pairs, got {pts!r}"[:200]]
+    t = np.array([q[0] for q in pts], dtype=float)
+    if t[0] != 0 or np.any(np.diff(t) <= 0):
+        return ["key 'points': times must start at 0 and strictly increase"]
+    return []
+
+
+_STEP_KEYS = {
+    "level_v": Key(_NUM, DRIVE_MAX, "drive during the hold (default: maximum drive)", "V"),
+    "base_v": Key(_NUM, 0.0, "drive before and after the step", "V"),
+    "pre_s": Key(_NUM, 0.01, "time at base_v before the step", "s"),
+    "hold_s": Key(_NUM, REQUIRED, "time at level_v", "s"),
+    "post_s": Key(_NUM, 0.0, "time back at base_v after the hold", "s"),
+}
+
+_PERIODIC_KEYS = {
+    "freq_hz": Key(_NUM, REQUIRED, "frequency of the sweep", "Hz"),
+    "cycles": Key(int, 1, "number of cycles (ignored when peaks_v or random_peaks is given)"),
+    "low_v": Key(_NUM, 0.0, "lowest drive of each cycle", "V"),
+    "peak_v": Key(_NUM, DRIVE_MAX, "highest drive of each cycle (default: maximum drive)", "V"),
+}
+
+KINDS: dict[str, KindSpec] = {
+    "triangle": KindSpec(
+        "triangle",
+        _PERIODIC_KEYS
+        | {
+            "peaks_v": Key(list, None, "one peak voltage per cycle (increasing amplitudes, say)", "V"),
+            "random_peaks": Key(dict, None, "random peak per cycle: {count, min_v, max_v, seed}"),
+        },
+        _build_triangle,
+        _check_triangle,
+        "triangular sweeps low_v -> peak -> low_v (hysteresis, Table 5.1)",
+    ),
+    "sine": KindSpec(
+        "sine",
+        dict(_PERIODIC_KEYS),
+        lambda p, fs: waveforms.sine(p["freq_hz"], p["cycles"], p["low_v"], p["peak_v"], fs),
+        _check_periodic,
+        "raised-cosine cycles low_v -> peak_v -> low_v",
+    ),
+    "step": KindSpec(
+        "step",
+        dict(_STEP_KEYS),
+        lambda p, fs: waveforms.step(p["base_v"], p["level_v"], p["pre_s"], p["hold_s"], p["post_s"], fs),
+        _check_step,
+        "an ideal step and back (overshoot, settling; Section 5.3)",
+    ),
+    "creep": KindSpec(
+        "creep",
+        dict(_STEP_KEYS),
+        lambda p, fs: waveforms.step(p["base_v"], p["level_v"], p["pre_s"], p["hold_s"], p["post_s"], fs),
+        _check_step,
+        "a step held long (creep after 120 s; Section 5.2)",
+    ),
+    "staircase": KindSpec(
+        "staircase",
+        {
+            "base_v": Key(_NUM, 0.0, "starting drive", "V"),
+            "step_v": Key(_NUM, REQUIRED, "height of each stair", "V"),
+            "count": Key(int, REQUIRED, "number of stairs"),
+            "dwell_s": Key(_NUM, REQUIRED, "time on each stair", "s"),
+            "ramp_s": Key(_NUM, REQUIRED, "duration of the linear ramp to each stair", "s"),
+            "pre_s": Key(_NUM, 0.0, "time at base_v before the first ramp", "s"),
+        },
+        lambda p, fs: waveforms.staircase(p["base_v"], p["step_v"], p["count"], p["dwell_s"], p["ramp_s"], p["pre_s"], fs),
+        _check_staircase,
+        "stairs reached by short ramps (tracking; Section 6.6)",
+    ),
+    "custom": KindSpec(
+        "custom",
+        {"points": Key(list, REQUIRED, "piecewise-linear drive: [[t_s, volts], ...], times from 0 strictly increasing")},
+        lambda p, fs: waveforms.piecewise_linear(np.array([q[0] for q in p["points"]]), np.array([q[1] for q in p["points"]]), fs),
+        _check_custom,
+        "any piecewise-linear drive",
+    ),
+}
+
+PLAN_KEYS: dict[str, Key] = {
+    "name": Key(str, REQUIRED, "name of the plan"),
+    "description": Key(str, "", "free text"),
+    "preload_n": Key(_NUM, 50.0, "default preload for every protocol (thesis Section 6.1: at least 50 N)", "N"),
+}
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """One checked protocol: every key resolved to a value (defaults filled in)."""
+
+    name: str
+    kind: str
+    sample_rate_hz: float
+    preload_n: float
+    params: Mapping[str, Any]
+
+    @property
+    def run_kind(self) -> str:
+        return KINDS[self.kind].run_kind
+
+    def waveform(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_s, command_v)`` of this protocol."""
+        command_v = KINDS[self.kind].build(self.params, self.sample_rate_hz)
+        return waveforms.time_axis(len(command_v), self.sample_rate_hz), command_v
+
+    @property
+    def duration_s(self) -> float:
+        return len(KINDS[self.kind].build(self.params, self.sample_rate_hz)) / self.sample_rate_hz
+
+    def as_dict(self) -> dict[str, Any]:
+        """The protocol as stored in run metadata and manifests (TOML-compatible values)."""
+        return {"name": self.name, "kind": self.kind, "sample_rate_hz": self.sample_rate_hz, "preload_n": self.preload_n, **dict(self.params)}
+
+
+@dataclass(frozen=True)
+class Plan:
+    name: str
+    description: str
+    protocols: tuple[Protocol, ...]
+    source: str = "<plan>"
+    raw: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def duration_s(self) -> float:
+        return sum(p.duration_s for p in self.protocols)
+
+
+def _type_ok(value: Any, expected: type | tuple[type, ...]) -> bool:
+    if isinstance(value, bool):
+        return expected is bool
+    return isinstance(value, expected)
+
+
+def _type_name(expected: type | tuple[type, ...]) -> str:
+    if expected == _NUM:
+        return "a number"
+    return {str: "a string", int: "a whole number", list: "a list", dict: "a table"}.get(expected, str(expected))
+
+
+def _resolve(table: Mapping[str, Any], keys: Mapping[str, Key], where: str, limits: DriveLimits, problems: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k in sorted(set(table) - set(keys)):
+        problems.append(f"{where}: unknown key '{k}'; expected one of {', '.join(keys)}")
+    for k, spec in keys.items():
+        if k in table:
+            v = table[k]
+            if not _type_ok(v, spec.type):
+                problems.append(f"{where}: key '{k}' = {v!r} is not {_type_name(spec.type)}")
+                continue
+            if isinstance(v, float) and not math.isfinite(v):
+                problems.append(f"{where}: key '{k}' = {v!r} is not a finite number")
+                continue
+            out[k] = float(v) if spec.type == _NUM else v
+        elif spec.default is REQUIRED:
+            problems.append(f"{where}: key '{k}' is missing ({spec.help})")
+        elif spec.default is DRIVE_MAX:
+            out[k] = float(limits.drive_max_v)
+        else:
+            out[k] = spec.default
+    return out
+
+
+def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan>") -> Plan:
+    """Check a plan document completely and return it resolved.
+
+    Raises
+    ------
+    PlanError
+        Listing every problem found, each naming the protocol and the key.
+    """
+    problems: list[str] = []
+    for k in sorted(set(doc) - {"plan", "protocol"}):
+        problems.append(f"unknown top-level key '{k}'; expected [plan] and [[protocol]] tables")
+    head = _resolve(doc.get("plan", {}) if isinstance(doc.get("plan", {}), dict) else {}, PLAN_KEYS, "[plan]", limits, problems)
+    tables = doc.get("protocol", [])
+    if not isinstance(tables, list) or not tables:
+        problems.append("no [[protocol]] table; expected at least one protocol")
+        tables = []
+    protocols: list[Protocol] = []
+    seen: set[str] = set()
+    total_s = 0.0
+    for i, table in enumerate(tables, start=1):
+        label = table.get("name", "?") if isinstance(table, dict) else "?"
+        where = f"protocol[{i}] '{label}'"
+        if not isinstance(table, dict):
+            problems.append(f"{where}: expected a table")
+            continue
+        kind = table.get("kind")
+        if kind not in KINDS:
+            problems.append(f"{where}: key 'kind' = {kind!r} is unknown; expected one of {', '.join(KINDS)}")
+            continue
+        spec = KINDS[kind]
+        n_before = len(problems)
+        p = _resolve(table, COMMON_KEYS | spec.keys, where, limits, problems)
+        if len(problems) > n_before:
+            continue
+        name = p["name"]
+        if name in seen:
+            problems.append(f"{where}: name '{name}' is used by an earlier protocol; names must be unique")
+        seen.add(name)
+        if not name.replace("-", "").replace("_", "").replace(".", "").isalnum():
+            problems.append(f"{where}: name '{name}' may hold only letters, digits, '-', '_' and '.' (it names a file)")
+        fs = p["sample_rate_hz"]
+        if not 0 < fs <= limits.max_sample_rate_hz:
+            problems.append(f"{where}: key 'sample_rate_hz' = {fs:g} is outside 0 to {limits.max_sample_rate_hz:g} Hz (the backend's maximum)")
+            continue
+        preload = p["preload_n"] if p["preload_n"] is not None else head.get("preload_n", 50.0)
+        if not 0 <= preload < limits.max_force_n:
+            problems.append(f"{where}: key 'preload_n' = {preload:g} is outside 0 to {limits.max_force_n:g} N")
+        extra = spec.check(p, fs)
+        problems.extend(f"{where}: {e}" for e in extra)
+        if extra:
+            continue
+        params = {k: v for k, v in p.items() if k not in COMMON_KEYS}
+        proto = Protocol(name=name, kind=kind, sample_rate_hz=fs, preload_n=float(preload), params=params)
+        n = len(spec.build(params, fs))
+        duration = n / fs
+        total_s += duration
+        if n > limits.max_samples:
+            problems.append(f"{where}: {n} samples exceed the limit of {limits.max_samples}; lower sample_rate_hz or shorten it")
+            continue
+        _, v = proto.waveform()
+        lo, hi = float(v.min()), float(v.max())
+        if lo < limits.drive_min_v - 1e-9 or hi > limits.drive_max_v + 1e-9:
+            bad = hi if hi > limits.drive_max_v else lo
+            problems.append(
+                f"{where}: drive reaches {bad:g} V, outside the actuator's range {limits.drive_min_v:g} to {limits.drive_max_v:g} V"
+            )
+            continue
+        protocols.append(proto)
+    if total_s > limits.max_duration_s:
+        problems.append(f"the plan lasts {total_s:.0f} s, more than the limit of {limits.max_duration_s:.0f} s")
+    if problems:
+        raise PlanError(source, problems)
+    return Plan(name=head["name"], description=head.get("description", ""), protocols=tuple(protocols), source=source, raw=dict(doc))
+
+
+def load_plan(path: str | Path, limits: DriveLimits) -> Plan:
+    """Read and check a plan file; see :func:`parse_plan`."""
+    path = Path(path)
+    if not path.is_file():
+        raise PlanError(str(path), ["no such file; expected a TOML plan (see protocols/)"])
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise PlanError(str(path), [f"not valid TOML: {exc}"]) from None
+    return parse_plan(doc, limits, source=str(path))
+
+
+def describe_kinds() -> str:
+    """Text reference of every protocol kind and its keys (for ``--help``-like output)."""
+    lines = []
+    common = ", ".join(COMMON_KEYS)
+    lines.append(f"Every protocol: {common}")
+    for kind, spec in KINDS.items():
+        lines.append(f"\nkind = \"{kind}\": {spec.summary}")
+        for k, key in spec.keys.items():
+            default = "required" if key.default is REQUIRED else "max drive" if key.default is DRIVE_MAX else repr(key.default)
+            unit = f" [{key.unit}]" if key.unit else ""
+            lines.append(f"  {k}{unit}: {key.help} (default: {default})")
+    return "\n".join(lines)

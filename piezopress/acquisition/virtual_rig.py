@@ -1,0 +1,106 @@
+"""The virtual rig: the default backend, a simulation of the thesis's press.
+
+It implements :class:`piezopress.acquisition.backend.Backend` with exactly the signature a
+hardware backend has. It is deterministic: the noise of a run is drawn from a generator
+seeded by the rig's seed and the run's label, so the same plan on the same rig file gives
+the same data, whatever the order of the protocols. It never sleeps.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any, Callable
+
+import numpy as np
+
+from piezopress.acquisition import rig_physics as phys
+from piezopress.acquisition.backend import Measurement
+from piezopress.acquisition.plan import DriveLimits
+from piezopress.acquisition.rig_config import RigConfig
+from piezopress.errors import BackendError
+
+
+def _label_seed(label: str) -> int:
+    return int.from_bytes(hashlib.sha256(label.encode()).digest()[:8], "little")
+
+
+class VirtualRig:
+    """Simulated press. See :mod:`piezopress.acquisition.rig_physics` for the signal chain.
+
+    Examples
+    --------
+    >>> rig = VirtualRig(RigConfig())
+    >>> m = rig.run(np.full(200, 20.0), 20_000.0, preload_n=50.0, label="demo")
+    >>> sorted(m.channels)
+    ['force_n', 'monitor_v']
+    """
+
+    name = "virtual"
+
+    def __init__(self, config: RigConfig | None = None):
+        self.config = config or RigConfig()
+        self.output_v = 0.0
+
+    @property
+    def limits(self) -> DriveLimits:
+        return self.config.limits
+
+    def describe(self) -> dict[str, Any]:
+        return {"backend": self.name, "source": self.config.source, "config": self.config.as_dict()}
+
+    def oversampling(self, sample_rate_hz: float) -> int:
+        """Integer factor between the simulation rate and the run's sample rate."""
+        return max(1, int(np.ceil(self.config.simulation.min_rate_hz / sample_rate_hz - 1e-9)))
+
+    def simulate(self, command_v: np.ndarray, sample_rate_hz: float, preload_n: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """The physics, without the backend bookkeeping: returns the measured channels."""
+        c = self.config
+        k = self.oversampling(sample_rate_hz)
+        fs = sample_rate_hz * k
+        # DAC: the board outputs command/gain, quantized, held between updates
+        dac_v = phys.quantize(np.asarray(command_v, dtype=np.float64) / c.amplifier.gain, c.daq.dac_bits, c.daq.dac_range_v)
+        v = np.clip(phys.hold(dac_v, k) * c.amplifier.gain, c.amplifier.output_min_v, c.amplifier.output_max_v)
+        h = phys.hysteresis(v, c.hysteresis, c.actuator.drive_max_v)
+        h = phys.creep(h, c.creep, fs)
+        x = phys.mode(h, c.mode, fs)
+        force = preload_n + c.press.gain_n_per_v * x
+        sensed_v = phys.rc_lowpass(c.load_cell.sensitivity_v_per_n * force + c.load_cell.offset_v, c.load_cell.lowpass_hz, fs)
+        sensed_v = sensed_v[::k]
+        sensed_v = sensed_v + c.load_cell.noise_v * rng.standard_normal(sensed_v.size)
+        adc_v = phys.quantize(sensed_v, c.daq.adc_bits, c.daq.adc_range_v)
+        return {"force_n": adc_v / c.load_cell.sensitivity_v_per_n, "monitor_v": v[::k].copy()}
+
+    def run(
+        self,
+        command_v: np.ndarray,
+        sample_rate_hz: float,
+        *,
+        preload_n: float,
+        label: str,
+        progress: Callable[[float], None] | None = None,
+    ) -> Measurement:
+        command_v = np.asarray(command_v, dtype=np.float64)
+        lim = self.limits
+        if command_v.ndim != 1 or command_v.size < 2:
+            raise BackendError(f"virtual rig: drive of shape {command_v.shape}; expected a 1-D waveform of at least 2 samples")
+        if not np.all(np.isfinite(command_v)):
+            raise BackendError("virtual rig: drive holds NaN or infinite values; expected finite volts")
+        lo, hi = float(command_v.min()), float(command_v.max())
+        if lo < lim.drive_min_v - 1e-9 or hi > lim.drive_max_v + 1e-9:
+            raise BackendError(f"virtual rig: drive spans {lo:g} to {hi:g} V, outside the actuator's range {lim.drive_min_v:g} to {lim.drive_max_v:g} V")
+        if not 0 < sample_rate_hz <= lim.max_sample_rate_hz:
+            raise BackendError(f"virtual rig: sample rate {sample_rate_hz:g} Hz outside 0 to {lim.max_sample_rate_hz:g} Hz")
+        seed = [self.config.rig.seed, _label_seed(label)]
+        rng = np.random.default_rng(np.random.SeedSequence(seed))
+        try:
+            self.output_v = float(command_v[0])
+            channels = self.simulate(command_v, sample_rate_hz, preload_n, rng)
+        finally:
+            self.zero_output()
+        if progress is not None:
+            progress(1.0)
+        info = {"seed": seed, "oversampling": self.oversampling(sample_rate_hz)}
+        return Measurement(channels=channels, info=info)
+
+    def zero_output(self) -> None:
+        self.output_v = 0.0

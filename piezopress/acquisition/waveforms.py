@@ -1,0 +1,83 @@
+"""Drive waveforms: pure functions from protocol parameters to sampled voltages.
+
+Every builder returns ``command_v`` sampled at ``sample_rate_hz`` starting at ``t = 0``;
+the time axis is ``numpy.arange(n) / sample_rate_hz``. A digital-to-analog converter holds
+each sample until the next one (zero-order hold), which is how the backends apply them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def n_samples(duration_s: float, sample_rate_hz: float) -> int:
+    """Number of samples covering ``duration_s`` (at least 2), rounded to the nearest sample."""
+    return max(2, int(round(duration_s * sample_rate_hz)))
+
+
+def time_axis(n: int, sample_rate_hz: float) -> np.ndarray:
+    """Uniform time axis ``t_s = k / sample_rate_hz`` for ``k = 0 .. n-1``."""
+    return np.arange(n, dtype=np.float64) / float(sample_rate_hz)
+
+
+def triangle(freq_hz: float, peaks_v: np.ndarray, low_v: float, sample_rate_hz: float) -> np.ndarray:
+    """Triangular sweeps ``low_v -> peak -> low_v``, one period ``1/freq_hz`` per entry of ``peaks_v``.
+
+    Examples
+    --------
+    >>> v = triangle(1.0, np.array([10.0]), 0.0, 4.0)
+    >>> v.tolist()
+    [0.0, 5.0, 10.0, 5.0, 0.0]
+    """
+    peaks_v = np.asarray(peaks_v, dtype=np.float64)
+    n = n_samples(len(peaks_v) / freq_hz, sample_rate_hz) + 1
+    t = time_axis(n, sample_rate_hz)
+    cycle = np.minimum((t * freq_hz).astype(np.int64), len(peaks_v) - 1)
+    phase = t * freq_hz - cycle  # 0..1 within the cycle (1 only at the very end)
+    shape = 1.0 - np.abs(2.0 * phase - 1.0)  # 0 -> 1 -> 0
+    return low_v + (peaks_v[cycle] - low_v) * shape
+
+
+def sine(freq_hz: float, cycles: int, low_v: float, peak_v: float, sample_rate_hz: float) -> np.ndarray:
+    """Raised-cosine cycles from ``low_v`` up to ``peak_v`` and back, starting at ``low_v``."""
+    n = n_samples(cycles / freq_hz, sample_rate_hz) + 1
+    t = time_axis(n, sample_rate_hz)
+    return low_v + (peak_v - low_v) * 0.5 * (1.0 - np.cos(2.0 * np.pi * freq_hz * t))
+
+
+def step(base_v: float, level_v: float, pre_s: float, hold_s: float, post_s: float, sample_rate_hz: float) -> np.ndarray:
+    """``base_v`` for ``pre_s``, an ideal step to ``level_v`` held ``hold_s``, back to ``base_v`` for ``post_s``."""
+    n_pre = int(round(pre_s * sample_rate_hz))
+    n_hold = int(round(hold_s * sample_rate_hz))
+    n_post = int(round(post_s * sample_rate_hz))
+    return np.concatenate([np.full(n_pre, base_v), np.full(n_hold, level_v), np.full(max(n_post, 1), base_v)])
+
+
+def staircase(base_v: float, step_v: float, count: int, dwell_s: float, ramp_s: float, pre_s: float, sample_rate_hz: float) -> np.ndarray:
+    """``count`` steps of ``step_v``, each reached by a linear ramp of ``ramp_s`` and held ``dwell_s``."""
+    knots_t = [0.0, pre_s]
+    knots_v = [base_v, base_v]
+    t = pre_s
+    level = base_v
+    for _ in range(count):
+        level += step_v
+        t += ramp_s
+        knots_t.append(t)
+        knots_v.append(level)
+        t += dwell_s
+        knots_t.append(t)
+        knots_v.append(level)
+    return piecewise_linear(np.array(knots_t), np.array(knots_v), sample_rate_hz)
+
+
+def piecewise_linear(knots_t_s: np.ndarray, knots_v: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+    """Linear interpolation through ``(knots_t_s, knots_v)`` from 0 to the last knot.
+
+    Coincident knot times make a jump (the later value wins from that instant on).
+    """
+    knots_t_s = np.asarray(knots_t_s, dtype=np.float64)
+    knots_v = np.asarray(knots_v, dtype=np.float64)
+    n = n_samples(knots_t_s[-1], sample_rate_hz) + 1
+    t = time_axis(n, sample_rate_hz)
+    # np.interp takes the right-most of coincident knots for points at or after them
+    return np.interp(t, knots_t_s, knots_v)

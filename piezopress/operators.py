@@ -1,0 +1,202 @@
+"""Rate-independent hysteresis operators on sampled signals: play (backlash) and dead zone.
+
+Pure numpy, shared by the virtual rig (physics) and the Prandtl-Ishlinskii model (analysis).
+
+The play operator of threshold ``r`` (thesis Eq. 3.1, 3.2)::
+
+    y[k] = clip(y[k-1], x[k] - r, x[k] + r),   y[-1] = y0
+
+is evaluated exactly, vectorised over samples and thresholds, by one of two algorithms:
+
+* *monotone runs*: while ``x`` does not decrease, ``y[k] = max(y[a], x[k] - r)`` from the
+  run's first sample ``a`` on (and ``min(y[a], x[k] + r)`` while it does not increase), so
+  a drive with few reversals costs one vector operation per run;
+* *clamp scan*: each step is the clamp ``f_k(y) = clip(y, lo_k, hi_k)``; clamps compose into
+  clamps, ``f2(f1(y)) = clip(y, clip(lo1, lo2, hi2), clip(hi1, lo2, hi2))``, an associative
+  operation, so a two-level scan (compose blocks of ``sqrt(n)`` steps side by side, carry the
+  state across blocks, replay the blocks side by side) needs about ``3 sqrt(n)`` vector
+  steps. This serves noisy inputs, where every sample is a reversal.
+
+Both give the per-sample loop's result to rounding (see ``tests/test_operators.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Above this fraction of reversals per sample the clamp scan is faster than the run loop.
+_SCAN_ABOVE_RUN_FRACTION = 1.0 / 64.0
+
+
+def _as_thresholds(r: np.ndarray | float) -> np.ndarray:
+    r = np.atleast_1d(np.asarray(r, dtype=np.float64))
+    if r.ndim != 1:
+        raise ValueError(f"thresholds must be a scalar or a 1-D array, got shape {r.shape}")
+    if np.any(r < 0) or not np.all(np.isfinite(r)):
+        raise ValueError(f"thresholds must be finite and non-negative, got {r}")
+    return r
+
+
+def play_initial_state(x0: float, r: np.ndarray, y0: np.ndarray | float = 0.0) -> np.ndarray:
+    """Thesis Eq. 3.2: the state after the first sample ``x0`` from initial state ``y0``."""
+    r = _as_thresholds(r)
+    return np.clip(np.broadcast_to(np.asarray(y0, dtype=np.float64), r.shape), x0 - r, x0 + r)
+
+
+def monotone_runs(x: np.ndarray) -> np.ndarray:
+    """Start indices of the maximal monotone runs of ``x`` (always including 0).
+
+    A sample that does not change ``x`` belongs to the run it is in.
+    """
+    d = np.sign(np.diff(x))
+    # carry the last non-zero direction over flat stretches
+    nz = np.flatnonzero(d)
+    if nz.size == 0:
+        return np.array([0])
+    idx = np.zeros_like(d, dtype=np.int64)
+    idx[nz] = nz
+    np.maximum.accumulate(idx, out=idx)
+    d = d[idx]
+    d[: nz[0]] = d[nz[0]]
+    # d[j] is the step x[j] -> x[j+1]; a new direction at step j starts a run at sample j+1
+    change = np.flatnonzero(d[1:] != d[:-1]) + 2
+    return np.concatenate([[0], change])
+
+
+def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0) -> np.ndarray:
+    """Play (backlash) operators of thresholds ``r`` driven by ``x``.
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+        Input samples.
+    r : float or array_like, shape (m,)
+        Non-negative thresholds (half-widths of the deadband).
+    y0 : float or array_like, shape (m,)
+        State before the first sample (thesis: 0, the de-energised actuator). Carry
+        ``y[-1]`` of one chunk as ``y0`` of the next to evaluate a signal in chunks.
+
+    Returns
+    -------
+    y : ndarray, shape (n, m)
+
+    Examples
+    --------
+    >>> play(np.array([0.0, 2.0, 1.0, 3.0]), 0.5)[:, 0].tolist()
+    [0.0, 1.5, 1.5, 2.5]
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"x must be 1-D, got shape {x.shape}")
+    r = _as_thresholds(r)
+    n = x.size
+    if n == 0:
+        return np.zeros((0, r.size))
+    y_start = play_initial_state(x[0], r, y0)
+    starts = monotone_runs(x)
+    if starts.size > max(8, _SCAN_ABOVE_RUN_FRACTION * n):
+        return _play_scan(x, r, y_start)
+    return _play_runs(x, r, y_start, starts)
+
+
+def _play_runs(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    n = x.size
+    y = np.empty((n, r.size))
+    y[0] = y_start
+    bounds = np.append(starts, n)
+    prev = y_start
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        lo_a = a if a > 0 else 1  # sample 0 is already set
+        if lo_a >= b:
+            continue
+        seg = x[lo_a:b, None]
+        rising = x[b - 1] >= x[lo_a - 1]
+        if rising:
+            first = np.maximum(prev, x[lo_a] - r)
+            y[lo_a:b] = np.maximum(first, seg - r)
+        else:
+            first = np.minimum(prev, x[lo_a] + r)
+            y[lo_a:b] = np.minimum(first, seg + r)
+        prev = y[b - 1]
+    return y
+
+
+def _clamp(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    # clip(v, lo, hi) for lo <= hi, without np.clip's overhead
+    return np.minimum(np.maximum(v, lo), hi)
+
+
+def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray) -> np.ndarray:
+    # Two-level scan of the clamps f_k(y) = clip(y, x[k] - r, x[k] + r), k = 1 .. n-1:
+    # (1) compose the clamps of each block of L steps, all blocks at once (L vector steps);
+    # (2) carry the state from block to block through the composites (B small steps);
+    # (3) replay each block from its start state, all blocks at once (L vector steps).
+    steps = x.size - 1
+    y = np.empty((x.size, r.size))
+    y[0] = y_start
+    if steps == 0:
+        return y
+    L = max(1, int(np.ceil(np.sqrt(steps))))
+    B = -(-steps // L)
+    pad = B * L - steps
+    xs = np.concatenate([x[1:], np.full(pad, np.nan)]).reshape(B, L)
+    valid = ~np.isnan(xs)
+    big = np.inf
+    comp_lo = np.full((B, r.size), -big)
+    comp_hi = np.full((B, r.size), big)
+    for j in range(L):
+        col = xs[:, j, None]
+        lo = np.where(valid[:, j, None], col - r, -big)
+        hi = np.where(valid[:, j, None], col + r, big)
+        comp_lo = _clamp(comp_lo, lo, hi)
+        comp_hi = _clamp(comp_hi, lo, hi)
+    state = np.empty((B, r.size))
+    s = y_start
+    for b in range(B):
+        state[b] = s
+        s = _clamp(s, comp_lo[b], comp_hi[b])
+    out = np.empty((B, L, r.size))
+    for j in range(L):
+        col = xs[:, j, None]
+        lo = np.where(valid[:, j, None], col - r, -big)
+        hi = np.where(valid[:, j, None], col + r, big)
+        state = _clamp(state, lo, hi)
+        out[:, j] = state
+    y[1:] = out.reshape(B * L, r.size)[:steps]
+    return y
+
+
+def play_loop(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0) -> np.ndarray:
+    """Reference implementation: the per-sample loop of Eq. 3.1 (slow; for tests and benchmarks)."""
+    x = np.asarray(x, dtype=np.float64)
+    r = _as_thresholds(r)
+    y = np.empty((x.size, r.size))
+    state = play_initial_state(x[0], r, y0) if x.size else None
+    for k in range(x.size):
+        if k:
+            for i in range(r.size):
+                s = state[i]
+                lo = x[k] - r[i]
+                hi = x[k] + r[i]
+                state[i] = lo if s < lo else hi if s > hi else s
+        y[k] = state
+    return y
+
+
+def dead_zone(y: np.ndarray, d: np.ndarray | float) -> np.ndarray:
+    """One-sided dead-zone operators (thesis Eq. 3.6) of thresholds ``d`` applied to ``y``.
+
+    ``max(y - d, 0)`` for ``d > 0``, ``y`` for ``d = 0``, ``min(y - d, 0)`` for ``d < 0``.
+
+    Returns
+    -------
+    ndarray, shape ``y.shape + (m,)``
+    """
+    y = np.asarray(y, dtype=np.float64)[..., None]
+    d = np.atleast_1d(np.asarray(d, dtype=np.float64))
+    out = y - d
+    pos = d > 0
+    neg = d < 0
+    out[..., pos] = np.maximum(out[..., pos], 0.0)
+    out[..., neg] = np.minimum(out[..., neg], 0.0)
+    return out

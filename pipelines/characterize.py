@@ -1,0 +1,215 @@
+"""Characterization: run a plan through a backend into a new run directory.
+
+The directory gets one Parquet run per protocol and a ``manifest.json`` listing each run's
+file and sha256, the plan, the rig configuration and the software version. The manifest
+is rewritten atomically after every run, with ``status`` ``running``, then ``complete``,
+or ``interrupted``/``failed`` with the reason: a directory that was cut short never looks
+complete. Existing data is never overwritten.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+import piezopress
+from piezopress import runformat
+from piezopress.acquisition.backend import Backend
+from piezopress.acquisition.plan import Plan, Protocol, load_plan
+from piezopress.acquisition.rig_config import load_rig
+from piezopress.acquisition.virtual_rig import VirtualRig
+from piezopress.errors import BackendError, OutputExistsError, PiezopressError
+
+MANIFEST = "manifest.json"
+MANIFEST_VERSION = 1
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_PLAN = REPO_ROOT / "protocols" / "characterize.toml"
+DEFAULT_RIG = REPO_ROOT / "rigs" / "thesis-press.toml"
+BACKENDS = ("virtual",)
+
+
+def utc_now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def software_versions() -> dict[str, str]:
+    import numpy, pandas, pyarrow, scipy  # noqa: E401
+
+    return {
+        "piezopress": piezopress.__version__,
+        "python": platform.python_version(),
+        "numpy": numpy.__version__,
+        "scipy": scipy.__version__,
+        "pandas": pandas.__version__,
+        "pyarrow": pyarrow.__version__,
+    }
+
+
+def write_json_atomic(path: Path, obj: Any) -> None:
+    """Write JSON beside ``path`` and rename it into place (never a half-written file)."""
+    tmp = path.with_name(f".{path.name}.partial")
+    tmp.write_text(json.dumps(obj, indent=2, default=runformat._json_default) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def new_output_dir(out_dir: str | Path) -> Path:
+    """Create ``out_dir``; refuse if it exists and holds anything (no data is ever overwritten)."""
+    out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory (runs are never overwritten)")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def make_backend(name: str, rig_path: str | Path | None) -> Backend:
+    """The backend ``name`` configured from the rig file (``None``: the built-in defaults)."""
+    if name not in BACKENDS:
+        raise BackendError(f"backend {name!r} is unknown; expected one of {', '.join(BACKENDS)}")
+    return VirtualRig(load_rig(rig_path))
+
+
+@dataclass(frozen=True)
+class ProgressEvent:
+    """Reported before (``done`` false) and after each protocol."""
+
+    index: int
+    total: int
+    protocol: Protocol
+    done: bool
+    elapsed_s: float = 0.0
+    path: Path | None = None
+
+
+@dataclass
+class CharacterizeResult:
+    out_dir: Path
+    manifest_path: Path
+    runs: list[Path] = field(default_factory=list)
+    plan: Plan | None = None
+
+
+def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any]) -> runformat.Run:
+    """Play one protocol through ``backend`` and return it as a run (complete or not)."""
+    t_s, command_v = proto.waveform()
+    started = utc_now()
+    m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name)
+    columns = {"t_s": t_s, "command_v": command_v}
+    n = min(len(v) for v in m.channels.values()) if not m.complete else len(t_s)
+    columns = {k: v[:n] for k, v in columns.items()}
+    columns.update({k: np.asarray(v[:n], dtype=np.float64) for k, v in m.channels.items()})
+    meta = runformat.make_meta(
+        proto.run_kind,
+        proto.name,
+        proto.sample_rate_hz,
+        status=runformat.STATUS_COMPLETE if m.complete else runformat.STATUS_INCOMPLETE,
+        status_reason=m.reason,
+        protocol=proto.as_dict(),
+        plan=plan.name,
+        preload_n=proto.preload_n,
+        backend=backend.name,
+        backend_info=m.info,
+        started_utc=started,
+        **extra_meta,
+    )
+    return runformat.make_run(columns, meta)
+
+
+def characterize(
+    out_dir: str | Path,
+    *,
+    plan_path: str | Path = DEFAULT_PLAN,
+    rig_path: str | Path | None = DEFAULT_RIG,
+    backend: Backend | None = None,
+    backend_name: str = "virtual",
+    on_progress: Callable[[ProgressEvent], None] | None = None,
+) -> CharacterizeResult:
+    """Run every protocol of a plan and write the runs and a manifest into ``out_dir``.
+
+    The plan and rig are checked completely before the directory is created or the rig
+    touched. On any interruption (Ctrl-C, an error) the backend is told to bring the drive
+    to zero, the runs finished so far stay listed, and the manifest says how it ended.
+    """
+    backend = backend or make_backend(backend_name, rig_path)
+    plan = load_plan(plan_path, backend.limits)
+    out = new_output_dir(out_dir)
+    plan_file = Path(plan_path)
+    manifest: dict[str, Any] = {
+        "manifest_version": MANIFEST_VERSION,
+        "kind": "characterization",
+        "status": "running",
+        "created_utc": utc_now(),
+        "software": software_versions(),
+        "plan": {
+            "file": str(plan_file),
+            "sha256": runformat.sha256_file(plan_file),
+            "name": plan.name,
+            "description": plan.description,
+            "document": plan.raw,
+        },
+        "rig": backend.describe(),
+        "runs": [],
+    }
+    manifest_path = out / MANIFEST
+    write_json_atomic(manifest_path, manifest)
+    result = CharacterizeResult(out, manifest_path, plan=plan)
+    extra = {"software_version": piezopress.__version__, "rig": backend.describe()}
+    total = len(plan.protocols)
+    try:
+        for i, proto in enumerate(plan.protocols, start=1):
+            if on_progress:
+                on_progress(ProgressEvent(i, total, proto, done=False))
+            t0 = time.perf_counter()
+            run = run_protocol(backend, proto, plan, extra)
+            complete = run.meta["status"] == runformat.STATUS_COMPLETE
+            path = out / (f"{proto.name}.parquet" if complete else f"{proto.name}.incomplete.parquet")
+            sha = runformat.write_run(run, path)
+            manifest["runs"].append(
+                {
+                    "file": path.name,
+                    "sha256": sha,
+                    "name": proto.name,
+                    "kind": proto.run_kind,
+                    "status": run.meta["status"],
+                    "samples": len(run.data),
+                    "duration_s": len(run.data) / proto.sample_rate_hz,
+                }
+            )
+            write_json_atomic(manifest_path, manifest)
+            if not complete:
+                raise BackendError(f"{proto.name}: the backend stopped the run early ({run.meta['status_reason']}); kept as {path.name}")
+            result.runs.append(path)
+            if on_progress:
+                on_progress(ProgressEvent(i, total, proto, done=True, elapsed_s=time.perf_counter() - t0, path=path))
+    except BaseException as exc:
+        backend.zero_output()
+        interrupted = isinstance(exc, KeyboardInterrupt)
+        manifest["status"] = "interrupted" if interrupted else "failed"
+        manifest["status_reason"] = "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}"
+        manifest["finished_utc"] = utc_now()
+        write_json_atomic(manifest_path, manifest)
+        if isinstance(exc, (PiezopressError, KeyboardInterrupt)):
+            raise
+        raise BackendError(f"characterization stopped: {type(exc).__name__}: {exc} (runs so far kept in {out})") from exc
+    manifest["status"] = "complete"
+    manifest["finished_utc"] = utc_now()
+    write_json_atomic(manifest_path, manifest)
+    return result
+
+
+def read_manifest(run_dir: str | Path) -> dict[str, Any]:
+    """The manifest of a run directory, checked to be readable."""
+    path = Path(run_dir) / MANIFEST
+    if not path.is_file():
+        raise PiezopressError(f"{run_dir}: no {MANIFEST}; expected a directory written by `piezopress characterize`")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise PiezopressError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None

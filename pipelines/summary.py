@@ -1,0 +1,104 @@
+"""The characterization table: each run's thesis metric, beside the thesis's figure.
+
+Triangles give the maximum hysteresis (Eq. 5.1), creep steps the creep after the hold
+(Eq. 5.2), steps the overshoot (Eq. 5.3) and 2 % settling time. A run that does not suit
+its metric gets a row saying why, never a crash.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from piezopress import runformat, thesis
+from piezopress.analysis import metrics
+from piezopress.errors import MetricError
+from pipelines.characterize import read_manifest
+
+COLUMNS = ["run", "kind", "metric", "value", "unit", "thesis", "thesis_source", "note"]
+
+
+def _thesis_for(run: runformat.Run, metric: str) -> tuple[float, str]:
+    """The thesis figure a run should be compared with, if the thesis measured that test."""
+    p = run.meta.get("protocol", {})
+    full = math.isclose(float(np.max(run.command_v)), 150.0, abs_tol=0.5)
+    if metric == "max_hysteresis":
+        if p.get("peaks_v") is not None or p.get("random_peaks") is not None:
+            return thesis.HYSTERESIS_VARYING_0P1HZ_PCT, "Sec. 6.2.1 (varying amplitude)"
+        f = p.get("freq_hz")
+        if full and f in thesis.HYSTERESIS_BY_FREQ_PCT:
+            return thesis.HYSTERESIS_BY_FREQ_PCT[f], f"Table 5.1 ({f:g} Hz)"
+    if metric == "creep" and full and math.isclose(run.t_s[-1], 120.0, rel_tol=0.05, abs_tol=2.0):
+        return thesis.CREEP_120S_PCT, "Sec. 5.2 (120 s)"
+    if metric == "overshoot" and math.isclose(float(np.max(run.command_v)), 20.0, abs_tol=0.5):
+        return thesis.OVERSHOOT_20V_PCT, "Sec. 5.3 (20 V)"
+    return float("nan"), ""
+
+
+def run_metrics(run: runformat.Run) -> list[dict]:
+    """The table rows of one run."""
+    rows: list[dict] = []
+    y = run.output
+    unit_out = "N" if run.output_column == "force_n" else "um"
+
+    def row(metric: str, value: float, unit: str, note: str = "", with_thesis: bool = True) -> None:
+        ref, src = _thesis_for(run, metric) if with_thesis else (float("nan"), "")
+        rows.append({"run": run.name, "kind": run.kind, "metric": metric, "value": value, "unit": unit, "thesis": ref, "thesis_source": src, "note": note})
+
+    try:
+        if run.kind in ("triangle", "sine"):
+            x = run.column("reference_n")
+            x = run.command_v if x is None else x
+            h = metrics.max_hysteresis(x, y)
+            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {unit_out} at {h.x_at_max:.1f}")
+        elif run.kind == "creep":
+            c = metrics.creep(run.t_s, y, drive=run.command_v)
+            row("creep", c.percent, "%", f"F_ss taken {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step size")
+        elif run.kind == "step":
+            s = metrics.overshoot(run.t_s, y, drive=run.command_v)
+            note = f"step {s.step_size:.1f} {unit_out}" + ("" if s.significant else "; not above the noise")
+            row("overshoot", s.percent, "%", note)
+            settle_note = "2 % band below 3x noise" if s.band_below_noise else ("" if s.settled else "did not settle")
+            row("settling_time", s.settling_time_s * 1e3 if s.settled else float("nan"), "ms", settle_note, with_thesis=False)
+        else:
+            row("-", float("nan"), "", f"no characterization metric for kind {run.kind!r}", with_thesis=False)
+    except MetricError as exc:
+        row("-", float("nan"), "", f"does not suit its metric: {exc}", with_thesis=False)
+    return rows
+
+
+def characterization_table(run_dir: str | Path) -> pd.DataFrame:
+    """Metrics of every run listed in a run directory's manifest (or every ``*.parquet``)."""
+    run_dir = Path(run_dir)
+    if (run_dir / "manifest.json").is_file():
+        files = [run_dir / r["file"] for r in read_manifest(run_dir)["runs"] if r.get("status", "complete") == "complete"]
+    else:
+        files = sorted(run_dir.glob("*.parquet"))
+    rows: list[dict] = []
+    for f in files:
+        rows.extend(run_metrics(runformat.read_run(f)))
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def format_table(table: pd.DataFrame) -> str:
+    """A fixed-width text table for the terminal."""
+    def num(v: float, digits: int = 2) -> str:
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
+
+    head = f"{'run':<28} {'metric':<15} {'value':>9} {'unit':<4} {'thesis':>8}  {'source':<30} note"
+    lines = ["Characterization", head, "-" * len(head)]
+    for r in table.itertuples(index=False):
+        lines.append(f"{r.run:<28} {r.metric:<15} {num(r.value):>9} {r.unit:<4} {num(r.thesis):>8}  {r.thesis_source:<30} {r.note}")
+    return "\n".join(lines)
+
+
+def write_table(table: pd.DataFrame, path: str | Path) -> Path:
+    """Save the table as CSV (fixed float format, so the same data gives the same bytes)."""
+    path = Path(path)
+    if path.exists():
+        raise runformat.OutputExistsError(f"{path}: already exists; refusing to overwrite it")
+    table.to_csv(path, index=False, float_format="%.6g")
+    return path

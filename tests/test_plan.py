@@ -1,0 +1,84 @@
+"""Plans: the default plan is valid and complete; every problem is reported at once."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from piezopress.acquisition.plan import DriveLimits, load_plan, parse_plan
+from piezopress.errors import PlanError
+
+ROOT = Path(__file__).resolve().parents[1]
+LIMITS = DriveLimits()
+
+
+def test_default_plan_covers_thesis_tests():
+    plan = load_plan(ROOT / "protocols" / "characterize.toml", LIMITS)
+    by = {p.name: p for p in plan.protocols}
+    freqs = sorted(p.params["freq_hz"] for p in plan.protocols if p.kind == "triangle" and p.params.get("peaks_v") is None and p.params.get("random_peaks") is None)
+    assert freqs == [0.1, 1.0, 5.0, 10.0, 50.0, 100.0]
+    assert by["creep-150v"].params["hold_s"] == 120.0 and by["creep-150v"].params["level_v"] == 150.0
+    levels = sorted(p.params["level_v"] for p in plan.protocols if p.kind == "step")
+    assert levels == [20.0, 50.0, 100.0, 150.0]
+    # steps resolve a 1 kHz mode: at least 10 samples per period
+    assert all(p.sample_rate_hz >= 10_000 for p in plan.protocols if p.kind == "step")
+    assert by["triangle-increasing-0.1hz"].params["peaks_v"] == [30.0, 60.0, 90.0, 120.0, 150.0]
+    assert by["triangle-random-0.1hz"].params["random_peaks"]["count"] == 6
+    assert all(p.preload_n == 50.0 for p in plan.protocols)
+
+
+def test_triangle_waveform_reaches_peaks_and_is_deterministic():
+    doc = {"plan": {"name": "x"}, "protocol": [{"name": "t", "kind": "triangle", "freq_hz": 1.0, "sample_rate_hz": 100.0,
+                                                "random_peaks": {"count": 3, "min_v": 10.0, "max_v": 20.0, "seed": 4}}]}
+    p1 = parse_plan(doc, LIMITS).protocols[0]
+    t, v = p1.waveform()
+    _, v2 = parse_plan(doc, LIMITS).protocols[0].waveform()
+    np.testing.assert_array_equal(v, v2)
+    assert len(t) == 301 and t[-1] == pytest.approx(3.0)
+    peaks = [v[50], v[150], v[250]]
+    assert all(10.0 <= pk <= 20.0 for pk in peaks) and v[0] == 0.0 and v[-1] == pytest.approx(0.0)
+
+
+def test_all_problems_reported_at_once_with_key_names():
+    doc = {
+        "plan": {"name": "bad", "colour": "red"},
+        "protocol": [
+            {"name": "a", "kind": "step", "level_v": 200.0, "hold_s": 1.0, "sample_rate_hz": 1000.0},
+            {"name": "b", "kind": "triangle", "freq_hz": 10.0, "sample_rate_hz": 50.0},
+            {"name": "c", "kind": "wobble", "sample_rate_hz": 1000.0},
+            {"name": "d", "kind": "creep", "hold_s": 1.0, "sample_rate_hz": 1e9, "speed": 3},
+            {"name": "a", "kind": "step", "hold_s": 1.0, "sample_rate_hz": 1000.0},
+        ],
+    }
+    with pytest.raises(PlanError) as err:
+        parse_plan(doc, LIMITS, source="bad.toml")
+    text = str(err.value)
+    assert text.startswith("bad.toml: ")
+    assert "[plan]: unknown key 'colour'" in text
+    assert "protocol[1] 'a': drive reaches 200 V, outside the actuator's range 0 to 150 V" in text
+    assert "protocol[2] 'b': key 'sample_rate_hz' = 50 is too low" in text
+    assert "protocol[3] 'c': key 'kind' = 'wobble' is unknown" in text
+    assert "protocol[4] 'd': unknown key 'speed'" in text
+    assert "protocol[5] 'a': name 'a' is used by an earlier protocol" in text
+    assert len(err.value.problems) == 6
+
+
+def test_sample_rate_above_backend_limit():
+    doc = {"plan": {"name": "x"}, "protocol": [{"name": "s", "kind": "step", "hold_s": 0.1, "sample_rate_hz": 2e6}]}
+    with pytest.raises(PlanError, match="sample_rate_hz' = 2e\\+06 is outside 0 to 100000 Hz"):
+        parse_plan(doc, LIMITS)
+
+
+def test_limits_come_from_the_rig():
+    # the same plan is fine on a rig allowing 200 V and refused on the default 150 V one
+    doc = {"plan": {"name": "x"}, "protocol": [{"name": "s", "kind": "step", "level_v": 180.0, "hold_s": 0.1, "sample_rate_hz": 1000.0}]}
+    parse_plan(doc, DriveLimits(drive_max_v=200.0))
+    with pytest.raises(PlanError, match="180 V"):
+        parse_plan(doc, LIMITS)
+
+
+def test_invalid_toml_is_one_problem(tmp_path):
+    f = tmp_path / "p.toml"
+    f.write_text("[plan\nname=")
+    with pytest.raises(PlanError, match="not valid TOML"):
+        load_plan(f, LIMITS)
