@@ -63,7 +63,7 @@ def monotone_runs(x: np.ndarray) -> np.ndarray:
     return np.concatenate([[0], change])
 
 
-def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0) -> np.ndarray:
+def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, widen: np.ndarray | None = None) -> np.ndarray:
     """Play (backlash) operators of thresholds ``r`` driven by ``x``.
 
     Parameters
@@ -72,6 +72,9 @@ def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0) -> 
         Input samples.
     r : float or array_like, shape (m,)
         Non-negative thresholds (half-widths of the deadband).
+    widen : array_like, shape (n,), optional
+        Per-sample amount added to every threshold (rate-dependent hysteresis: the deadband
+        at sample ``k`` is ``r + widen[k]``). Must not be negative.
     y0 : float or array_like, shape (m,)
         State before the first sample (thesis: 0, the de-energised actuator). Carry
         ``y[-1]`` of one chunk as ``y0`` of the next to evaluate a signal in chunks.
@@ -92,14 +95,24 @@ def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0) -> 
     n = x.size
     if n == 0:
         return np.zeros((0, r.size))
-    y_start = play_initial_state(x[0], r, y0)
+    if widen is not None:
+        widen = np.asarray(widen, dtype=np.float64)
+        if widen.shape != x.shape or np.any(widen < 0):
+            raise ValueError(f"widen must be non-negative with the shape of x {x.shape}, got shape {widen.shape}")
+    y_start = play_initial_state(x[0], r if widen is None else r + widen[0], y0)
     starts = monotone_runs(x)
-    if starts.size > max(8, _SCAN_ABOVE_RUN_FRACTION * n):
-        return _play_scan(x, r, y_start)
-    return _play_runs(x, r, y_start, starts)
+    if starts.size <= max(8, _SCAN_ABOVE_RUN_FRACTION * n):
+        y = _play_runs(x, r, y_start, starts, widen)
+        if y is not None:
+            return y
+    return _play_scan(x, r, y_start, widen)
 
 
-def _play_runs(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, starts: np.ndarray) -> np.ndarray:
+def _play_runs(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, starts: np.ndarray, widen: np.ndarray | None = None) -> np.ndarray | None:
+    # Rising run: y[k] = max(y[k-1], lo[k]) while the upper bound hi[k] never binds, i.e.
+    # a running maximum of lo (falling: a running minimum of hi). With constant thresholds
+    # the bound never binds; with widened ones it is checked, and None returned if it does
+    # (the caller then uses the exact scan).
     n = x.size
     y = np.empty((n, r.size))
     y[0] = y_start
@@ -109,15 +122,23 @@ def _play_runs(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, starts: np.nda
         lo_a = a if a > 0 else 1  # sample 0 is already set
         if lo_a >= b:
             continue
-        seg = x[lo_a:b, None]
+        width = r if widen is None else r + widen[lo_a:b, None]
+        lo = x[lo_a:b, None] - width
+        hi = x[lo_a:b, None] + width
+        first = np.clip(prev, lo[0], hi[0])
         rising = x[b - 1] >= x[lo_a - 1]
-        if rising:
-            first = np.maximum(prev, x[lo_a] - r)
-            y[lo_a:b] = np.maximum(first, seg - r)
+        if widen is None:  # lo (hi) is monotone over the run: the running extreme is plain max (min)
+            seg = np.maximum(first, lo) if rising else np.minimum(first, hi)
+        elif rising:
+            seg = np.maximum.accumulate(np.concatenate([first[None], lo[1:]]), axis=0)
+            if np.any(seg > hi):
+                return None
         else:
-            first = np.minimum(prev, x[lo_a] + r)
-            y[lo_a:b] = np.minimum(first, seg + r)
-        prev = y[b - 1]
+            seg = np.minimum.accumulate(np.concatenate([first[None], hi[1:]]), axis=0)
+            if np.any(seg < lo):
+                return None
+        y[lo_a:b] = seg
+        prev = seg[-1]
     return y
 
 
@@ -126,7 +147,7 @@ def _clamp(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(v, lo), hi)
 
 
-def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray) -> np.ndarray:
+def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, widen: np.ndarray | None = None) -> np.ndarray:
     # Two-level scan of the clamps f_k(y) = clip(y, x[k] - r, x[k] + r), k = 1 .. n-1:
     # (1) compose the clamps of each block of L steps, all blocks at once (L vector steps);
     # (2) carry the state from block to block through the composites (B small steps);
@@ -140,14 +161,18 @@ def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray) -> np.ndarray:
     B = -(-steps // L)
     pad = B * L - steps
     xs = np.concatenate([x[1:], np.full(pad, np.nan)]).reshape(B, L)
+    wd = None if widen is None else np.concatenate([widen[1:], np.zeros(pad)]).reshape(B, L)
     valid = ~np.isnan(xs)
     big = np.inf
     comp_lo = np.full((B, r.size), -big)
     comp_hi = np.full((B, r.size), big)
-    for j in range(L):
+    def bounds(j):
         col = xs[:, j, None]
-        lo = np.where(valid[:, j, None], col - r, -big)
-        hi = np.where(valid[:, j, None], col + r, big)
+        w = r if wd is None else r + wd[:, j, None]
+        return np.where(valid[:, j, None], col - w, -big), np.where(valid[:, j, None], col + w, big)
+
+    for j in range(L):
+        lo, hi = bounds(j)
         comp_lo = _clamp(comp_lo, lo, hi)
         comp_hi = _clamp(comp_hi, lo, hi)
     state = np.empty((B, r.size))
@@ -157,27 +182,26 @@ def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray) -> np.ndarray:
         s = _clamp(s, comp_lo[b], comp_hi[b])
     out = np.empty((B, L, r.size))
     for j in range(L):
-        col = xs[:, j, None]
-        lo = np.where(valid[:, j, None], col - r, -big)
-        hi = np.where(valid[:, j, None], col + r, big)
+        lo, hi = bounds(j)
         state = _clamp(state, lo, hi)
         out[:, j] = state
     y[1:] = out.reshape(B * L, r.size)[:steps]
     return y
 
 
-def play_loop(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0) -> np.ndarray:
+def play_loop(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, widen: np.ndarray | None = None) -> np.ndarray:
     """Reference implementation: the per-sample loop of Eq. 3.1 (slow; for tests and benchmarks)."""
     x = np.asarray(x, dtype=np.float64)
     r = _as_thresholds(r)
+    widen = np.zeros(x.size) if widen is None else np.asarray(widen, dtype=np.float64)
     y = np.empty((x.size, r.size))
-    state = play_initial_state(x[0], r, y0) if x.size else None
+    state = play_initial_state(x[0], r + widen[0], y0) if x.size else None
     for k in range(x.size):
         if k:
             for i in range(r.size):
                 s = state[i]
-                lo = x[k] - r[i]
-                hi = x[k] + r[i]
+                lo = x[k] - r[i] - widen[k]
+                hi = x[k] + r[i] + widen[k]
                 state[i] = lo if s < lo else hi if s > hi else s
         y[k] = state
     return y

@@ -71,3 +71,18 @@ def test_dead_zone_definition():
     assert z[:, 0].tolist() == [-1.0, 0.0, 0.0, 0.0, 0.0]  # min(y + 2, 0)
     assert z[:, 1].tolist() == y.tolist()
     assert z[:, 2].tolist() == [0.0, 0.0, 0.0, 0.0, 1.0]  # max(y - 2, 0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    x=arrays(np.float64, st.integers(1, 120), elements=finite),
+    r=arrays(np.float64, st.integers(1, 4), elements=st.floats(0, 50)),
+    data=st.data(),
+)
+def test_widened_play_equals_loop(x, r, data):
+    # rate-dependent thresholds r + widen[k]: the run algorithm (when it applies) and the
+    # scan must both reproduce the loop exactly
+    widen = data.draw(arrays(np.float64, x.size, elements=st.floats(0, 20)))
+    ref = op.play_loop(x, r, 0.0, widen)
+    np.testing.assert_allclose(op.play(x, r, 0.0, widen), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(op._play_scan(x, r, op.play_initial_state(x[0], r + widen[0]), widen), ref, rtol=0, atol=1e-12)

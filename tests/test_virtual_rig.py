@@ -48,8 +48,8 @@ def test_load_cell_quantization_and_noise():
 def test_mode_frequency_and_damping_from_ringing():
     # Without hysteresis, creep or low-pass, a 20 V step rings at wd = wn sqrt(1 - z^2);
     # the logarithmic decrement of successive peaks gives the damping.
-    cfg = RigConfig().replace(hysteresis={"enabled": False}, creep={"enabled": False}, load_cell={"noise_v": 0.0, "lowpass_hz": 1e7},
-                              daq={"adc_bits": 24})
+    cfg = RigConfig.clean().replace(hysteresis={"enabled": False}, creep={"enabled": False}, load_cell={"noise_v": 0.0, "lowpass_hz": 1e7},
+                                    daq={"adc_bits": 24})
     fs = 100_000.0
     v = np.r_[np.zeros(100), np.full(3000, 20.0)]
     f = run(VirtualRig(cfg), v, fs)["force_n"][100:] - (50 + 40)
@@ -65,7 +65,7 @@ def test_mode_frequency_and_damping_from_ringing():
 def test_hysteresis_is_asymmetric_and_saturating():
     cfg = RigConfig().hysteresis
     v = np.r_[np.linspace(0, 150, 1501), np.linspace(150, 0, 1501)[1:]]
-    h = phys.hysteresis(v, cfg, 150.0)
+    h, _ = phys.hysteresis(v, cfg, 150.0)
     up, down = h[:1501], h[1500:][::-1]
     gap = down - up
     assert gap.max() > 0.03 * (h.max() - h.min())  # a real loop
@@ -77,7 +77,7 @@ def test_hysteresis_is_asymmetric_and_saturating():
 
 
 def test_creep_grows_during_hold():
-    rig = VirtualRig(RigConfig().replace(load_cell={"noise_v": 0.0}))
+    rig = VirtualRig(RigConfig().replace(load_cell={"noise_v": 0.0}, interference={"enabled": False}))
     fs = 100.0
     v = np.r_[np.zeros(100), np.full(120 * 100, 150.0)]
     f = run(rig, v, fs)["force_n"]

@@ -35,7 +35,7 @@ class RigSection:
 class ActuatorSection:
     drive_min_v: float = param(0.0, "lowest allowed actuator voltage", "V", -200, 200)
     drive_max_v: float = param(150.0, "highest allowed actuator voltage (PSt 150: 150 V)", "V", -200, 200)
-    capacitance_uf: float = param(3.6, "electrical capacitance of the stack (PSt 150/5/100 class: a few uF)", "uF", 0, 1000, True)
+    capacitance_uf: float = param(4.8, "stack capacitance; with the current limit it sets the slew rate (calibrated to the 20 V overshoot)", "uF", 0, 1000, True)
     max_force_n: float = param(800.0, "maximum load force of the stack (PSt 150/5/100 VS10: 800 N)", "N", 0, 1e5, True)
 
 
@@ -45,6 +45,9 @@ class AmplifierSection:
     output_min_v: float = param(-200.0, "lowest output voltage of the amplifier", "V", -1000, 1000)
     output_max_v: float = param(200.0, "highest output voltage of the amplifier", "V", -1000, 1000)
     current_limit_ma: float = param(200.0, "maximum output current (EPA-102: 200 mA)", "mA", 0, 1e5, True)
+    slew_limit: bool = param(
+        True, "effect amplifier_slew_limit: the current limit into the stack's capacitance limits dV/dt to I/C"
+    )
 
 
 @dataclass(frozen=True)
@@ -62,11 +65,20 @@ class LoadCellSection:
     noise_v: float = param(0.000578, "RMS noise at the board input (thesis Section 4.2: 0.578 mV)", "V", 0, 10)
     offset_v: float = param(0.0, "offset of the amplified load-cell signal", "V", -10, 10)
     lowpass_hz: float = param(9596.0, "analog RC low-pass before the board (thesis Eq. 4.5: 9.6 kHz)", "Hz", 0, 1e7, True)
+    drift_n_per_min: float = param(0.0, "effect sensor_offset_drift: slow drift of the offset, in newtons per minute", "N/min", -100, 100)
 
 
 @dataclass(frozen=True)
 class PressSection:
+    """The stack pressing on the load cell.
+
+    Contact: the stack pushes on the cell only while pressed against it, so the cell reads
+    ``max(0, preload + gain * x)``; a negative preload is a gap (no contact at rest).
+    """
+
     gain_n_per_v: float = param(2.0, "force per actuator volt of the stack pressing on the cell (~300 N over 150 V)", "N/V", 0, 1e4, True)
+    contact: bool = param(True, "model contact: the cell reads no tension (off: force may go negative)")
+    delay_s: float = param(0.0, "effect input_delay: pure delay between command and response", "s", 0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -81,26 +93,40 @@ class HysteresisSection:
     """
 
     enabled: bool = param(True, "switch the hysteresis off (a linear stack)")
-    elastic_fraction: float = param(0.80, "share of the response without deadband", "", 0, 1)
+    elastic_fraction: float = param(0.78, "share of the response without deadband", "", 0, 1)
     r_scale_v: float = param(20.0, "decay scale of the operator weights over the threshold", "V", 0, 1000, True)
     r_max_v: float = param(75.0, "largest threshold", "V", 0, 1000, True)
     n_operators: int = param(24, "number of play operators (fidelity of the simulation)", "", 1, 500)
-    saturation: float = param(0.35, "saturation k of the static map (0: none)", "", 0, 5)
+    saturation: float = param(0.35, "effect hysteresis_order: saturation k of the static map (0: none)", "", 0, 5)
+    rate_v_per_kv_s: float = param(
+        0.10, "effect rate_dependent_hysteresis: every threshold grows this much per kV/s of drive rate", "V/(kV/s)", 0, 100
+    )
+    rate_tau_s: float = param(5e-4, "time constant over which the drive rate is felt", "s", 0, 1, True)
 
 
 @dataclass(frozen=True)
 class CreepSection:
     """Creep: the response to a held step keeps growing about linearly in log time.
 
-    Modelled as a Prony series ``1 + sum_k g/(1 + tau_k s)`` with two time constants per
-    decade from ``tau_min_s`` to ``tau_max_s`` and ``g = per_decade / 2``, which rises by
-    ``per_decade`` of the step for every decade of time in that span.
+    Two forms, both a Prony series ``1 + sum_k g_k / (1 + tau_k s)`` (linear, so it
+    commutes with the mode and is simulated on the run's own time grid):
+
+    * ``log`` (effect logarithmic_creep): two time constants per decade from ``tau_min_s``
+      to ``tau_max_s``, each ``g = per_decade / 2``, so the response to a held step rises by
+      ``per_decade`` of the step for every decade of time: a few-pole model fitted on 120 s
+      extrapolates badly;
+    * ``poles``: two poles, ``pole_gains`` at ``pole_taus_s``; it saturates, as the
+      thesis's creep model (Eq. 6.1) assumes.
     """
 
     enabled: bool = param(True, "switch creep off")
-    per_decade: float = param(0.0113, "creep per decade of time, as a fraction of the step", "", 0, 0.5)
-    tau_min_s: float = param(0.01, "shortest creep time constant", "s", 0, 1e6, True)
-    tau_max_s: float = param(1.0e4, "longest creep time constant", "s", 0, 1e8, True)
+    form: str = param("log", "'log' (creep grows with log time) or 'poles' (saturating, two poles)")
+    per_decade: float = param(0.0112, "log form: creep per decade of time, as a fraction of the step", "", 0, 0.5)
+    tau_min_s: float = param(0.05, "log form: shortest creep time constant", "s", 0, 1e6, True)
+    tau_max_s: float = param(1.0e4, "log form: longest creep time constant", "s", 0, 1e8, True)
+    pole_gains: float = param(0.012, "poles form: gain of the fast and of the slow pole (each)", "", 0, 0.5)
+    pole_fast_tau_s: float = param(1.5, "poles form: fast time constant", "s", 0, 1e6, True)
+    pole_slow_tau_s: float = param(40.0, "poles form: slow time constant", "s", 0, 1e6, True)
 
 
 @dataclass(frozen=True)
@@ -113,8 +139,41 @@ class ModeSection:
 
 
 @dataclass(frozen=True)
+class Mode2Section:
+    """Effect second_resonance: a second, weaker mode sharing the response."""
+
+    enabled: bool = param(False, "switch the second mode on")
+    natural_freq_rad_s: float = param(17_000.0, "natural frequency", "rad/s", 0, 1e7, True)
+    damping: float = param(0.05, "damping ratio", "", 0, 2, True)
+    share: float = param(0.15, "share of the response through this mode", "", 0, 1)
+
+
+@dataclass(frozen=True)
+class InterferenceSection:
+    """Effect drive_coupled_interference: the notch of thesis Section 5.3.
+
+    The drive current ``i = C dv/dt`` into the stack couples into the load-cell amplifier.
+    Its envelope ``i_f`` (``|i|`` through a first-order low-pass of ``tau_s``) drives the
+    instrumentation amplifier out of its linear range once above ``threshold`` of the
+    current limit, and the reading dips by ``depth_n * (i_f/I_max - threshold) / (1 - threshold)``
+    scaled by ``(reference_distance_mm / distance_mm)^2``. So it appears only for large
+    steps (long pulses at the current limit) and fast ones, with or without contact, and
+    fades with distance, as the thesis observed (Fig. 5.6-5.9).
+    """
+
+    enabled: bool = param(True, "switch the interference on")
+    depth_n: float = param(40.0, "depth of the notch at full current, at the reference distance", "N", 0, 1e4)
+    threshold: float = param(0.5, "fraction of the current limit below which nothing couples", "", 0, 0.99)
+    tau_s: float = param(1.5e-3, "time constant of the current envelope", "s", 0, 1, True)
+    distance_mm: float = param(5.0, "distance between stack and load cell", "mm", 0, 1e4, True)
+    reference_distance_mm: float = param(5.0, "distance at which depth_n applies", "mm", 0, 1e4, True)
+
+
+@dataclass(frozen=True)
 class SimulationSection:
-    min_rate_hz: float = param(20_000.0, "simulate at least this fast (the run's rate times an integer)", "Hz", 0, 1e7, True)
+    min_rate_hz: float = param(20_000.0, "simulate fast drive changes at least this fast", "Hz", 0, 1e7, True)
+    fast_step_v: float = param(1.0, "a drive change larger than this in one sample is simulated finely", "V", 0, 1e4, True)
+    fine_window_s: float = param(0.02, "how long after a fast change the fine simulation goes on", "s", 0, 10, True)
 
 
 SECTIONS: dict[str, type] = {
@@ -127,7 +186,37 @@ SECTIONS: dict[str, type] = {
     "hysteresis": HysteresisSection,
     "creep": CreepSection,
     "mode": ModeSection,
+    "mode2": Mode2Section,
+    "interference": InterferenceSection,
     "simulation": SimulationSection,
+}
+
+
+@dataclass(frozen=True)
+class Effect:
+    """An effect the thesis's model leaves out (and ``diagnose`` must find): where it is set.
+
+    ``key`` of ``[section]`` switches it: ``off`` is the value without it, ``on`` the value
+    that switches it on (its magnitude). The thesis-like default rig has some on already.
+    """
+
+    section: str
+    key: str
+    off: Any
+    on: Any
+    physics: str
+
+
+#: Effects beyond the core, by the id ``diagnose`` uses.
+EFFECTS: dict[str, Effect] = {
+    "rate_dependent_hysteresis": Effect("hysteresis", "rate_v_per_kv_s", 0.0, 0.10, "loop widens with the drive rate"),
+    "amplifier_slew_limit": Effect("amplifier", "slew_limit", False, True, "current limit into the capacitance: dV/dt <= I/C"),
+    "drive_coupled_interference": Effect("interference", "enabled", False, True, "drive current couples into the load-cell reading"),
+    "logarithmic_creep": Effect("creep", "form", "poles", "log", "creep grows with log time instead of saturating"),
+    "second_resonance": Effect("mode2", "enabled", False, True, "a second, weaker mode"),
+    "sensor_offset_drift": Effect("load_cell", "drift_n_per_min", 0.0, 0.5, "slow drift of the load-cell offset"),
+    "input_delay": Effect("press", "delay_s", 0.0, 2e-4, "pure delay between command and response"),
+    "hysteresis_order": Effect("hysteresis", "saturation", 0.0, 0.35, "saturating, asymmetric static map"),
 }
 
 
@@ -144,8 +233,35 @@ class RigConfig:
     hysteresis: HysteresisSection = HysteresisSection()
     creep: CreepSection = CreepSection()
     mode: ModeSection = ModeSection()
+    mode2: Mode2Section = Mode2Section()
+    interference: InterferenceSection = InterferenceSection()
     simulation: SimulationSection = SimulationSection()
     source: str = "<defaults>"
+
+    @classmethod
+    def clean(cls) -> "RigConfig":
+        """The default press with every effect of :data:`EFFECTS` switched off.
+
+        What is left is what the thesis's model describes: rate-independent hysteresis
+        without saturation, saturating creep, one mode, and the sensor's noise and
+        quantization.
+        """
+        return cls().replace(**_effect_values({name: False for name in EFFECTS}))
+
+    @classmethod
+    def only(cls, effect: str, **magnitude: Any) -> "RigConfig":
+        """The clean rig with one effect on: ``RigConfig.only("input_delay", delay_s=5e-4)``.
+
+        Keyword arguments set keys of the effect's section (its magnitude).
+        """
+        if effect not in EFFECTS:
+            raise ConfigError("<code>", [f"effect {effect!r} is unknown; expected one of {', '.join(EFFECTS)}"])
+        cfg = cls.clean().replace(**_effect_values({effect: True}))
+        return cfg.replace(**{EFFECTS[effect].section: magnitude}) if magnitude else cfg
+
+    def effects_on(self) -> list[str]:
+        """The ids of the effects this configuration switches on."""
+        return [n for n, e in EFFECTS.items() if getattr(getattr(self, e.section), e.key) != e.off]
 
     @property
     def limits(self) -> DriveLimits:
@@ -167,6 +283,14 @@ class RigConfig:
                 raise ConfigError(self.source, [f"unknown section [{sec}]; expected one of {', '.join(SECTIONS)}"])
             doc[sec] = {**doc[sec], **values}
         return parse_rig(doc, source=self.source)
+
+
+def _effect_values(switch: Mapping[str, bool]) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for name, on in switch.items():
+        e = EFFECTS[name]
+        out.setdefault(e.section, {})[e.key] = e.on if on else e.off
+    return out
 
 
 def _check(section: str, cls: type, table: Mapping[str, Any], problems: list[str]) -> Any:
@@ -225,6 +349,8 @@ def parse_rig(doc: Mapping[str, Any], source: str = "<rig>") -> RigConfig:
         if sections["rig"].backend != "virtual":
             problems.append(f"[rig] backend = {sections['rig'].backend!r}: only 'virtual' is available")
         c = sections["creep"]
+        if c.form not in ("log", "poles"):
+            problems.append(f"[creep] form = {c.form!r}: expected 'log' or 'poles'")
         if c.tau_min_s >= c.tau_max_s:
             problems.append(f"[creep] tau_min_s = {c.tau_min_s} must be below tau_max_s = {c.tau_max_s}")
     if problems:

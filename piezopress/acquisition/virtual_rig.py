@@ -48,27 +48,9 @@ class VirtualRig:
     def describe(self) -> dict[str, Any]:
         return {"backend": self.name, "source": self.config.source, "config": self.config.as_dict()}
 
-    def oversampling(self, sample_rate_hz: float) -> int:
-        """Integer factor between the simulation rate and the run's sample rate."""
-        return max(1, int(np.ceil(self.config.simulation.min_rate_hz / sample_rate_hz - 1e-9)))
-
     def simulate(self, command_v: np.ndarray, sample_rate_hz: float, preload_n: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """The physics, without the backend bookkeeping: returns the measured channels."""
-        c = self.config
-        k = self.oversampling(sample_rate_hz)
-        fs = sample_rate_hz * k
-        # DAC: the board outputs command/gain, quantized, held between updates
-        dac_v = phys.quantize(np.asarray(command_v, dtype=np.float64) / c.amplifier.gain, c.daq.dac_bits, c.daq.dac_range_v)
-        v = np.clip(phys.hold(dac_v, k) * c.amplifier.gain, c.amplifier.output_min_v, c.amplifier.output_max_v)
-        h = phys.hysteresis(v, c.hysteresis, c.actuator.drive_max_v)
-        h = phys.creep(h, c.creep, fs)
-        x = phys.mode(h, c.mode, fs)
-        force = preload_n + c.press.gain_n_per_v * x
-        sensed_v = phys.rc_lowpass(c.load_cell.sensitivity_v_per_n * force + c.load_cell.offset_v, c.load_cell.lowpass_hz, fs)
-        sensed_v = sensed_v[::k]
-        sensed_v = sensed_v + c.load_cell.noise_v * rng.standard_normal(sensed_v.size)
-        adc_v = phys.quantize(sensed_v, c.daq.adc_bits, c.daq.adc_range_v)
-        return {"force_n": adc_v / c.load_cell.sensitivity_v_per_n, "monitor_v": v[::k].copy()}
+        return phys.simulate(command_v, sample_rate_hz, preload_n, self.config, rng)
 
     def run(
         self,
@@ -99,7 +81,8 @@ class VirtualRig:
             self.zero_output()
         if progress is not None:
             progress(1.0)
-        info = {"seed": seed, "oversampling": self.oversampling(sample_rate_hz)}
+        factor, segments = phys.fine_windows(command_v, sample_rate_hz, self.config)
+        info = {"seed": seed, "fine_factor": factor, "fine_segments": sum(1 for s in segments if s[2] > 1)}
         return Measurement(channels=channels, info=info)
 
     def zero_output(self) -> None:
