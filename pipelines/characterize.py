@@ -96,12 +96,29 @@ class CharacterizeResult:
     plan: Plan | None = None
 
 
-def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any]) -> runformat.Run:
+@dataclass(frozen=True)
+class Drive:
+    """What to play for one protocol: the drive, extra columns and metadata for its run."""
+
+    t_s: np.ndarray
+    command_v: np.ndarray
+    columns: dict[str, np.ndarray] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def plain_drive(proto: Protocol) -> Drive:
+    """A drive plan's protocol played as it is."""
+    return Drive(*proto.waveform())
+
+
+def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any],
+                 drive_for: Callable[[Protocol], Drive] = plain_drive) -> runformat.Run:
     """Play one protocol through ``backend`` and return it as a run (complete or not)."""
-    t_s, command_v = proto.waveform()
+    drive = drive_for(proto)
+    t_s, command_v = drive.t_s, drive.command_v
     started = utc_now()
     m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name)
-    columns = {"t_s": t_s, "command_v": command_v}
+    columns = {"t_s": t_s, "command_v": command_v, **drive.columns}
     n = min(len(v) for v in m.channels.values()) if not m.complete else len(t_s)
     columns = {k: v[:n] for k, v in columns.items()}
     columns.update({k: np.asarray(v[:n], dtype=np.float64) for k, v in m.channels.items()})
@@ -118,6 +135,7 @@ def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict
         backend_info=m.info,
         started_utc=started,
         **extra_meta,
+        **drive.meta,
     )
     return runformat.make_run(columns, meta)
 
@@ -139,11 +157,25 @@ def characterize(
     """
     backend = backend or make_backend(backend_name, rig_path)
     plan = load_plan(plan_path, backend.limits)
+    return execute_plan(out_dir, plan, Path(plan_path), backend, kind="characterization", on_progress=on_progress)
+
+
+def execute_plan(
+    out_dir: str | Path,
+    plan: Plan,
+    plan_file: Path,
+    backend: Backend,
+    *,
+    kind: str,
+    drive_for: Callable[[Protocol], Drive] = plain_drive,
+    manifest_extra: dict[str, Any] | None = None,
+    on_progress: Callable[[ProgressEvent], None] | None = None,
+) -> CharacterizeResult:
+    """Play every protocol of a checked plan into a new run directory with a manifest."""
     out = new_output_dir(out_dir)
-    plan_file = Path(plan_path)
     manifest: dict[str, Any] = {
         "manifest_version": MANIFEST_VERSION,
-        "kind": "characterization",
+        "kind": kind,
         "status": "running",
         "created_utc": utc_now(),
         "software": software_versions(),
@@ -155,6 +187,7 @@ def characterize(
             "document": plan.raw,
         },
         "rig": backend.describe(),
+        **(manifest_extra or {}),
         "runs": [],
     }
     manifest_path = out / MANIFEST
@@ -167,7 +200,7 @@ def characterize(
             if on_progress:
                 on_progress(ProgressEvent(i, total, proto, done=False))
             t0 = time.perf_counter()
-            run = run_protocol(backend, proto, plan, extra)
+            run = run_protocol(backend, proto, plan, extra, drive_for)
             complete = run.meta["status"] == runformat.STATUS_COMPLETE
             path = out / (f"{proto.name}.parquet" if complete else f"{proto.name}.incomplete.parquet")
             sha = runformat.write_run(run, path)

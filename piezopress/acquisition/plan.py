@@ -22,7 +22,9 @@ file, the protocol and the key.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -255,13 +257,18 @@ PLAN_KEYS: dict[str, Key] = {
 
 @dataclass(frozen=True)
 class Protocol:
-    """One checked protocol: every key resolved to a value (defaults filled in)."""
+    """One checked protocol: every key resolved to a value (defaults filled in).
+
+    ``unit`` is ``"V"`` for a drive plan and ``"N"`` for a reference plan (validation),
+    whose keys end in ``_n`` instead of ``_v``; ``params`` always uses the ``_v`` names.
+    """
 
     name: str
     kind: str
     sample_rate_hz: float
     preload_n: float
     params: Mapping[str, Any]
+    unit: str = "V"
 
     @property
     def run_kind(self) -> str:
@@ -277,8 +284,10 @@ class Protocol:
         return len(KINDS[self.kind].build(self.params, self.sample_rate_hz)) / self.sample_rate_hz
 
     def as_dict(self) -> dict[str, Any]:
-        """The protocol as stored in run metadata and manifests (TOML-compatible values)."""
-        return {"name": self.name, "kind": self.kind, "sample_rate_hz": self.sample_rate_hz, "preload_n": self.preload_n, **dict(self.params)}
+        """The protocol as stored in run metadata and manifests (TOML-compatible values), with
+        the key names of its plan (``_n`` for a reference plan)."""
+        params = _rename_keys(dict(self.params), "_v", "_n") if self.unit == "N" else dict(self.params)
+        return {"name": self.name, "kind": self.kind, "sample_rate_hz": self.sample_rate_hz, "preload_n": self.preload_n, **params}
 
 
 @dataclass(frozen=True)
@@ -329,14 +338,45 @@ def _resolve(table: Mapping[str, Any], keys: Mapping[str, Key], where: str, limi
     return out
 
 
-def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan>") -> Plan:
+_UNIT_WORDS = {"N": [(" V,", " N,"), (" V ", " N "), (" V)", " N)"), ("drive reaches", "reference reaches"),
+                      ("the actuator's range", "the allowed reference range"), ("voltages", "forces"), ("maximum drive", "maximum force")]}
+
+
+def _rename_keys(obj: Any, old: str, new: str) -> Any:
+    """Rename keys ending in ``old`` (recursively in tables): ``level_n`` <-> ``level_v``."""
+    if isinstance(obj, dict):
+        return {(k[: -len(old)] + new if isinstance(k, str) and k.endswith(old) else k): _rename_keys(v, old, new) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_rename_keys(v, old, new) for v in obj]
+    return obj
+
+
+def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan>", unit: str = "V") -> Plan:
     """Check a plan document completely and return it resolved.
+
+    ``unit="N"`` reads a reference plan (validation): its keys end in ``_n`` and name
+    forces above the preload; ``limits.drive_min_v``/``drive_max_v`` then bound the force.
 
     Raises
     ------
     PlanError
         Listing every problem found, each naming the protocol and the key.
     """
+    if unit not in ("V", "N"):
+        raise ValueError(f"unit = {unit!r}; expected 'V' or 'N'")
+    if unit == "N":
+        translated = {k: (_rename_keys(v, "_n", "_v") if k == "protocol" else v) for k, v in doc.items()}
+        try:
+            plan = parse_plan(translated, limits, source, "V")
+        except PlanError as exc:
+            fixed = []
+            for problem in exc.problems:
+                problem = re.sub(r"\b(\w+)_v\b", r"\1_n", problem)
+                for a, b in _UNIT_WORDS["N"]:
+                    problem = problem.replace(a, b)
+                fixed.append(problem)
+            raise PlanError(source, fixed) from None
+        return Plan(plan.name, plan.description, tuple(dataclasses.replace(p, unit="N") for p in plan.protocols), source, dict(doc))
     problems: list[str] = []
     for k in sorted(set(doc) - {"plan", "protocol"}):
         problems.append(f"unknown top-level key '{k}'; expected [plan] and [[protocol]] tables")
@@ -404,7 +444,7 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
     return Plan(name=head["name"], description=head.get("description", ""), protocols=tuple(protocols), source=source, raw=dict(doc))
 
 
-def load_plan(path: str | Path, limits: DriveLimits) -> Plan:
+def load_plan(path: str | Path, limits: DriveLimits, unit: str = "V") -> Plan:
     """Read and check a plan file; see :func:`parse_plan`."""
     path = Path(path)
     if not path.is_file():
@@ -413,7 +453,7 @@ def load_plan(path: str | Path, limits: DriveLimits) -> Plan:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise PlanError(str(path), [f"not valid TOML: {exc}"]) from None
-    return parse_plan(doc, limits, source=str(path))
+    return parse_plan(doc, limits, source=str(path), unit=unit)
 
 
 def describe_kinds() -> str:

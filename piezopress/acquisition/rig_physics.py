@@ -25,7 +25,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import signal
 
-from piezopress import operators
+from piezopress import operators, signals
 from piezopress.acquisition.rig_config import CreepSection, HysteresisSection, RigConfig
 
 
@@ -55,32 +55,8 @@ def slew_rate_v_per_s(cfg: RigConfig) -> float:
     return cfg.amplifier.current_limit_ma * 1e-3 / (cfg.actuator.capacitance_uf * 1e-6)
 
 
-def slew_limit(u: np.ndarray, v0: float, max_step: float) -> np.ndarray:
-    """``v[k] = v[k-1] + clip(u[k] - v[k-1], -max_step, max_step)`` from ``v[-1] = v0``.
-
-    Vectorised: where ``v`` tracks ``u`` nothing is computed; only the samples after a
-    change larger than ``max_step`` are stepped one by one until ``v`` has caught up.
-    """
-    v = np.array(u, dtype=np.float64, copy=True)
-    if v.size == 0:
-        return v
-    jumps = np.flatnonzero(np.abs(np.diff(u, prepend=v0)) > max_step)
-    done = 0  # samples before `done` are final
-    prev = v0
-    for j in jumps:
-        if j < done:
-            continue
-        p = v[j - 1] if j > 0 else prev
-        k = j
-        while k < v.size:
-            d = u[k] - p
-            if abs(d) <= max_step:
-                break
-            p += math.copysign(max_step, d)
-            v[k] = p
-            k += 1
-        done = k
-    return v
+#: ``v[k] = v[k-1] + clip(u[k] - v[k-1], -max_step, max_step)``: see :func:`piezopress.signals.rate_limit`.
+slew_limit = signals.rate_limit
 
 
 # --------------------------------------------------------------------------- hysteresis

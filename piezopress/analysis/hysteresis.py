@@ -1,0 +1,533 @@
+"""Modified Prandtl-Ishlinskii (PI) hysteresis model, its analytic inverse, and its fit.
+
+Model (thesis Section 3.1.1, Eq. 3.8)::
+
+    u = x - x0                            input relative to the rest input
+    p = P[u] = sum_i w_i H_{r_i}[u]       play (backlash) operators, 0 = r_0 < r_1 < ...
+    z = S[p] = sum_j s_j S_{d_j}[p]       one-sided dead zones, d_0 = 0 (the identity)
+    y = y0 + z                            output (force above the preload, or displacement)
+
+P is invertible when ``w_0 > 0`` and ``w_i >= 0``; S when its slopes (partial sums of
+``s`` outward from ``d_0``) are positive. The inverse is again a PI model (Eq. 3.9),
+``u = P^-1[S^-1[z]]``, with parameters derived below. The thesis's Eq. 3.28-3.36 contain
+two errors corrected here (and tested): the partial sums of Eq. 3.32/3.33 run from
+``l = 0`` (not 1), and Eq. 3.35/3.36 define ``d_j`` by itself; the forward thresholds are
+the images of the inverse ones, ``d_j = S^-1[d'_j]``.
+
+Derivation. On the loading curve from rest a play superposition is piecewise linear with
+slope ``W_i = sum_{l<=i} w_l`` between ``r_i`` and ``r_{i+1}``; every branch after a
+reversal is the loading curve scaled by 2 (Masing), so inverting the loading curve inverts
+the operator: the inverse has thresholds ``r'_i = P_load(r_i) = sum_{l<=i} w_l (r_i - r_l)``
+and slopes ``1/W_i``, i.e. weights ``w'_0 = 1/w_0``, ``w'_i = 1/W_i - 1/W_{i-1}
+= -w_i / (W_i W_{i-1})``. A dead-zone superposition is a static piecewise-linear map with
+the same structure on each side of 0, so its inverse has thresholds ``d'_j = S(d_j)`` and
+weights given by the same formula with the partial sums taken outward from ``d_0``.
+
+Fit (Section 3.1.1, improved): the thesis's quadratic program (Eq. 3.11-3.23) finds play
+weights ``w`` and *inverse* dead-zone weights ``v`` minimising ``|P[u] - S^-1[z]|^2``
+(linear in both), under the invertibility constraints; solved with cvxpy. A second
+quadratic program then refits the *forward* dead-zone weights on the output error
+``|S[P[u]] - z|^2`` (linear in ``s`` for fixed ``P``). Operator numbers and thresholds are
+chosen on held-out data from a grid, operators that contribute nothing are pruned.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from piezopress import operators
+from piezopress.errors import PiezopressError
+
+
+class HysteresisFitError(PiezopressError, ValueError):
+    """Data that cannot be fitted (too short, flat input, no reversal, solver failure)."""
+
+
+# --------------------------------------------------------------------------- inversion formulas
+
+
+def invert_play_weights(r: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Thresholds and weights of ``P^-1`` for ``P = sum w_i H_{r_i}`` (``r`` increasing from 0)."""
+    r = np.asarray(r, float)
+    w = np.asarray(w, float)
+    W = np.cumsum(w)
+    if w[0] <= 0 or np.any(W <= 0):
+        raise HysteresisFitError(f"play weights {w} are not invertible: expected w_0 > 0 and positive partial sums")
+    r_inv = np.array([np.sum(w[: i + 1] * (r[i] - r[: i + 1])) for i in range(r.size)])
+    w_inv = np.empty_like(w)
+    w_inv[0] = 1.0 / w[0]
+    w_inv[1:] = -w[1:] / (W[1:] * W[:-1])
+    return r_inv, w_inv
+
+
+def invert_play_state(w: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """State of ``P^-1``'s operators matching the state ``y`` of ``P``'s operators.
+
+    The inverse's operator ``i`` holds the loading curve's image of the forward states:
+    ``y'_i = sum_{l<=i} w_l y_i + sum_{l>i} w_l y_l``.
+    """
+    w = np.asarray(w, float)
+    y = np.asarray(y, float)
+    W = np.cumsum(w)
+    tail = np.concatenate([np.cumsum((w * y)[::-1])[::-1][1:], [0.0]])
+    return W * y + tail
+
+
+def forward_play_state(w: np.ndarray, y_inv: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`invert_play_state` (back-substitution from the last operator)."""
+    w = np.asarray(w, float)
+    W = np.cumsum(w)
+    y = np.empty_like(np.asarray(y_inv, float))
+    acc = 0.0
+    for i in range(w.size - 1, -1, -1):
+        y[i] = (y_inv[i] - acc) / W[i]
+        acc += w[i] * y[i]
+    return y
+
+
+def _side_inverse(d: np.ndarray, s0: float, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    # d: thresholds of one side ordered outward from 0 (|d| increasing), s: their weights.
+    slopes = s0 + np.cumsum(s)  # slope beyond each threshold
+    prev = np.concatenate([[s0], slopes[:-1]])
+    if np.any(slopes <= 0):
+        raise HysteresisFitError(f"dead-zone weights {s} (with s_0 = {s0}) give a non-positive slope: not invertible")
+    # image of each threshold: S(d_j) = s0 d_j + sum_{l<j} s_l (d_j - d_l)
+    d_img = np.array([s0 * dj + np.sum(s[:j] * (dj - d[:j])) for j, dj in enumerate(d)])
+    return d_img, -s / (slopes * prev)
+
+
+def invert_dead_zone_weights(d: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Thresholds and weights of ``S^-1`` for ``S = sum s_j S_{d_j}`` (``d`` sorted, containing 0)."""
+    d = np.asarray(d, float)
+    s = np.asarray(s, float)
+    i0 = int(np.flatnonzero(d == 0.0)[0])
+    s0 = s[i0]
+    if s0 <= 0:
+        raise HysteresisFitError(f"dead-zone weight s_0 = {s0} must be positive")
+    pos_d, pos_s = d[i0 + 1:], s[i0 + 1:]
+    neg_d, neg_s = d[:i0][::-1], s[:i0][::-1]  # outward: -small to -large
+    pd, ps = _side_inverse(pos_d, s0, pos_s) if pos_d.size else (pos_d, pos_s)
+    nd, ns = _side_inverse(neg_d, s0, neg_s) if neg_d.size else (neg_d, neg_s)
+    d_inv = np.concatenate([nd[::-1], [0.0], pd])
+    s_inv = np.concatenate([ns[::-1], [1.0 / s0], ps])
+    return d_inv, s_inv
+
+
+def dead_zone_superposition(p: np.ndarray, d: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """``sum_j s_j S_{d_j}[p]`` (thesis Eq. 3.7)."""
+    return operators.dead_zone(p, d) @ np.asarray(s, float)
+
+
+# --------------------------------------------------------------------------- the model
+
+
+@dataclass(frozen=True)
+class PIModel:
+    """A fitted modified PI model; ``forward`` maps input to output, ``inverse`` back.
+
+    Parameters are plain tuples so the model is immutable and JSON-friendly; ``state``
+    arguments carry the play operators' states between chunks of a signal.
+    """
+
+    r: tuple[float, ...]
+    w: tuple[float, ...]
+    d: tuple[float, ...]
+    s: tuple[float, ...]
+    x0: float = 0.0
+    y0: float = 0.0
+    input_unit: str = "V"
+    output_unit: str = "N"
+
+    def __post_init__(self) -> None:
+        if len(self.r) != len(self.w) or len(self.d) != len(self.s):
+            raise HysteresisFitError("thresholds and weights must have the same lengths")
+        if self.r[0] != 0.0 or any(b <= a for a, b in zip(self.r, self.r[1:])):
+            raise HysteresisFitError(f"play thresholds {self.r} must start at 0 and increase")
+        if 0.0 not in self.d or any(b <= a for a, b in zip(self.d, self.d[1:])):
+            raise HysteresisFitError(f"dead-zone thresholds {self.d} must increase and contain 0")
+
+    @property
+    def n_play(self) -> int:
+        return len(self.r)
+
+    @property
+    def n_dead_zone(self) -> int:
+        return len(self.d)
+
+    def rest_state(self) -> np.ndarray:
+        return np.zeros(self.n_play)
+
+    def play(self, u: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+        """The play operators' outputs (``n`` x ``n_play``) for relative input ``u``."""
+        return operators.play(u, np.array(self.r), self.rest_state() if state is None else state)
+
+    def forward(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Model output ``y`` for input ``x``, and the play state after the last sample."""
+        x = np.asarray(x, float)
+        Y = self.play(x - self.x0, state)
+        p = Y @ np.array(self.w)
+        return self.y0 + dead_zone_superposition(p, np.array(self.d), np.array(self.s)), Y[-1].copy()
+
+    def inverse(self, y_ref: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Input ``x`` that makes the model output ``y_ref`` (analytic inverse, Eq. 3.9).
+
+        ``state`` is the *forward* model's play state (as returned by :meth:`forward`);
+        the state returned is the forward state after the last sample, so forward and
+        inverse can be chained in chunks.
+        """
+        y_ref = np.asarray(y_ref, float)
+        w = np.array(self.w)
+        r_inv, w_inv = invert_play_weights(np.array(self.r), w)
+        d_inv, s_inv = invert_dead_zone_weights(np.array(self.d), np.array(self.s))
+        p = dead_zone_superposition(y_ref - self.y0, d_inv, s_inv)
+        st = self.rest_state() if state is None else np.asarray(state, float)
+        Yi = operators.play(p, r_inv, invert_play_state(w, st))
+        return self.x0 + Yi @ w_inv, forward_play_state(w, Yi[-1])
+
+    def inverse_parameters(self) -> dict[str, list[float]]:
+        """The inverse model's thresholds and weights (thesis Table 6.2 / 6.4)."""
+        r_inv, w_inv = invert_play_weights(np.array(self.r), np.array(self.w))
+        d_inv, s_inv = invert_dead_zone_weights(np.array(self.d), np.array(self.s))
+        return {"r_inv": r_inv.tolist(), "w_inv": w_inv.tolist(), "d_inv": d_inv.tolist(), "s_inv": s_inv.tolist()}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "input_unit": self.input_unit,
+            "output_unit": self.output_unit,
+            f"x0_{self.input_unit.lower()}": self.x0,
+            f"y0_{self.output_unit.lower()}": self.y0,
+            "play_thresholds": list(self.r),
+            "play_weights": list(self.w),
+            "dead_zone_thresholds": list(self.d),
+            "dead_zone_weights": list(self.s),
+            "inverse": self.inverse_parameters(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "PIModel":
+        iu, ou = d["input_unit"], d["output_unit"]
+        return cls(
+            r=tuple(d["play_thresholds"]),
+            w=tuple(d["play_weights"]),
+            d=tuple(d["dead_zone_thresholds"]),
+            s=tuple(d["dead_zone_weights"]),
+            x0=float(d[f"x0_{iu.lower()}"]),
+            y0=float(d[f"y0_{ou.lower()}"]),
+            input_unit=iu,
+            output_unit=ou,
+        )
+
+
+# --------------------------------------------------------------------------- data and fit
+
+
+@dataclass(frozen=True)
+class HysteresisData:
+    """Runs prepared for fitting: relative input/output and which samples train or test.
+
+    Play operators are evaluated over each whole run (their state carries on), then rows
+    are picked by ``train`` and ``holdout`` masks, so holding out the end of a run tests
+    the model on data it did not fit, from the state the run left it in.
+    """
+
+    names: tuple[str, ...]
+    u: tuple[np.ndarray, ...]
+    z: tuple[np.ndarray, ...]
+    train: tuple[np.ndarray, ...]
+    holdout: tuple[np.ndarray, ...]
+    x0: float
+    y0: float
+
+    @property
+    def u_span(self) -> float:
+        return float(max(np.max(u) for u in self.u) - min(np.min(u) for u in self.u))
+
+    @property
+    def u_absmax(self) -> float:
+        return float(max(np.max(np.abs(u)) for u in self.u))
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        return float(min(np.min(z) for z in self.z)), float(max(np.max(z) for z in self.z))
+
+
+def rest_offset(x: np.ndarray, y: np.ndarray, fraction: float = 0.03) -> tuple[float, float]:
+    """Rest input ``x0 = x[0]`` and the output at rest ``y0``, robust to noise.
+
+    ``y0`` is the intercept at ``x0`` of a straight line through the output over the first
+    stretch where the input stays within ``fraction`` of its span of ``x0`` (at least 3
+    samples; a noisy sample at rest would bias the offset by the noise).
+    """
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    x0 = float(x[0])
+    span = float(np.ptp(x)) or 1.0
+    near = np.abs(x - x0) <= fraction * span
+    n = int(np.argmin(near)) if not near.all() else x.size
+    n = max(n, 3)
+    dx = x[:n] - x0
+    if np.ptp(dx) > 0:
+        k, c = np.polyfit(dx, y[:n], 1)
+        return x0, float(c)
+    return x0, float(np.mean(y[:n]))
+
+
+def prepare(runs: Sequence[tuple[str, np.ndarray, np.ndarray]], *, holdout_fraction: float = 0.3, burn_in_fraction: float = 0.0,
+            x0: float | None = None, y0: float | None = None) -> HysteresisData:
+    """Prepare ``(name, input, output)`` runs: the last ``holdout_fraction`` of each run is held out.
+
+    ``x0``/``y0`` default to the rest input and output estimated from the first run
+    (:func:`rest_offset`); every run is taken relative to them.
+    """
+    if not runs:
+        raise HysteresisFitError("no runs to fit; expected at least one run with a swept input")
+    if not 0 <= holdout_fraction < 1:
+        raise HysteresisFitError(f"holdout_fraction = {holdout_fraction}; expected 0 <= fraction < 1")
+    ex0, ey0 = rest_offset(runs[0][1], runs[0][2])
+    x0 = ex0 if x0 is None else x0
+    y0 = ey0 if y0 is None else y0
+    names, us, zs, tr, ho = [], [], [], [], []
+    for name, x, y in runs:
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        if x.shape != y.shape or x.ndim != 1:
+            raise HysteresisFitError(f"{name}: input and output have shapes {x.shape} and {y.shape}; expected equal 1-D arrays")
+        if x.size < 20:
+            raise HysteresisFitError(f"{name}: {x.size} samples; expected at least 20")
+        if np.ptp(x) <= 0:
+            raise HysteresisFitError(f"{name}: the input does not move; expected a sweep")
+        n = x.size
+        cut = int(round(n * (1 - holdout_fraction)))
+        start = int(round(n * burn_in_fraction))
+        t = np.zeros(n, bool)
+        t[start:cut] = True
+        h = np.zeros(n, bool)
+        h[cut:] = True
+        names.append(name)
+        us.append(x - x0)
+        zs.append(y - y0)
+        tr.append(t)
+        ho.append(h)
+    return HysteresisData(tuple(names), tuple(us), tuple(zs), tuple(tr), tuple(ho), float(x0), float(y0))
+
+
+def play_thresholds(n: int, gamma: float, span: float) -> np.ndarray:
+    """``n`` play thresholds from 0 to below ``span / 2`` (a play of threshold ``r`` moves only
+    when the input sweeps more than ``2 r``), spaced as ``(i/n)^gamma`` so that ``gamma > 1``
+    packs them near 0, where the thesis notes the largest changes."""
+    i = np.arange(n)
+    return 0.5 * span * (i / n) ** gamma
+
+
+def dead_zone_thresholds(m: int, z_lo: float, z_hi: float) -> np.ndarray:
+    """Thresholds of the inverse dead zones on the output: ``m`` evenly inside each side that
+    the output reaches, plus 0."""
+    pos = z_hi * np.arange(1, m + 1) / (m + 1) if z_hi > 0 and m else np.zeros(0)
+    neg = z_lo * np.arange(m, 0, -1) / (m + 1) if z_lo < 0 and m else np.zeros(0)
+    return np.concatenate([neg, [0.0], pos])
+
+
+def _gram(blocks: Sequence[np.ndarray]) -> np.ndarray:
+    """``M^T M`` for ``M`` the row-wise stack of ``blocks``, without building ``M``."""
+    return sum(b.T @ b for b in blocks)
+
+
+def _solve(problem, what: str) -> None:
+    import cvxpy as cp
+
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "may be inaccurate": the status is checked below
+            problem.solve(solver=cp.CLARABEL)
+    except cp.error.SolverError as exc:
+        raise HysteresisFitError(f"{what}: the quadratic program failed ({exc})") from None
+    if problem.status not in ("optimal", "optimal_inaccurate"):
+        raise HysteresisFitError(f"{what}: the quadratic program ended {problem.status}; the data may not suit the model")
+
+
+def _factor(G: np.ndarray) -> np.ndarray:
+    """``L^T`` with ``G ~= L L^T`` (a tiny ridge keeps a rank-deficient Gram matrix factorable)."""
+    scale = np.trace(G) / G.shape[0] if G.size else 1.0
+    return np.linalg.cholesky(G + 1e-10 * scale * np.eye(G.shape[0])).T
+
+
+@dataclass(frozen=True)
+class Candidate:
+    n_play: int
+    gamma: float
+    m_dead_zone: int
+
+    @property
+    def label(self) -> str:
+        return f"n={self.n_play} gamma={self.gamma:g} m={self.m_dead_zone}"
+
+
+def _slope_constraints(v, idx0: int, n_neg: int, n_pos: int, eps: float) -> list:
+    # partial sums outward from index idx0 (the d = 0 weight) stay >= eps: S monotone
+    cons = [v[idx0] >= eps]
+    for j in range(1, n_pos + 1):
+        cons.append(v[idx0] + sum(v[idx0 + l] for l in range(1, j + 1)) >= eps)
+    for j in range(1, n_neg + 1):
+        cons.append(v[idx0] + sum(v[idx0 - l] for l in range(1, j + 1)) >= eps)
+    return cons
+
+
+def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays: Sequence[np.ndarray], rows: str = "train") -> PIModel:
+    """Fit weights for fixed play thresholds ``r`` and inverse dead-zone thresholds ``d_inv``.
+
+    ``plays`` are the play outputs of each run for thresholds ``r`` (whole runs); ``rows``
+    selects the samples fitted (``train`` or ``all``).
+    """
+    import cvxpy as cp
+
+    masks = data.train if rows == "train" else tuple(np.ones(u.size, bool) for u in data.u)
+    A = [Y[m] for Y, m in zip(plays, masks)]
+    B = [operators.dead_zone(z[m], d_inv) for z, m in zip(data.z, masks)]
+    if sum(a.shape[0] for a in A) < 10:
+        raise HysteresisFitError("fewer than 10 samples to fit; expected more data")
+    idx0 = int(np.flatnonzero(d_inv == 0.0)[0])
+    n_neg, n_pos = idx0, d_inv.size - idx0 - 1
+    nr = r.size
+    # QP 1 (thesis Eq. 3.11-3.23): min |A w - B v|^2 over play weights w, inverse dead-zone weights v
+    L = _factor(_gram([np.hstack([a, -b]) for a, b in zip(A, B)]))
+    theta = cp.Variable(nr + d_inv.size)
+    w, v = theta[:nr], theta[nr:]
+    u_max = data.u_absmax
+    z_scale = max(abs(x) for x in data.z_range) or 1.0
+    eps_w, eps_v = 1e-3, 1e-3 * u_max / z_scale
+    cons = [w[0] >= eps_w, w[1:] >= 0, np.maximum(u_max - r, 0.0) @ w == u_max]
+    cons += _slope_constraints(v, idx0, n_neg, n_pos, eps_v)
+    _solve(cp.Problem(cp.Minimize(cp.sum_squares(L @ theta)), cons), f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)")
+    w_val = np.maximum(np.asarray(w.value, float), 0.0)
+    w_val[0] = max(w_val[0], eps_w)
+    d_fwd, s_init = invert_dead_zone_weights(d_inv, np.asarray(v.value, float))
+    # QP 2: refit the forward dead-zone weights on the output error |S[P[u]] - z|^2
+    P = [a @ w_val for a in A]
+    D = [operators.dead_zone(p, d_fwd) for p in P]
+    zt = [z[m] for z, m in zip(data.z, masks)]
+    L2 = _factor(_gram([np.hstack([dm, -zz[:, None]]) for dm, zz in zip(D, zt)]))
+    s = cp.Variable(d_fwd.size)
+    obj = cp.sum_squares(L2 @ cp.hstack([s, np.ones(1)]))
+    eps_s = 1e-3 * z_scale / u_max
+    _solve(cp.Problem(cp.Minimize(obj), _slope_constraints(s, idx0, n_neg, n_pos, eps_s)), "forward dead-zone refit")
+    s_val = np.asarray(s.value, float)
+    if not np.all(np.isfinite(s_val)):
+        s_val = s_init
+    return PIModel(tuple(map(float, r)), tuple(map(float, w_val)), tuple(map(float, d_fwd)), tuple(map(float, s_val)),
+                   x0=data.x0, y0=data.y0)
+
+
+def predict_rows(model: PIModel, plays: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Model output (relative, ``z``) on the masked rows of each run, from precomputed plays."""
+    w = np.array(model.w)
+    return [dead_zone_superposition(Y[m] @ w, np.array(model.d), np.array(model.s)) for Y, m in zip(plays, masks)]
+
+
+def rms_error(model: PIModel, data: HysteresisData, plays: Sequence[np.ndarray], which: str) -> float:
+    masks = data.train if which == "train" else data.holdout
+    pred = predict_rows(model, plays, masks)
+    err = np.concatenate([p - z[m] for p, z, m in zip(pred, data.z, masks)])
+    return float(np.sqrt(np.mean(err**2))) if err.size else float("nan")
+
+
+@dataclass(frozen=True)
+class HysteresisFit:
+    """The selected model and how it was chosen."""
+
+    model: PIModel
+    candidates: list[dict[str, Any]]
+    chosen: str
+    reason: str
+    train_rms: float
+    holdout_rms: float
+    output_range: float
+    pruned: int
+    final_model: PIModel | None = None
+
+    @property
+    def holdout_rms_pct(self) -> float:
+        return 100.0 * self.holdout_rms / self.output_range
+
+
+DEFAULT_GRID = tuple(Candidate(n, g, m) for n in (2, 4, 6, 8, 12, 16) for g in (1.0, 2.0) for m in (0, 1, 2, 4, 8))
+
+
+def _plays_for(data: HysteresisData, r: np.ndarray, cache: dict) -> list[np.ndarray]:
+    key = tuple(np.round(r, 12))
+    if key not in cache:
+        cache[key] = [operators.play(u, r) for u in data.u]
+    return cache[key]
+
+
+def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] = DEFAULT_GRID, *, tolerance: float = 0.01,
+                   prune_below: float = 1e-3, refit_all: bool = True) -> HysteresisFit:
+    """Choose operator numbers and thresholds on held-out data, prune, refit.
+
+    Every candidate of ``grid`` is fitted on the training rows and scored by its RMS
+    output error on the held-out rows. The chosen one is the smallest (fewest operators)
+    whose held-out error is within ``tolerance`` (relative) of the best. Operators whose
+    weight is below ``prune_below`` of the largest are dropped if that does not worsen the
+    held-out error beyond the tolerance. With ``refit_all`` the final model is refitted on
+    all rows (``final_model``); ``model`` is the one scored on held-out data.
+    """
+    if not any(h.any() for h in data.holdout):
+        raise HysteresisFitError("no held-out samples; expected holdout_fraction > 0 to choose the model")
+    z_lo, z_hi = data.z_range
+    out_range = z_hi - z_lo
+    cache: dict = {}
+    rows: list[dict[str, Any]] = []
+    fits: list[tuple[float, int, Candidate, PIModel]] = []
+    for c in grid:
+        r = play_thresholds(c.n_play, c.gamma, data.u_span)
+        d_inv = dead_zone_thresholds(c.m_dead_zone, z_lo, z_hi)
+        plays = _plays_for(data, r, cache)
+        try:
+            model = fit_structure(data, r, d_inv, plays)
+        except HysteresisFitError as exc:
+            rows.append({"candidate": c.label, "n_operators": r.size + d_inv.size, "train_rms": float("nan"), "holdout_rms": float("nan"), "note": str(exc)})
+            continue
+        tr, ho = rms_error(model, data, plays, "train"), rms_error(model, data, plays, "holdout")
+        rows.append({"candidate": c.label, "n_operators": model.n_play + model.n_dead_zone, "train_rms": tr, "holdout_rms": ho, "note": ""})
+        fits.append((ho, model.n_play + model.n_dead_zone, c, model))
+    if not fits:
+        raise HysteresisFitError("no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400])
+    best = min(f[0] for f in fits)
+    ok = [f for f in fits if f[0] <= best * (1 + tolerance)]
+    ho, n_ops, cand, model = min(ok, key=lambda f: (f[1], f[0]))
+    # prune operators that contribute nothing
+    w = np.array(model.w)
+    s = np.array(model.s)
+    keep_r = np.array([i == 0 or w[i] >= prune_below * w.max() for i in range(w.size)])
+    d = np.array(model.d)
+    i0 = int(np.flatnonzero(d == 0.0)[0])
+    keep_d = np.array([j == i0 or abs(s[j]) >= prune_below * abs(s[i0]) for j in range(s.size)])
+    pruned = int((~keep_r).sum() + (~keep_d).sum())
+    r_final = np.array(model.r)[keep_r]
+    if pruned:
+        d_inv_full, _ = invert_dead_zone_weights(d, s)
+        plays = _plays_for(data, r_final, cache)
+        try:
+            pm = fit_structure(data, r_final, d_inv_full[keep_d], plays)
+            pho = rms_error(pm, data, plays, "holdout")
+            if pho <= ho * (1 + tolerance):
+                model, ho = pm, pho
+            else:
+                pruned, r_final = 0, np.array(model.r)
+        except HysteresisFitError:
+            pruned, r_final = 0, np.array(model.r)
+    plays = _plays_for(data, np.array(model.r), cache)
+    tr = rms_error(model, data, plays, "train")
+    reason = (f"{cand.label} ({model.n_play} plays, {model.n_dead_zone} dead zones after pruning {pruned}): held-out RMS "
+              f"{ho:.4g} ({100 * ho / out_range:.2f} % of range), within {100 * tolerance:g} % of the best of {len(fits)} candidates "
+              f"({best:.4g}) with the fewest operators")
+    final = None
+    if refit_all:
+        d_inv_m, _ = invert_dead_zone_weights(np.array(model.d), np.array(model.s))
+        final = fit_structure(data, np.array(model.r), d_inv_m, plays, rows="all")
+    return HysteresisFit(model, rows, cand.label, reason, tr, ho, out_range, pruned, final)

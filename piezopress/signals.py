@@ -1,0 +1,40 @@
+"""Small signal operations shared by the rig physics and the compensator (pure numpy)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def rate_limit(u: np.ndarray, v0: float, max_step: float) -> np.ndarray:
+    """``v[k] = v[k-1] + clip(u[k] - v[k-1], -max_step, max_step)`` from ``v[-1] = v0``.
+
+    A slew-rate limiter. Vectorised: where ``v`` tracks ``u`` nothing is computed; only
+    the samples after a change larger than ``max_step`` are stepped one by one until ``v``
+    has caught up.
+
+    Examples
+    --------
+    >>> rate_limit(np.array([0.0, 10.0, 10.0, 10.0]), 0.0, 4.0).tolist()
+    [0.0, 4.0, 8.0, 10.0]
+    """
+    v = np.array(u, dtype=np.float64, copy=True)
+    if v.size == 0:
+        return v
+    jumps = np.flatnonzero(np.abs(np.diff(u, prepend=v0)) > max_step)
+    done = 0  # samples before `done` are final
+    for j in jumps:
+        if j < done:
+            continue
+        p = v[j - 1] if j > 0 else v0
+        k = j
+        while k < v.size:
+            d = u[k] - p
+            if abs(d) <= max_step:
+                break
+            p += math.copysign(max_step, d)
+            v[k] = p
+            k += 1
+        done = k
+    return v
