@@ -48,3 +48,11 @@ class OutputExistsError(PiezopressError, FileExistsError):
 
 class BackendError(PiezopressError, RuntimeError):
     """A backend failed while running a waveform."""
+
+
+class FitError(PiezopressError, ValueError):
+    """Data do not suit a model fit (lengths differ, too short, no step, NaN), or a model's parameters are invalid."""
+
+
+class CompensatorUnstableError(PiezopressError, ValueError):
+    """An inverse (compensator) would be unstable: a closed-loop discrete eigenvalue has ``|z| >= 1``."""

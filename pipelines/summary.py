@@ -83,16 +83,108 @@ def characterization_table(run_dir: str | Path) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-def format_table(table: pd.DataFrame) -> str:
+def format_table(table: pd.DataFrame, title: str = "Characterization") -> str:
     """A fixed-width text table for the terminal."""
     def num(v: float, digits: int = 2) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
 
     head = f"{'run':<28} {'metric':<15} {'value':>9} {'unit':<4} {'thesis':>8}  {'source':<30} note"
-    lines = ["Characterization", head, "-" * len(head)]
+    lines = [title, head, "-" * len(head)]
     for r in table.itertuples(index=False):
         lines.append(f"{r.run:<28} {r.metric:<15} {num(r.value):>9} {r.unit:<4} {num(r.thesis):>8}  {r.thesis_source:<30} {r.note}")
     return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _validation_thesis(run: runformat.Run, metric: str, shaper: bool) -> tuple[float, str]:
+    p = run.meta.get("protocol", {})
+    f = p.get("freq_hz")
+    if metric == "max_hysteresis":
+        if p.get("peaks_n") is not None:
+            return thesis.HYSTERESIS_COMPENSATED_PCT["increasing"], "Table 6.6 (test 5)"
+        if p.get("random_peaks") is not None:
+            return thesis.HYSTERESIS_COMPENSATED_PCT["random"], "Table 6.6 (test 6)"
+        peak = p.get("peak_n")
+        if f == 0.1 and peak is not None and f"{peak:g}N" in thesis.HYSTERESIS_COMPENSATED_PCT:
+            return thesis.HYSTERESIS_COMPENSATED_PCT[f"{peak:g}N"], f"Table 6.6 ({peak:g} N)"
+        table = thesis.HYSTERESIS_COMPENSATED_BY_FREQ_WITH_SHAPER_PCT if shaper else thesis.HYSTERESIS_COMPENSATED_BY_FREQ_NO_SHAPER_PCT
+        if f in table:
+            return table[f], f"Table {'6.11' if shaper else '6.12'} ({f:g} Hz)"
+    if metric == "creep":
+        return thesis.TABLE_6_13["creep_pct"]["controlled"][0], "Sec. 6.5 (0.63 %; 0.96 % in 6.3.2)"
+    level = p.get("level_n")
+    if metric == "overshoot" and level is not None and int(level) in thesis.OVERSHOOT_SHAPED_PCT:
+        return thesis.OVERSHOOT_SHAPED_PCT[int(level)], f"Table 6.9 ({level:g} N)"
+    if metric == "settling_time" and level is not None and int(level) in thesis.SETTLING_SHAPED_MS:
+        return thesis.SETTLING_SHAPED_MS[int(level)], f"Table 6.9 ({level:g} N)"
+    if metric == "tracking_relative":
+        return thesis.TRACKING_RELATIVE_ERROR_PCT[1], "Sec. 6.6 (12.08 %)"
+    if metric == "tracking_absolute":
+        return 22.76, "Sec. 6.6 (22.76 N)"
+    return float("nan"), ""
+
+
+#: A compensated step starts back early (centred shaper, lead): that much of the hold's end is left out.
+STEP_END_MARGIN_S = 0.005
+#: Tracking: relative error counted where the reference is at least this far above the preload (N).
+TRACKING_MIN_REFERENCE_N = 30.0
+
+
+def validation_metrics(run: runformat.Run, shaper: bool = True) -> list[dict]:
+    """The validation rows of one compensated run (its output against its reference)."""
+    rows: list[dict] = []
+    ref = run.column("reference_n")
+    y = run.output
+
+    def row(metric, value, unit, note="", with_thesis=True):
+        th, src = _validation_thesis(run, metric, shaper) if with_thesis else (float("nan"), "")
+        rows.append({"run": run.name, "kind": run.kind, "metric": metric, "value": value, "unit": unit, "thesis": th, "thesis_source": src, "note": note})
+
+    if ref is None:
+        return [{"run": run.name, "kind": run.kind, "metric": "-", "value": float("nan"), "unit": "", "thesis": float("nan"),
+                 "thesis_source": "", "note": "no reference_n column: not a compensated run"}]
+    preload = float(run.meta.get("preload_n", ref[0]))
+    try:
+        if run.kind == "triangle":
+            h = metrics.max_hysteresis(ref, y)
+            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} N of {h.output_range:.1f} N")
+        elif run.kind == "creep":
+            c = metrics.creep(run.t_s, y, drive=ref)
+            row("creep", c.percent, "%", f"F_ss {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step")
+        elif run.kind == "step":
+            st = metrics.overshoot(run.t_s, y, drive=ref, end_margin_s=STEP_END_MARGIN_S)
+            row("overshoot", st.percent, "%", f"step {st.step_size:.1f} N" + ("" if st.significant else "; not above the noise"))
+            row("settling_time", st.settling_time_s * 1e3 if st.settled else float("nan"), "ms",
+                "2 % band below 3x noise" if st.band_below_noise else ("" if st.settled else "did not settle"))
+        elif run.kind == "staircase":
+            tr = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=TRACKING_MIN_REFERENCE_N)
+            row("tracking_relative", tr.max_abs_relative_percent, "%",
+                f"max |error|/reference from {TRACKING_MIN_REFERENCE_N:g} N up, outside the ramps; range {tr.min_relative_percent:.2f} to {tr.max_relative_percent:.2f} %")
+            full = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=1e-9)
+            row("tracking_absolute", max(abs(full.max_error_n), abs(full.min_error_n)), "N",
+                f"max |error| outside the ramps, all stairs; {full.min_error_n:.2f} to {full.max_error_n:.2f} N, RMS {full.rms_error_n:.2f} N")
+        else:
+            row("-", float("nan"), "", f"no validation metric for kind {run.kind!r}", with_thesis=False)
+    except MetricError as exc:
+        row("-", float("nan"), "", f"does not suit its metric: {exc}", with_thesis=False)
+    return rows
+
+
+def validation_table(run_dir: str | Path) -> pd.DataFrame:
+    """Metrics of every run of a validation directory, with the thesis's compensated figures."""
+    run_dir = Path(run_dir)
+    manifest = read_manifest(run_dir) if (run_dir / "manifest.json").is_file() else {}
+    shaper = manifest.get("compensation_options", {}).get("shaper", True)
+    if manifest:
+        files = [run_dir / r["file"] for r in manifest["runs"] if r.get("status", "complete") == "complete"]
+    else:
+        files = sorted(run_dir.glob("*.parquet"))
+    rows: list[dict] = []
+    for f in files:
+        rows.extend(validation_metrics(runformat.read_run(f), shaper))
+    return pd.DataFrame(rows, columns=COLUMNS)
 
 
 def write_table(table: pd.DataFrame, path: str | Path) -> Path:

@@ -93,7 +93,7 @@ def test_amplifier_output_is_limited():
 
 
 def test_backend_rejects_out_of_range_drive():
-    with pytest.raises(BackendError, match="outside the actuator's range 0 to 150 V"):
+    with pytest.raises(BackendError, match="outside the actuator's range -30 to 150 V"):
         run(VirtualRig(), np.full(10, 151.0), 1000.0)
 
 

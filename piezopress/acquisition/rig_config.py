@@ -33,7 +33,7 @@ class RigSection:
 
 @dataclass(frozen=True)
 class ActuatorSection:
-    drive_min_v: float = param(0.0, "lowest allowed actuator voltage", "V", -200, 200)
+    drive_min_v: float = param(-30.0, "lowest allowed actuator voltage (PSt 150 stacks: -30 V, semi-bipolar)", "V", -200, 200)
     drive_max_v: float = param(150.0, "highest allowed actuator voltage (PSt 150: 150 V)", "V", -200, 200)
     capacitance_uf: float = param(4.8, "stack capacitance; with the current limit it sets the slew rate (calibrated to the 20 V overshoot)", "uF", 0, 1000, True)
     max_force_n: float = param(800.0, "maximum load force of the stack (PSt 150/5/100 VS10: 800 N)", "N", 0, 1e5, True)

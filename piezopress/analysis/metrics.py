@@ -914,6 +914,7 @@ def overshoot(
     ss_window_s: float | None = None,
     baseline_s: float | None = None,
     min_hold_s: float = 0.01,
+    end_margin_s: float = 0.0,
 ) -> StepResult:
     """Overshoot, settling time and rise time of a step response (thesis Eq. 5.3, Table 6.9).
 
@@ -945,6 +946,9 @@ def overshoot(
         one step as long as its intermediate plateaus are shorter than ``min_hold_s``).
     step_time_s : float, optional
         Time of the step, when known.
+    end_margin_s : float
+        Leave this much of the end of the hold out: a compensator that knows the reference
+        ahead starts the step back early, which is not a failure to settle.
     settle_fraction : float, default 0.02
         Half-width of the settling band as a fraction of the step.
     ss_window_s : float, optional
@@ -990,8 +994,13 @@ def overshoot(
     s = _locate_step(fn, t, y, drive, step_time_s, hold_min)
     _, f0, noise = _step_levels(fn, t, y, s, base_s)
 
-    th = t[s.k_step : s.k_hold_end] - s.t_step
-    yh = y[s.k_step : s.k_hold_end]
+    k_end = s.k_hold_end
+    if end_margin_s > 0:
+        # a compensator that knows the reference ahead starts the step back early:
+        # leave that out of the hold
+        k_end = max(s.k_step + 2, k_end - int(np.searchsorted(t[s.k_step:], t[s.k_step] + end_margin_s)))
+    th = t[s.k_step : k_end] - s.t_step
+    yh = y[s.k_step : k_end]
     hold_s = float(th[-1])
     if ss_w is None:
         ss_w = 0.2 * hold_s

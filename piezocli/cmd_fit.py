@@ -1,0 +1,188 @@
+"""``piezopress fit-hysteresis``, ``fit-creep``, ``fit-shaper``, ``bundle``, ``fit``, ``compensate``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from piezocli.main import cli, reports_errors
+from pipelines import bundle as bundle_mod
+from pipelines import characterize as char
+from pipelines import fit as fit_mod
+
+_runs_arg = click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
+_names_opt = click.option("--run", "names", multiple=True, help="Use only the run(s) of this name (repeatable).")
+_replace_opt = click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as .prev.json).")
+
+
+def _wrote(path: Path, previous: Path | None) -> None:
+    click.echo(f"Wrote {path}" + (f" (previous version kept as {previous})" if previous else ""))
+
+
+@cli.command("fit-hysteresis")
+@_runs_arg
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
+@_names_opt
+@click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of each run held out to choose the model.")
+@click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section: remove creep from the outputs first.")
+@_replace_opt
+@reports_errors
+def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, replace) -> None:
+    """Fit the modified Prandtl-Ishlinskii model and its inverse on quasi-static sweeps.
+
+    RUNS are run files or run directories; without --run, every triangle/sine run at up to
+    0.5 Hz is used. With --creep, creep is removed from the outputs first (fit hysteresis,
+    then creep, then hysteresis again with --creep: `piezopress fit` does this). Operator numbers and thresholds are chosen on the held-out end of each
+    run; operators that contribute nothing are pruned.
+
+    \b
+    Example:
+      piezopress fit-hysteresis runs/char --out build/hysteresis.json
+      piezopress fit-hysteresis smart.parquet --holdout-fraction 0.5 --out build/smart.json
+    """
+    creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
+    doc, fit = fit_mod.fit_hysteresis_section(runs, names=names, holdout_fraction=holdout_fraction, creep=creep)
+    unit = doc["model"]["output_unit"]
+    click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])}")
+    click.echo(f"Chosen: {fit.reason}")
+    click.echo(f"Fit error: train RMS {fit.train_rms:.4g} {unit}, held-out RMS {fit.holdout_rms:.4g} {unit} "
+               f"= {fit.holdout_rms_pct:.3f} % of the {fit.output_range:.4g} {unit} output range")
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+
+
+@cli.command("fit-creep")
+@_runs_arg
+@click.option("--hysteresis", "hyst_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Hysteresis section (from fit-hysteresis).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
+@_names_opt
+@click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of the hold kept out to choose the creep form.")
+@_replace_opt
+@reports_errors
+def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace) -> None:
+    """Fit creep (thesis form K_c + C(s) and a log-time form; chosen on held-out data).
+
+    The hysteresis model accounts for the static part of the long step; the creep model
+    maps its prediction to the measured force, and the compensator is its inverse
+    multiplicative form, checked for stability.
+
+    \b
+    Example:
+      piezopress fit-creep runs/char --hysteresis build/hysteresis.json --out build/creep.json
+    """
+    hyst = bundle_mod.read_document(hyst_path, "hysteresis")
+    doc, fit = fit_mod.fit_creep_section(runs, hyst, names=names, holdout_fraction=holdout_fraction)
+    click.echo(f"Run: {doc['runs'][0]['name']}")
+    click.echo(f"Chosen: {fit.reason}")
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+
+
+@cli.command("fit-shaper")
+@_runs_arg
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
+@_names_opt
+@_replace_opt
+@reports_errors
+def fit_shaper_cmd(runs, out, names, replace) -> None:
+    """Identify the mode from low-amplitude steps and design the input shaper.
+
+    The mode is fitted against the drive actually applied (the amplifier monitor when the
+    runs have one). ZV shapers with 2 to 4 impulses and EI are compared by their worst
+    residual vibration over +/-15 % frequency and +/-50 % damping error, and by delay.
+
+    \b
+    Example:
+      piezopress fit-shaper runs/char --out build/shaper.json
+    """
+    doc, fit = fit_mod.fit_shaper_section(runs, names=names)
+    m = doc["mode"]
+    click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])} (fitted against {m['drive_used']})")
+    click.echo(f"Mode: wn = {m['natural_freq_rad_s']:.4g} rad/s, damping = {m['damping']:.4g}")
+    click.echo(f"Shaper: {doc['choice']['reason']}")
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+
+
+@cli.command("bundle")
+@click.option("--hysteresis", "hyst_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Hysteresis section.")
+@click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section (optional).")
+@click.option("--shaper", "shaper_path", type=click.Path(dir_okay=False, path_type=Path), help="Shaper section (optional).")
+@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
+@click.option("--max-rate", type=click.FloatRange(min=1.0), default=40_000.0, show_default=True, help="Largest reference rate passed to the drive, N/s.")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
+@_replace_opt
+@reports_errors
+def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, replace) -> None:
+    """Join fitted sections into a parameter bundle (one readable JSON file).
+
+    \b
+    Example:
+      piezopress bundle --hysteresis build/hysteresis.json --creep build/creep.json \\
+          --shaper build/shaper.json --out build/bundle.json
+    """
+    from piezopress.acquisition.rig_config import load_rig
+
+    sections = {"hysteresis": bundle_mod.read_document(hyst_path, "hysteresis")}
+    if creep_path:
+        sections["creep"] = bundle_mod.read_document(creep_path, "creep")
+    if shaper_path:
+        sections["shaper"] = bundle_mod.read_document(shaper_path, "shaper")
+    act = load_rig(rig_path).actuator
+    comp = fit_mod.compensation_settings(sections, max_rate_n_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v)
+    doc = bundle_mod.assemble(sections, comp)
+    bundle_mod.compensator(doc)  # check it builds
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+
+
+@cli.command("fit")
+@_runs_arg
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
+@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
+@_replace_opt
+@reports_errors
+def fit_all_cmd(runs, out, rig_path, replace) -> None:
+    """Fit hysteresis, creep and shaper from a characterization and write the bundle.
+
+    The same as fit-hysteresis, fit-creep, fit-shaper and bundle in a row (their section
+    files are not kept; use the separate commands, or `make refit`, for incremental fits).
+
+    \b
+    Example:
+      piezopress fit runs/char --out build/bundle.json
+    """
+    from piezopress.acquisition.rig_config import load_rig
+
+    h, hfit, c, cfit = fit_mod.fit_hysteresis_and_creep(runs)
+    click.echo(f"hysteresis: {hfit.reason}")
+    click.echo(f"creep:      {cfit.reason}")
+    s, _ = fit_mod.fit_shaper_section(runs)
+    click.echo(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
+    sections = {"hysteresis": h, "creep": c, "shaper": s}
+    act = load_rig(rig_path).actuator
+    doc = bundle_mod.assemble(sections, fit_mod.compensation_settings(sections, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v))
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+
+
+@cli.command("compensate")
+@click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle.")
+@click.option("--reference", "ref_path", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="CSV with columns t_s and reference_n (force above the preload, uniformly sampled).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="CSV to write: t_s, reference_n, command_v.")
+@click.option("--no-shaper", is_flag=True, help="Leave the input shaper out.")
+@reports_errors
+def compensate_cmd(bundle_path, ref_path, out, no_shaper) -> None:
+    """Turn a reference force trajectory into the actuator drive.
+
+    Input shaper, creep compensator and inverse hysteresis, in the thesis's order; the
+    drive is limited to the actuator's safe range, with a warning where the reference
+    cannot be reached.
+
+    \b
+    Example:
+      piezopress compensate --bundle build/bundle.json --reference ramp.csv --out drive.csv
+    """
+    from pipelines import compensate as comp_mod
+
+    result = comp_mod.compensate_file(bundle_path, ref_path, out, use_shaper=not no_shaper)
+    for w in result.warnings:
+        click.echo(f"Warning: {w}", err=True)
+    click.echo(f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to {result.command_v.max():.2f} V")

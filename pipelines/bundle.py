@@ -1,0 +1,131 @@
+"""The parameter bundle: one JSON file a technician can read and diff after a rig change.
+
+Each fit stage writes a *section* file (``hysteresis``, ``creep``, ``shaper``) holding the
+fitted parameters with units, fit quality and the runs it came from (file, sha256);
+``assemble`` joins sections into the bundle. Keeping sections apart lets ``make refit``
+redo only the stages whose inputs changed.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any, Iterable
+
+import piezopress
+from piezopress import runformat
+from piezopress.analysis.compensation import Compensator
+from piezopress.analysis.creep import CreepModel
+from piezopress.analysis.hysteresis import PIModel
+from piezopress.analysis.shaper import Shaper
+from piezopress.errors import OutputExistsError, PiezopressError
+from pipelines.characterize import read_manifest, utc_now, write_json_atomic
+
+BUNDLE_VERSION = 1
+SECTIONS = ("hysteresis", "creep", "shaper")
+
+
+class BundleError(PiezopressError, ValueError):
+    """A bundle or section file is missing, unreadable or inconsistent."""
+
+
+def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> list[runformat.Run]:
+    """Runs from files and run directories (a directory: its manifest's complete runs, else
+    every ``*.parquet``), optionally only those named."""
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            if (p / "manifest.json").is_file():
+                files += [p / r["file"] for r in read_manifest(p)["runs"] if r.get("status", "complete") == "complete"]
+            else:
+                files += sorted(p.glob("*.parquet"))
+        elif p.exists():
+            files.append(p)
+        else:
+            raise BundleError(f"{p}: no such file or directory; expected run files or a run directory")
+    runs = [runformat.read_run(f) for f in files]
+    wanted = list(names)
+    if wanted:
+        have = {r.name for r in runs}
+        missing = [n for n in wanted if n not in have]
+        if missing:
+            raise BundleError(f"no run named {', '.join(missing)}; runs given: {', '.join(sorted(have)) or 'none'}")
+        runs = [r for r in runs if r.name in wanted]
+    return runs
+
+
+def provenance(runs: Iterable[runformat.Run]) -> list[dict[str, Any]]:
+    return [{"name": r.name, "file": str(r.path), "sha256": runformat.sha256_file(r.path) if r.path else None} for r in runs]
+
+
+def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run]) -> dict[str, Any]:
+    """A section document: what, from which runs, by which software, when."""
+    if kind not in SECTIONS:
+        raise BundleError(f"section kind {kind!r} is unknown; expected one of {', '.join(SECTIONS)}")
+    return {"section": kind, "bundle_version": BUNDLE_VERSION, "software_version": piezopress.__version__,
+            "fitted_utc": utc_now(), "runs": provenance(runs), **body}
+
+
+def write_document(doc: dict[str, Any], path: str | Path, *, replace: bool = False) -> Path | None:
+    """Write a section or bundle; an existing file is replaced only with ``replace``, and then
+    kept as ``<name>.prev.json`` (returned) so nothing is lost."""
+    path = Path(path)
+    previous = None
+    if path.exists():
+        if not replace:
+            raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it, keeping the old one as .prev.json)")
+        previous = path.with_name(path.stem + ".prev.json")
+        shutil.copy2(path, previous)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(path, doc)
+    return previous
+
+
+def read_document(path: str | Path, expect: str | None = None) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise BundleError(f"{path}: no such file; expected a {expect or 'bundle'} JSON file")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise BundleError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); expected a {expect or 'bundle'} file") from None
+    if doc.get("bundle_version") != BUNDLE_VERSION:
+        raise BundleError(f"{path}: bundle_version is {doc.get('bundle_version')!r}, expected {BUNDLE_VERSION}")
+    if expect in SECTIONS and doc.get("section") != expect:
+        raise BundleError(f"{path}: holds section {doc.get('section')!r}, expected {expect!r}")
+    if expect == "bundle" and "hysteresis" not in doc:
+        raise BundleError(f"{path}: has no hysteresis section; expected a bundle made by `piezopress bundle`")
+    return doc
+
+
+def assemble(sections: dict[str, dict[str, Any]], compensation: dict[str, Any]) -> dict[str, Any]:
+    """The bundle: every section, and the compensation settings built on them."""
+    if "hysteresis" not in sections:
+        raise BundleError("a bundle needs at least the hysteresis section")
+    return {"bundle_version": BUNDLE_VERSION, "kind": "piezopress-bundle", "software_version": piezopress.__version__,
+            "created_utc": utc_now(), **{k: sections[k] for k in SECTIONS if k in sections}, "compensation": compensation}
+
+
+def compensator(bundle: dict[str, Any], *, use_shaper: bool = True, use_creep: bool = True) -> Compensator:
+    """The compensator a bundle describes."""
+    try:
+        hyst = PIModel.from_dict(bundle["hysteresis"]["model"])
+        creep = CreepModel.from_dict(bundle["creep"]["model"]) if use_creep and "creep" in bundle else None
+        shaper = None
+        if use_shaper and "shaper" in bundle:
+            s = bundle["shaper"]["shaper"]
+            shaper = Shaper(name=s["name"], times_s=tuple(s["times_s"]), amplitudes=tuple(s["amplitudes"]),
+                            wn=float(s["natural_freq_rad_s"]), zeta=float(s["damping"]), zv_power=s.get("zv_power"))
+        comp = bundle.get("compensation", {})
+        return Compensator(
+            hysteresis=hyst,
+            creep=creep,
+            shaper=shaper,
+            drive_min_v=float(comp.get("drive_min_v", 0.0)),
+            drive_max_v=float(comp.get("drive_max_v", 150.0)),
+            max_rate_n_per_s=comp.get("max_rate_n_per_s"),
+            lead_s=float(comp.get("lead_s", 0.0)) if use_shaper else 0.0,
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BundleError(f"the bundle is incomplete or inconsistent ({type(exc).__name__}: {exc})") from None

@@ -1,0 +1,231 @@
+"""Fit stages: runs in, bundle sections out (hysteresis, creep, shaper).
+
+Each stage picks the runs that suit it from what it is given (or those named), fits, and
+returns a section document with parameters in named units, fit quality and provenance.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from piezopress import runformat
+from piezopress.analysis import creep as creep_mod
+from piezopress.analysis import hysteresis as H
+from piezopress.analysis import shaper as shaper_mod
+from pipelines.bundle import BundleError, collect_runs, section
+
+#: Hysteresis is fitted on quasi-static sweeps: up to this drive frequency.
+STATIC_MAX_FREQ_HZ = 0.5
+#: Mode identification uses the low-amplitude steps: up to this fraction of the largest drive.
+LOW_STEP_FRACTION = 0.25
+
+
+def _freq(run: runformat.Run) -> float | None:
+    f = run.meta.get("protocol", {}).get("freq_hz")
+    return float(f) if f is not None else None
+
+
+def hysteresis_runs(runs: list[runformat.Run], named: bool) -> list[runformat.Run]:
+    if named:
+        return runs
+    chosen = [r for r in runs if r.kind in ("triangle", "sine", "custom") and (_freq(r) is None or _freq(r) <= STATIC_MAX_FREQ_HZ)]
+    if not chosen:
+        kinds = ", ".join(sorted({f"{r.name} ({r.kind})" for r in runs})) or "none"
+        raise BundleError(f"no quasi-static sweep among the runs (triangle/sine at <= {STATIC_MAX_FREQ_HZ:g} Hz); runs given: {kinds}")
+    return chosen
+
+
+def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] = (), holdout_fraction: float = 0.3,
+                           grid=H.DEFAULT_GRID, creep: dict[str, Any] | None = None) -> tuple[dict[str, Any], H.HysteresisFit]:
+    """Fit the PI model on the quasi-static sweeps; the section holds the model refitted on
+    all samples, and the held-out error of the model fitted without the held-out part.
+
+    With a ``creep`` section, creep is first removed from each measured output (the creep
+    compensator applied to it), so the hysteresis model holds only the static part and the
+    creep compensator does not remove the same creep a second time.
+    """
+    names = list(names)
+    runs = hysteresis_runs(collect_runs(paths, names=names), bool(names))
+    out_col = runs[0].output_column
+    if any(r.output_column != out_col for r in runs):
+        raise BundleError("the runs measure different outputs (force_n and displacement_um); fit them separately")
+    outputs = [r.output for r in runs]
+    if creep is not None:
+        cm = creep_mod.CreepModel.from_dict(creep["model"])
+        outputs = []
+        for r in runs:
+            _, rest = H.rest_offset(r.command_v, r.output)
+            outputs.append(rest + cm.compensate(r.output - rest, r.sample_rate_hz)[0])
+    data = H.prepare([(r.name, r.command_v, y) for r, y in zip(runs, outputs)], holdout_fraction=holdout_fraction)
+    fit = H.fit_hysteresis(data, grid)
+    unit = "N" if out_col == "force_n" else "um"
+    final = fit.final_model or fit.model
+    model = H.PIModel(final.r, final.w, final.d, final.s, final.x0, final.y0, "V", unit)
+    body = {
+        "output_column": out_col,
+        "creep_removed": creep is not None,
+        "model": model.to_dict(),
+        "fit": {
+            "chosen": fit.chosen,
+            "reason": fit.reason,
+            f"train_rms_{unit.lower()}": fit.train_rms,
+            f"holdout_rms_{unit.lower()}": fit.holdout_rms,
+            "holdout_rms_pct_of_range": fit.holdout_rms_pct,
+            f"output_range_{unit.lower()}": fit.output_range,
+            "holdout_fraction": holdout_fraction,
+            "pruned_operators": fit.pruned,
+            "candidates": fit.candidates,
+        },
+    }
+    return section("hysteresis", body, runs), fit
+
+
+def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, holdout_fraction: float = 0.3):
+    """Alternate: hysteresis on the sweeps, creep on the held step given the hysteresis
+    model, hysteresis again on the sweeps with that creep removed, ... (``passes`` rounds).
+
+    Returns the last hysteresis and creep sections and fits.
+    """
+    paths = list(paths)
+    h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction)
+    c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction)
+    for _ in range(passes - 1):
+        h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction, creep=c)
+        c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction)
+    return h, hfit, c, cfit
+
+
+def _rest_level(y: np.ndarray, x: np.ndarray) -> float:
+    """Mean output while the drive is still at its first value (before the step)."""
+    still = np.flatnonzero(np.abs(x - x[0]) > 1e-9)
+    n = int(still[0]) if still.size else x.size
+    return float(np.mean(y[: max(n, 1)]))
+
+
+#: Creep is fitted below this rate: faster dynamics (slew, ringing) are filtered out of both signals.
+CREEP_FIT_RATE_HZ = 50.0
+
+
+def _slow_part(t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Input and output through the same low-pass (so an LTI relation between them holds
+    unchanged) and decimated to ``CREEP_FIT_RATE_HZ``: the millisecond step transient (the
+    amplifier's slew, the mode's ringing) is not creep and must not be fitted as creep."""
+    from scipy import signal
+
+    step = max(1, int(round(fs_hz / CREEP_FIT_RATE_HZ)))
+    if step == 1:
+        return t_s, u, y
+    sos = signal.butter(4, 0.8 / step, output="sos")  # below the new Nyquist frequency
+    zi = signal.sosfilt_zi(sos)
+    uf = signal.sosfilt(sos, u, zi=zi * u[0])[0]
+    yf = signal.sosfilt(sos, y, zi=zi * y[0])[0]
+    return t_s[::step], uf[::step], yf[::step]
+
+
+def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *, names: Iterable[str] = (),
+                      holdout_fraction: float = 0.3) -> tuple[dict[str, Any], creep_mod.CreepFit]:
+    """Fit the creep of the hysteresis-compensated press from a held step: the hysteresis
+    model's static prediction is the input, the measured force (above the rest level) the
+    output."""
+    names = list(names)
+    runs = collect_runs(paths, names=names)
+    if not names:
+        runs = [r for r in runs if r.kind == "creep"]
+    if not runs:
+        raise BundleError("no creep run (a step held for a long time, kind 'creep') among the runs given")
+    run = max(runs, key=lambda r: r.t_s[-1])
+    model = H.PIModel.from_dict(hysteresis["model"])
+    static, _ = model.forward(run.command_v)
+    u = static - model.y0
+    y = run.output - _rest_level(run.output, run.command_v)
+    t, u, y = _slow_part(run.t_s, u, y, run.sample_rate_hz)
+    fit = creep_mod.fit_creep(t, u, y, holdout_fraction=holdout_fraction)
+    fit.model.check_stable(run.sample_rate_hz)
+    body = {
+        "model": fit.model.to_dict(),
+        "fit": {
+            "chosen_form": fit.form,
+            "reason": fit.reason,
+            "rms_n": fit.rms,
+            "holdout_fraction": holdout_fraction,
+            "candidates": [_plain(c) for c in fit.candidates],
+        },
+    }
+    return section("creep", body, [run]), fit
+
+
+def _first_hold_end(command_v: np.ndarray) -> int:
+    """Samples up to the end of the first step's hold (a step protocol steps back at its end)."""
+    changes = np.flatnonzero(np.abs(np.diff(command_v)) > 1e-9)
+    return int(changes[1] + 1) if changes.size > 1 else command_v.size
+
+
+def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = (), fs_hz: float | None = None) -> tuple[dict[str, Any], Any]:
+    """Identify the mode from the low-amplitude steps against the drive actually applied
+    (the amplifier monitor when recorded), then design and choose the input shaper."""
+    names = list(names)
+    runs = collect_runs(paths, names=names)
+    if not names:
+        steps = [r for r in runs if r.kind == "step"]
+        top = max((float(np.max(r.command_v)) for r in steps), default=0.0)
+        drive_max = max([top] + [float(r.meta.get("rig", {}).get("config", {}).get("actuator", {}).get("drive_max_v", 0.0)) for r in steps])
+        runs = [r for r in steps if float(np.max(r.command_v)) <= LOW_STEP_FRACTION * drive_max + 1e-9]
+    if not runs:
+        raise BundleError(f"no low-amplitude step run (kind 'step', at most {100 * LOW_STEP_FRACTION:g} % of the largest drive) among the runs given")
+    cuts = [_first_hold_end(r.command_v) for r in runs]
+    drives = [(r.column("monitor_v") if r.column("monitor_v") is not None else r.command_v)[:n] for r, n in zip(runs, cuts)]
+    fit = shaper_mod.identify_mode_runs([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
+    fs = fs_hz or max(r.sample_rate_hz for r in runs)
+    choice = shaper_mod.choose_shaper(fit.wn, fit.zeta, fs)
+    sh = choice.shaper
+    body = {
+        "mode": {
+            "natural_freq_rad_s": fit.wn,
+            "damping": fit.zeta,
+            "drive_used": "monitor_v" if all(r.column("monitor_v") is not None for r in runs) else "command_v",
+            "fit": {k: v for k, v in _plain(fit).items() if k not in ("wn", "zeta")},
+        },
+        "shaper": {"name": sh.name, "times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes),
+                   "natural_freq_rad_s": sh.wn, "damping": sh.zeta, "zv_power": sh.zv_power,
+                   "delay_ms": 1e3 * sh.delay_s, "centroid_ms": 1e3 * sh.centroid_s},
+        "choice": {"reason": choice.reason, "designed_at_hz": fs, "candidates": choice.table},
+        "thesis_table_6_8": shaper_mod.thesis_shaper_residual(fit.wn, fit.zeta),
+    }
+    return section("shaper", body, runs), fit
+
+
+def _plain(obj: Any) -> dict[str, Any]:
+    """A dataclass's JSON-friendly fields (arrays to lists, non-finite floats to None)."""
+    import dataclasses
+
+    out = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if hasattr(v, "to_dict"):
+            v = v.to_dict()
+        elif isinstance(v, np.ndarray):
+            v = v.tolist()
+        elif isinstance(v, tuple):
+            v = [x.tolist() if isinstance(x, np.ndarray) else x for x in v]
+        if isinstance(v, float) and not math.isfinite(v):
+            v = None
+        out[f.name] = v
+    return out
+
+
+def compensation_settings(sections: dict[str, dict[str, Any]], *, max_rate_n_per_s: float = 40_000.0,
+                          drive_min_v: float = 0.0, drive_max_v: float = 150.0) -> dict[str, Any]:
+    """Compensation settings: drive range, reference rate limit and the drive's lead.
+
+    The lead is the mode's low-frequency group delay ``2 zeta / wn`` (the shaper itself is
+    applied centred on its centroid, so it adds none on average).
+    """
+    lead = 0.0
+    if "shaper" in sections:
+        m = sections["shaper"]["mode"]
+        lead = 2.0 * m["damping"] / m["natural_freq_rad_s"]
+    return {"drive_min_v": drive_min_v, "drive_max_v": drive_max_v, "max_rate_n_per_s": max_rate_n_per_s, "lead_s": lead}

@@ -1,0 +1,72 @@
+"""Validation: the thesis's chapter 6 tests with the compensation applied.
+
+Each protocol of the validation plan is a reference force (above the preload); the
+bundle's compensator turns it into a drive, the backend plays it, and the run carries the
+reference as ``reference_n`` (absolute: preload + reference), written into a new run
+directory with a manifest, exactly like a characterization.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+
+from piezopress import runformat
+from piezopress.acquisition.backend import Backend
+from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
+from pipelines.bundle import compensator, read_document
+from pipelines.characterize import (
+    DEFAULT_RIG,
+    REPO_ROOT,
+    CharacterizeResult,
+    Drive,
+    ProgressEvent,
+    execute_plan,
+    make_backend,
+)
+
+DEFAULT_VALIDATION_PLAN = REPO_ROOT / "protocols" / "validate.toml"
+
+
+def validate(
+    out_dir: str | Path,
+    bundle_path: str | Path,
+    *,
+    plan_path: str | Path = DEFAULT_VALIDATION_PLAN,
+    rig_path: str | Path | None = DEFAULT_RIG,
+    backend: Backend | None = None,
+    backend_name: str = "virtual",
+    use_shaper: bool = True,
+    use_creep: bool = True,
+    on_progress: Callable[[ProgressEvent], None] | None = None,
+    on_warning: Callable[[str], None] | None = None,
+) -> CharacterizeResult:
+    """Compensate every reference of the validation plan and run it; see the module docstring."""
+    bundle = read_document(bundle_path, "bundle")
+    comp = compensator(bundle, use_shaper=use_shaper, use_creep=use_creep)
+    backend = backend or make_backend(backend_name, rig_path)
+    lim = backend.limits
+    # references are forces above the preload: bounded by the stack's maximum load
+    ref_limits = DriveLimits(drive_min_v=0.0, drive_max_v=lim.max_force_n, max_sample_rate_hz=lim.max_sample_rate_hz,
+                             max_force_n=lim.max_force_n, max_duration_s=lim.max_duration_s, max_samples=lim.max_samples)
+    plan = load_plan(plan_path, ref_limits, unit="N")
+    bundle_sha = runformat.sha256_file(bundle_path)
+
+    def drive_for(proto: Protocol) -> Drive:
+        t, ref = proto.waveform()
+        res = comp.drive(ref, proto.sample_rate_hz)
+        for w in res.warnings:
+            if on_warning:
+                on_warning(f"{proto.name}: {w}")
+        meta = {"compensation": {"bundle_sha256": bundle_sha, "shaper": use_shaper and comp.shaper is not None,
+                                 "creep": use_creep and comp.creep is not None, "clipped_samples": res.clipped_samples,
+                                 "warnings": list(res.warnings), "notes": list(res.notes)}}
+        return Drive(t, res.command_v, {"reference_n": proto.preload_n + ref}, meta)
+
+    extra = {"bundle": {"file": str(bundle_path), "sha256": bundle_sha}, "compensation_options": {"shaper": use_shaper, "creep": use_creep}}
+    return execute_plan(out_dir, plan, Path(plan_path), backend, kind="validation", drive_for=drive_for,
+                        manifest_extra=extra, on_progress=on_progress)
+
+
+__all__ = ["validate", "DEFAULT_VALIDATION_PLAN"]
