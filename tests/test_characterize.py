@@ -127,7 +127,7 @@ def test_cli_bad_plan_one_line_nonzero_exit_and_nothing_created(tmp_path):
     assert res.exit_code == 1
     lines = res.output.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in res.output
-    assert f"{bad}: protocol[3] 'step': drive reaches 400 V, outside the actuator's range 0 to 150 V" in lines[0]
+    assert f"{bad}: protocol[3] 'step': drive reaches 400 V, outside the actuator's range -30 to 150 V" in lines[0]
     assert not out.exists()
 
 

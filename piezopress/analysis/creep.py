@@ -110,9 +110,9 @@ def _decays(taus_s: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
     return np.exp(e), -np.expm1(e)
 
 
-def _first_order(u: np.ndarray, a: float, gain: float, x0: float) -> np.ndarray:
-    """``x[n] = a x[n-1] + gain (1 - a) u[n]`` from ``x[-1] = x0``; ``gain`` includes ``1 - a``."""
-    out, _ = lfilter([gain], [1.0, -a], u, zi=[a * x0])
+def _first_order(u: np.ndarray, a: float, c: float, x0: float) -> np.ndarray:
+    """``x[n] = a x[n-1] + c u[n]`` from ``x[-1] = x0`` (``c = g (1 - a)`` for ``g / (1 + tau s)``)."""
+    out, _ = lfilter([c], [1.0, -a], u, zi=[a * x0])
     return out
 
 
@@ -274,7 +274,7 @@ class CreepModel:
 
     @property
     def dc_gain(self) -> float:
-        """``K_c + C(0)``: the gain once creep has settled (infinite for no form here)."""
+        """``K_c + C(0)``: the gain once creep has settled (for the log form: after ``tau_max_s``)."""
         return self.static_gain + float(sum(self.gains))
 
     def rest_state(self, u0: float) -> np.ndarray:
@@ -339,7 +339,9 @@ class CreepModel:
         return y, x_end
 
     def closed_loop_poles(self, fs_hz: float) -> np.ndarray:
-        """Discrete poles of the compensator ``1 / (K_c + C(z))`` at ``fs_hz`` (eigenvalues)."""
+        """Discrete poles of the compensator ``1 / (K_c + C)`` at ``fs_hz``: the eigenvalues of its
+        closed loop over the terms with memory at that rate (terms with ``tau`` below about a
+        36th of a sample act as direct gains)."""
         fs = _positive("CreepModel.closed_loop_poles", "fs_hz", fs_hz)
         return _inverse(self.taus_s, self.gains, self.static_gain, fs).poles.copy()
 
@@ -740,14 +742,19 @@ def fit_poles(t_s, u, y, *, tau_bounds_s: tuple[float, float] | None = None) -> 
         lo, hi = POLE_TAU_MIN_SAMPLES / fs, POLE_TAU_MAX_RECORDS * duration
     else:
         try:
-            lo, hi = (_positive(where, f"tau_bounds_s[{i}]", v) for i, v in enumerate(tau_bounds_s))
-        except ValueError:
+            lo_s, hi_s = tau_bounds_s
+        except (TypeError, ValueError):
             raise FitError(f"{where}: tau_bounds_s is {tau_bounds_s!r}; expected (lowest, highest) in seconds") from None
+        lo, hi = _positive(where, "tau_bounds_s[0]", lo_s), _positive(where, "tau_bounds_s[1]", hi_s)
         if hi <= lo * 8:
-            raise FitError(f"{where}: tau_bounds_s = ({lo!r}, {hi!r}) is too narrow; expected highest > 8 x lowest")
+            raise FitError(f"{where}: tau_bounds_s = ({lo!r}, {hi!r}) is too narrow; expected highest > 8 x lowest (room for three poles)")
     problem = _PolesProblem(u, y, fs)
-    grid = np.geomspace(max(lo * 1.01, 1.0 / fs), min(hi / 1.01, 3.0 * duration), 6)
-    starts = [np.log(np.array(c)) for c in itertools.combinations(grid[::-1], 3)]
+    # starts: from a sample period to three record lengths (within the bounds), strictly inside
+    g_lo, g_hi = min(max(lo, 1.0 / fs), hi), max(min(hi, 3.0 * duration), lo)
+    grid = np.geomspace(g_lo, g_hi, 6) if g_hi > 2.0 * g_lo else np.geomspace(lo, hi, 6)
+    edge = 1e-6 * math.log(hi / lo)
+    grid = np.clip(np.log(grid), math.log(lo) + edge, math.log(hi) - edge)
+    starts = [np.array(c) for c in itertools.combinations(grid[::-1], 3)]
     scored = sorted(starts, key=lambda p: float(np.sum(problem.residual(p) ** 2)))
     best = None
     for p0 in scored[:2]:
@@ -758,7 +765,7 @@ def fit_poles(t_s, u, y, *, tau_bounds_s: tuple[float, float] | None = None) -> 
     taus, k_c, gains, _ = problem.solve(best.x)
     k = float(gains.sum())
     s = float(taus.sum())
-    tz = float(np.sum(gains * (s - taus)) / k) if k != 0 else 0.0
+    tz = float(np.sum(gains * (s - taus)) / k) if k != 0 else 0.0  # K = 0: no creep, T_z moot
     params = {"K": k, "T_z_s": tz, "T1_s": float(taus[0]), "T2_s": float(taus[1]), "T3_s": float(taus[2])}
     return CreepModel("poles", k_c, tuple(taus), tuple(gains), params)
 
