@@ -5,14 +5,17 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 PP     := $(BIN)/piezopress
 OUT    ?= out
+RUNS   ?= sample_runs/characterization
+BUILD  ?= build
 
-.PHONY: demo test test-all bench clean help
+.PHONY: demo test test-all bench clean help refit
 
 help:
 	@echo "make demo      build the environment and run the default characterization on the virtual rig"
 	@echo "make test      build the environment and run the fast test suite"
 	@echo "make test-all  also run the slow tests"
 	@echo "make bench     run the benchmark scripts in bench/"
+	@echo "make refit RUNS=dir   rebuild $(BUILD)/bundle.json from a run directory; only stages whose inputs changed"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +33,18 @@ test: $(STAMP)
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''
 
+# Each stage records a digest of its inputs (runs' sha256, upstream sections, options) and
+# --if-changed skips it when they are unchanged, so a second `make refit` does nothing.
+refit: $(STAMP)
+	@mkdir -p $(BUILD)
+	$(PP) fit-hysteresis $(RUNS) --out $(BUILD)/hysteresis-first.json --if-changed
+	$(PP) fit-creep $(RUNS) --hysteresis $(BUILD)/hysteresis-first.json --out $(BUILD)/creep.json --if-changed
+	$(PP) fit-hysteresis $(RUNS) --creep $(BUILD)/creep.json --out $(BUILD)/hysteresis.json --if-changed
+	$(PP) fit-shaper $(RUNS) --out $(BUILD)/shaper.json --if-changed
+	$(PP) bundle --hysteresis $(BUILD)/hysteresis.json --creep $(BUILD)/creep.json --shaper $(BUILD)/shaper.json --out $(BUILD)/bundle.json --if-changed
+
 bench: $(STAMP)
 	@for f in bench/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) .pytest_cache $(BUILD)

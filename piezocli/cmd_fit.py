@@ -14,6 +14,15 @@ from pipelines import fit as fit_mod
 _runs_arg = click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 _names_opt = click.option("--run", "names", multiple=True, help="Use only the run(s) of this name (repeatable).")
 _replace_opt = click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as .prev.json).")
+_if_changed_opt = click.option("--if-changed", is_flag=True,
+                               help="Do nothing if the output was made from the same inputs; else replace it (keeping .prev.json).")
+
+
+def _skip(out: Path, digest: str, if_changed: bool) -> bool:
+    if if_changed and bundle_mod.up_to_date(out, digest):
+        click.echo(f"{out} is up to date (its inputs have not changed)")
+        return True
+    return False
 
 
 def _wrote(path: Path, previous: Path | None) -> None:
@@ -27,8 +36,9 @@ def _wrote(path: Path, previous: Path | None) -> None:
 @click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of each run held out to choose the model.")
 @click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section: remove creep from the outputs first.")
 @_replace_opt
+@_if_changed_opt
 @reports_errors
-def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, replace) -> None:
+def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, replace, if_changed) -> None:
     """Fit the modified Prandtl-Ishlinskii model and its inverse on quasi-static sweeps.
 
     RUNS are run files or run directories; without --run, every triangle/sine run at up to
@@ -42,13 +52,15 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, replace) 
       piezopress fit-hysteresis smart.parquet --holdout-fraction 0.5 --out build/smart.json
     """
     creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
+    if _skip(out, fit_mod.hysteresis_digest(fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction), if_changed):
+        return
     doc, fit = fit_mod.fit_hysteresis_section(runs, names=names, holdout_fraction=holdout_fraction, creep=creep)
     unit = doc["model"]["output_unit"]
     click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])}")
     click.echo(f"Chosen: {fit.reason}")
     click.echo(f"Fit error: train RMS {fit.train_rms:.4g} {unit}, held-out RMS {fit.holdout_rms:.4g} {unit} "
                f"= {fit.holdout_rms_pct:.3f} % of the {fit.output_range:.4g} {unit} output range")
-    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
 @cli.command("fit-creep")
@@ -58,8 +70,9 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, replace) 
 @_names_opt
 @click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of the hold kept out to choose the creep form.")
 @_replace_opt
+@_if_changed_opt
 @reports_errors
-def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace) -> None:
+def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace, if_changed) -> None:
     """Fit creep (thesis form K_c + C(s) and a log-time form; chosen on held-out data).
 
     The hysteresis model accounts for the static part of the long step; the creep model
@@ -71,10 +84,12 @@ def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace) -> Non
       piezopress fit-creep runs/char --hysteresis build/hysteresis.json --out build/creep.json
     """
     hyst = bundle_mod.read_document(hyst_path, "hysteresis")
+    if _skip(out, fit_mod.creep_digest(fit_mod.select_creep_run(runs, names), hyst, holdout_fraction), if_changed):
+        return
     doc, fit = fit_mod.fit_creep_section(runs, hyst, names=names, holdout_fraction=holdout_fraction)
     click.echo(f"Run: {doc['runs'][0]['name']}")
     click.echo(f"Chosen: {fit.reason}")
-    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
 @cli.command("fit-shaper")
@@ -82,8 +97,9 @@ def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace) -> Non
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
 @_names_opt
 @_replace_opt
+@_if_changed_opt
 @reports_errors
-def fit_shaper_cmd(runs, out, names, replace) -> None:
+def fit_shaper_cmd(runs, out, names, replace, if_changed) -> None:
     """Identify the mode from low-amplitude steps and design the input shaper.
 
     The mode is fitted against the drive actually applied (the amplifier monitor when the
@@ -94,12 +110,14 @@ def fit_shaper_cmd(runs, out, names, replace) -> None:
     Example:
       piezopress fit-shaper runs/char --out build/shaper.json
     """
+    if _skip(out, fit_mod.shaper_digest(fit_mod.select_shaper_runs(runs, names), None), if_changed):
+        return
     doc, fit = fit_mod.fit_shaper_section(runs, names=names)
     m = doc["mode"]
     click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])} (fitted against {m['drive_used']})")
     click.echo(f"Mode: wn = {m['natural_freq_rad_s']:.4g} rad/s, damping = {m['damping']:.4g}")
     click.echo(f"Shaper: {doc['choice']['reason']}")
-    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
 @cli.command("bundle")
@@ -110,8 +128,9 @@ def fit_shaper_cmd(runs, out, names, replace) -> None:
 @click.option("--max-rate", type=click.FloatRange(min=1.0), default=40_000.0, show_default=True, help="Largest reference rate passed to the drive, N/s.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
 @_replace_opt
+@_if_changed_opt
 @reports_errors
-def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, replace) -> None:
+def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, replace, if_changed) -> None:
     """Join fitted sections into a parameter bundle (one readable JSON file).
 
     \b
@@ -129,8 +148,10 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
     act = load_rig(rig_path).actuator
     comp = fit_mod.compensation_settings(sections, max_rate_n_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v)
     doc = bundle_mod.assemble(sections, comp)
+    if _skip(out, doc["inputs_digest"], if_changed):
+        return
     bundle_mod.compensator(doc)  # check it builds
-    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+    _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
 @cli.command("fit")

@@ -59,12 +59,42 @@ def provenance(runs: Iterable[runformat.Run]) -> list[dict[str, Any]]:
     return [{"name": r.name, "file": str(r.path), "sha256": runformat.sha256_file(r.path) if r.path else None} for r in runs]
 
 
-def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run]) -> dict[str, Any]:
+def inputs_digest(kind: str, runs: Iterable[runformat.Run], upstream: Iterable[dict[str, Any] | None] = (), **options: Any) -> str:
+    """A digest of everything a stage's result depends on: the runs' bytes, the upstream
+    sections' own digests, the options and the software version. Equal digests, equal
+    results: ``--if-changed`` skips the stage."""
+    import hashlib
+
+    h = hashlib.sha256()
+    parts = {
+        "kind": kind,
+        "software": piezopress.__version__,
+        "runs": sorted(runformat.sha256_file(r.path) for r in runs if r.path is not None),
+        "upstream": [u.get("inputs_digest") for u in upstream if u is not None],
+        "options": {k: options[k] for k in sorted(options)},
+    }
+    h.update(json.dumps(parts, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def up_to_date(path: str | Path, digest: str) -> bool:
+    """True if ``path`` holds a document made from inputs with this digest."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    try:
+        return json.loads(path.read_text(encoding="utf-8")).get("inputs_digest") == digest
+    except json.JSONDecodeError:
+        return False
+
+
+def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run], digest: str | None = None) -> dict[str, Any]:
     """A section document: what, from which runs, by which software, when."""
     if kind not in SECTIONS:
         raise BundleError(f"section kind {kind!r} is unknown; expected one of {', '.join(SECTIONS)}")
+    runs = list(runs)
     return {"section": kind, "bundle_version": BUNDLE_VERSION, "software_version": piezopress.__version__,
-            "fitted_utc": utc_now(), "runs": provenance(runs), **body}
+            "fitted_utc": utc_now(), "inputs_digest": digest or inputs_digest(kind, runs), "runs": provenance(runs), **body}
 
 
 def write_document(doc: dict[str, Any], path: str | Path, *, replace: bool = False) -> Path | None:
@@ -103,8 +133,10 @@ def assemble(sections: dict[str, dict[str, Any]], compensation: dict[str, Any]) 
     """The bundle: every section, and the compensation settings built on them."""
     if "hysteresis" not in sections:
         raise BundleError("a bundle needs at least the hysteresis section")
+    digest = inputs_digest("bundle", [], [sections[k] for k in SECTIONS if k in sections], **compensation)
     return {"bundle_version": BUNDLE_VERSION, "kind": "piezopress-bundle", "software_version": piezopress.__version__,
-            "created_utc": utc_now(), **{k: sections[k] for k in SECTIONS if k in sections}, "compensation": compensation}
+            "created_utc": utc_now(), "inputs_digest": digest, **{k: sections[k] for k in SECTIONS if k in sections},
+            "compensation": compensation}
 
 
 def compensator(bundle: dict[str, Any], *, use_shaper: bool = True, use_creep: bool = True) -> Compensator:

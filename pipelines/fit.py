@@ -16,7 +16,7 @@ from piezopress import runformat
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import shaper as shaper_mod
-from pipelines.bundle import BundleError, collect_runs, section
+from pipelines.bundle import BundleError, collect_runs, inputs_digest, section
 
 #: Hysteresis is fitted on quasi-static sweeps: up to this drive frequency.
 STATIC_MAX_FREQ_HZ = 0.5
@@ -40,7 +40,7 @@ def hysteresis_runs(runs: list[runformat.Run], named: bool) -> list[runformat.Ru
 
 
 def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] = (), holdout_fraction: float = 0.3,
-                           grid=H.DEFAULT_GRID, creep: dict[str, Any] | None = None) -> tuple[dict[str, Any], H.HysteresisFit]:
+                           grid=None, creep: dict[str, Any] | None = None) -> tuple[dict[str, Any], H.HysteresisFit]:
     """Fit the PI model on the quasi-static sweeps; the section holds the model refitted on
     all samples, and the held-out error of the model fitted without the held-out part.
 
@@ -48,8 +48,7 @@ def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] 
     compensator applied to it), so the hysteresis model holds only the static part and the
     creep compensator does not remove the same creep a second time.
     """
-    names = list(names)
-    runs = hysteresis_runs(collect_runs(paths, names=names), bool(names))
+    runs = select_hysteresis_runs(paths, names)
     out_col = runs[0].output_column
     if any(r.output_column != out_col for r in runs):
         raise BundleError("the runs measure different outputs (force_n and displacement_um); fit them separately")
@@ -81,7 +80,17 @@ def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] 
             "candidates": fit.candidates,
         },
     }
-    return section("hysteresis", body, runs), fit
+    digest = hysteresis_digest(runs, creep, holdout_fraction)
+    return section("hysteresis", body, runs, digest), fit
+
+
+def select_hysteresis_runs(paths: Iterable[str | Path], names: Iterable[str] = ()) -> list[runformat.Run]:
+    names = list(names)
+    return hysteresis_runs(collect_runs(paths, names=names), bool(names))
+
+
+def hysteresis_digest(runs, creep, holdout_fraction) -> str:
+    return inputs_digest("hysteresis", runs, [creep], holdout_fraction=holdout_fraction)
 
 
 def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, holdout_fraction: float = 0.3):
@@ -131,13 +140,7 @@ def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *
     """Fit the creep of the hysteresis-compensated press from a held step: the hysteresis
     model's static prediction is the input, the measured force (above the rest level) the
     output."""
-    names = list(names)
-    runs = collect_runs(paths, names=names)
-    if not names:
-        runs = [r for r in runs if r.kind == "creep"]
-    if not runs:
-        raise BundleError("no creep run (a step held for a long time, kind 'creep') among the runs given")
-    run = max(runs, key=lambda r: r.t_s[-1])
+    run = select_creep_run(paths, names)
     model = H.PIModel.from_dict(hysteresis["model"])
     static, _ = model.forward(run.command_v)
     u = static - model.y0
@@ -155,7 +158,21 @@ def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *
             "candidates": [_plain(c) for c in fit.candidates],
         },
     }
-    return section("creep", body, [run]), fit
+    return section("creep", body, [run], creep_digest(run, hysteresis, holdout_fraction)), fit
+
+
+def select_creep_run(paths: Iterable[str | Path], names: Iterable[str] = ()) -> runformat.Run:
+    names = list(names)
+    runs = collect_runs(paths, names=names)
+    if not names:
+        runs = [r for r in runs if r.kind == "creep"]
+    if not runs:
+        raise BundleError("no creep run (a step held for a long time, kind 'creep') among the runs given")
+    return max(runs, key=lambda r: r.t_s[-1])
+
+
+def creep_digest(run, hysteresis, holdout_fraction) -> str:
+    return inputs_digest("creep", [run], [hysteresis], holdout_fraction=holdout_fraction)
 
 
 def _first_hold_end(command_v: np.ndarray) -> int:
@@ -167,15 +184,7 @@ def _first_hold_end(command_v: np.ndarray) -> int:
 def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = (), fs_hz: float | None = None) -> tuple[dict[str, Any], Any]:
     """Identify the mode from the low-amplitude steps against the drive actually applied
     (the amplifier monitor when recorded), then design and choose the input shaper."""
-    names = list(names)
-    runs = collect_runs(paths, names=names)
-    if not names:
-        steps = [r for r in runs if r.kind == "step"]
-        top = max((float(np.max(r.command_v)) for r in steps), default=0.0)
-        drive_max = max([top] + [float(r.meta.get("rig", {}).get("config", {}).get("actuator", {}).get("drive_max_v", 0.0)) for r in steps])
-        runs = [r for r in steps if float(np.max(r.command_v)) <= LOW_STEP_FRACTION * drive_max + 1e-9]
-    if not runs:
-        raise BundleError(f"no low-amplitude step run (kind 'step', at most {100 * LOW_STEP_FRACTION:g} % of the largest drive) among the runs given")
+    runs = select_shaper_runs(paths, names)
     cuts = [_first_hold_end(r.command_v) for r in runs]
     drives = [(r.column("monitor_v") if r.column("monitor_v") is not None else r.command_v)[:n] for r, n in zip(runs, cuts)]
     fit = shaper_mod.identify_mode_runs([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
@@ -195,7 +204,24 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
         "choice": {"reason": choice.reason, "designed_at_hz": fs, "candidates": choice.table},
         "thesis_table_6_8": shaper_mod.thesis_shaper_residual(fit.wn, fit.zeta),
     }
-    return section("shaper", body, runs), fit
+    return section("shaper", body, runs, shaper_digest(runs, fs_hz)), fit
+
+
+def select_shaper_runs(paths: Iterable[str | Path], names: Iterable[str] = ()) -> list[runformat.Run]:
+    names = list(names)
+    runs = collect_runs(paths, names=names)
+    if not names:
+        steps = [r for r in runs if r.kind == "step"]
+        top = max((float(np.max(r.command_v)) for r in steps), default=0.0)
+        drive_max = max([top] + [float(r.meta.get("rig", {}).get("config", {}).get("actuator", {}).get("drive_max_v", 0.0)) for r in steps])
+        runs = [r for r in steps if float(np.max(r.command_v)) <= LOW_STEP_FRACTION * drive_max + 1e-9]
+    if not runs:
+        raise BundleError(f"no low-amplitude step run (kind 'step', at most {100 * LOW_STEP_FRACTION:g} % of the largest drive) among the runs given")
+    return runs
+
+
+def shaper_digest(runs, fs_hz) -> str:
+    return inputs_digest("shaper", runs, [], fs_hz=fs_hz)
 
 
 def _plain(obj: Any) -> dict[str, Any]:

@@ -411,27 +411,32 @@ def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays:
     P = [a @ w_val for a in A]
     D = [operators.dead_zone(p, d_fwd) for p in P]
     zt = [z[m] for z, m in zip(data.z, masks)]
-    L2 = _factor(_gram([np.hstack([dm, -zz[:, None]]) for dm, zz in zip(D, zt)]))
+    # columns: dead zones, a free output offset (the rest level is only an estimate), -z
+    L2 = _factor(_gram([np.hstack([dm, np.ones((dm.shape[0], 1)), -zz[:, None]]) for dm, zz in zip(D, zt)]))
     s = cp.Variable(d_fwd.size)
-    obj = cp.sum_squares(L2 @ cp.hstack([s, np.ones(1)]))
+    offset = cp.Variable(1)
+    obj = cp.sum_squares(L2 @ cp.hstack([s, offset, np.ones(1)]))
     eps_s = 1e-3 * z_scale / u_max
     _solve(cp.Problem(cp.Minimize(obj), _slope_constraints(s, idx0, n_neg, n_pos, eps_s)), "forward dead-zone refit")
     s_val = np.asarray(s.value, float)
+    c = float(offset.value[0]) if np.all(np.isfinite(s_val)) else 0.0
     if not np.all(np.isfinite(s_val)):
         s_val = s_init
     return PIModel(tuple(map(float, r)), tuple(map(float, w_val)), tuple(map(float, d_fwd)), tuple(map(float, s_val)),
-                   x0=data.x0, y0=data.y0)
+                   x0=data.x0, y0=data.y0 + c)
 
 
-def predict_rows(model: PIModel, plays: Sequence[np.ndarray], masks: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Model output (relative, ``z``) on the masked rows of each run, from precomputed plays."""
+def predict_rows(model: PIModel, plays: Sequence[np.ndarray], masks: Sequence[np.ndarray], y0: float = 0.0) -> list[np.ndarray]:
+    """Model output relative to ``y0`` (the data's rest level) on the masked rows of each run,
+    from precomputed plays."""
     w = np.array(model.w)
-    return [dead_zone_superposition(Y[m] @ w, np.array(model.d), np.array(model.s)) for Y, m in zip(plays, masks)]
+    shift = model.y0 - y0
+    return [shift + dead_zone_superposition(Y[m] @ w, np.array(model.d), np.array(model.s)) for Y, m in zip(plays, masks)]
 
 
 def rms_error(model: PIModel, data: HysteresisData, plays: Sequence[np.ndarray], which: str) -> float:
     masks = data.train if which == "train" else data.holdout
-    pred = predict_rows(model, plays, masks)
+    pred = predict_rows(model, plays, masks, data.y0)
     err = np.concatenate([p - z[m] for p, z, m in zip(pred, data.z, masks)])
     return float(np.sqrt(np.mean(err**2))) if err.size else float("nan")
 
@@ -455,7 +460,10 @@ class HysteresisFit:
         return 100.0 * self.holdout_rms / self.output_range
 
 
-DEFAULT_GRID = tuple(Candidate(n, g, m) for n in (2, 4, 6, 8, 12, 16) for g in (1.0, 2.0) for m in (0, 1, 2, 4, 8))
+#: Stage 1 of the default search: play operators (number, spacing) at a moderate dead-zone count.
+PLAY_GRID = tuple(Candidate(n, g, 4) for n in (2, 4, 6, 8, 12, 16, 24) for g in (1.0, 2.0))
+#: Stage 2: dead zones per side for the chosen plays.
+DEAD_ZONE_COUNTS = (0, 1, 2, 4, 8, 16)
 
 
 def _plays_for(data: HysteresisData, r: np.ndarray, cache: dict) -> list[np.ndarray]:
@@ -465,24 +473,75 @@ def _plays_for(data: HysteresisData, r: np.ndarray, cache: dict) -> list[np.ndar
     return cache[key]
 
 
-def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] = DEFAULT_GRID, *, tolerance: float = 0.01,
+def decimate(data: HysteresisData, step: int) -> HysteresisData:
+    """Every ``step``-th sample of each run (for choosing the model on large data)."""
+    sl = slice(None, None, step)
+    return HysteresisData(data.names, tuple(u[sl] for u in data.u), tuple(z[sl] for z in data.z),
+                          tuple(m[sl] for m in data.train), tuple(m[sl] for m in data.holdout), data.x0, data.y0)
+
+
+#: Above this many samples the model is chosen on a decimated copy, then fitted on all.
+SELECT_MAX_SAMPLES = 200_000
+
+
+def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] | None = None, *, tolerance: float = 0.01,
                    prune_below: float = 1e-3, refit_all: bool = True) -> HysteresisFit:
     """Choose operator numbers and thresholds on held-out data, prune, refit.
 
-    Every candidate of ``grid`` is fitted on the training rows and scored by its RMS
-    output error on the held-out rows. The chosen one is the smallest (fewest operators)
-    whose held-out error is within ``tolerance`` (relative) of the best. Operators whose
-    weight is below ``prune_below`` of the largest are dropped if that does not worsen the
-    held-out error beyond the tolerance. With ``refit_all`` the final model is refitted on
-    all rows (``final_model``); ``model`` is the one scored on held-out data.
+    Each candidate is fitted on the training rows and scored by its RMS output error on
+    the held-out rows. The chosen one is the smallest (fewest operators) whose held-out
+    error is within ``tolerance`` (relative) of the best. Without ``grid`` the search has
+    three stages: the play operators (:data:`PLAY_GRID`), the number of dead zones for
+    them (:data:`DEAD_ZONE_COUNTS`), and the play operators again for that number. Operators whose weight is below ``prune_below`` of the
+    largest are dropped if that does not worsen the held-out error beyond the tolerance.
+    With ``refit_all`` the final model is refitted on all rows (``final_model``);
+    ``model`` is the one scored on held-out data.
     """
     if not any(h.any() for h in data.holdout):
         raise HysteresisFitError("no held-out samples; expected holdout_fraction > 0 to choose the model")
     z_lo, z_hi = data.z_range
     out_range = z_hi - z_lo
+    full = data
+    n_total = sum(u.size for u in data.u)
+    if n_total > SELECT_MAX_SAMPLES:
+        # the play operators are rate-independent: a quasi-static sweep sampled more finely
+        # than its reversals need carries no more information about the loop's shape
+        data = decimate(data, int(np.ceil(n_total / SELECT_MAX_SAMPLES)))
     cache: dict = {}
     rows: list[dict[str, Any]] = []
     fits: list[tuple[float, int, Candidate, PIModel]] = []
+
+    def choose(pool):
+        best_ = min(f[0] for f in pool)
+        return best_, min((f for f in pool if f[0] <= best_ * (1 + tolerance)), key=lambda f: (f[1], f[0]))
+
+    if grid is None:
+        _score(data, PLAY_GRID, cache, rows, fits)
+        if not fits:
+            raise HysteresisFitError("no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400])
+        _, (_, _, c1, _) = choose(fits)
+        _score(data, [Candidate(c1.n_play, c1.gamma, m) for m in DEAD_ZONE_COUNTS if m != c1.m_dead_zone], cache, rows, fits)
+        _, (_, _, c2, _) = choose(fits)
+        if c2.m_dead_zone != PLAY_GRID[0].m_dead_zone:  # the plays again, for the chosen dead zones
+            _score(data, [Candidate(c.n_play, c.gamma, c2.m_dead_zone) for c in PLAY_GRID if (c.n_play, c.gamma) != (c2.n_play, c2.gamma)],
+                   cache, rows, fits)
+    else:
+        _score(data, grid, cache, rows, fits)
+    if not fits:
+        raise HysteresisFitError("no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400])
+    best, (ho, n_ops, cand, model) = choose(fits)
+    if full is not data:  # fit the chosen structure on every sample
+        d_inv, _ = invert_dead_zone_weights(np.array(model.d), np.array(model.s))
+        cache = {}
+        r = np.array(model.r)
+        model = fit_structure(full, r, d_inv, _plays_for(full, r, cache))
+        ho = rms_error(model, full, _plays_for(full, r, cache), "holdout")
+    return _finish(full, model, ho, cand, best, len(fits), rows, cache, out_range, tolerance, prune_below, refit_all)
+
+
+def _score(data: HysteresisData, grid: Sequence[Candidate], cache: dict, rows: list, fits: list) -> None:
+    """Fit and score each candidate; append to ``rows`` (table) and ``fits``."""
+    z_lo, z_hi = data.z_range
     for c in grid:
         r = play_thresholds(c.n_play, c.gamma, data.u_span)
         d_inv = dead_zone_thresholds(c.m_dead_zone, z_lo, z_hi)
@@ -495,11 +554,10 @@ def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] = DEFAULT_GRI
         tr, ho = rms_error(model, data, plays, "train"), rms_error(model, data, plays, "holdout")
         rows.append({"candidate": c.label, "n_operators": model.n_play + model.n_dead_zone, "train_rms": tr, "holdout_rms": ho, "note": ""})
         fits.append((ho, model.n_play + model.n_dead_zone, c, model))
-    if not fits:
-        raise HysteresisFitError("no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400])
-    best = min(f[0] for f in fits)
-    ok = [f for f in fits if f[0] <= best * (1 + tolerance)]
-    ho, n_ops, cand, model = min(ok, key=lambda f: (f[1], f[0]))
+
+
+def _finish(data, model, ho, cand, best, n_fits, rows, cache, out_range, tolerance, prune_below, refit_all) -> HysteresisFit:
+    """Prune the chosen model, score it, and refit it on all rows."""
     # prune operators that contribute nothing
     w = np.array(model.w)
     s = np.array(model.s)
@@ -524,7 +582,7 @@ def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] = DEFAULT_GRI
     plays = _plays_for(data, np.array(model.r), cache)
     tr = rms_error(model, data, plays, "train")
     reason = (f"{cand.label} ({model.n_play} plays, {model.n_dead_zone} dead zones after pruning {pruned}): held-out RMS "
-              f"{ho:.4g} ({100 * ho / out_range:.2f} % of range), within {100 * tolerance:g} % of the best of {len(fits)} candidates "
+              f"{ho:.4g} ({100 * ho / out_range:.2f} % of range), within {100 * tolerance:g} % of the best of {n_fits} candidates "
               f"({best:.4g}) with the fewest operators")
     final = None
     if refit_all:
