@@ -11,7 +11,7 @@ BUILD  ?= build
 .PHONY: demo test test-all bench clean help refit
 
 help:
-	@echo "make demo      build the environment and run the default characterization on the virtual rig"
+	@echo "make demo      build the environment; characterize, fit and validate on the virtual rig"
 	@echo "make test      build the environment and run the fast test suite"
 	@echo "make test-all  also run the slow tests"
 	@echo "make bench     run the benchmark scripts in bench/"
@@ -23,9 +23,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# The whole chain on the virtual rig, into a new dated directory (nothing is overwritten).
 demo: $(STAMP)
-	@mkdir -p $(OUT)
-	$(PP) characterize --out $(OUT)/characterization-$$(date -u +%Y%m%dT%H%M%SZ)
+	@d=$(OUT)/demo-$$(date -u +%Y%m%dT%H%M%SZ) && mkdir -p $$d && \
+	$(PP) characterize --out $$d/characterization && \
+	$(PP) fit $$d/characterization --out $$d/bundle.json && \
+	$(PP) validate --bundle $$d/bundle.json --out $$d/validation && \
+	echo "Demo output in $$d"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
