@@ -20,7 +20,7 @@ from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import Shaper
 from piezopress.errors import OutputExistsError, PiezopressError
-from pipelines.characterize import read_manifest, utc_now, write_json_atomic
+from pipelines.characterize import run_files, utc_now, write_json_atomic
 
 BUNDLE_VERSION = 1
 SECTIONS = ("hysteresis", "creep", "shaper")
@@ -36,10 +36,7 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
     files: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            if (p / "manifest.json").is_file():
-                files += [p / r["file"] for r in read_manifest(p)["runs"] if r.get("status", "complete") == "complete"]
-            else:
-                files += sorted(p.glob("*.parquet"))
+            files += run_files(p)
         elif p.exists():
             files.append(p)
         else:

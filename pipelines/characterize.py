@@ -246,3 +246,11 @@ def read_manifest(run_dir: str | Path) -> dict[str, Any]:
         return json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise PiezopressError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+
+
+def run_files(run_dir: str | Path) -> list[Path]:
+    """The complete runs of a directory: those its manifest lists, else every ``*.parquet``."""
+    run_dir = Path(run_dir)
+    if (run_dir / MANIFEST).is_file():
+        return [run_dir / r["file"] for r in read_manifest(run_dir)["runs"] if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE]
+    return sorted(run_dir.glob("*.parquet"))

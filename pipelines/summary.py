@@ -16,7 +16,7 @@ import pandas as pd
 from piezopress import runformat, thesis
 from piezopress.analysis import metrics
 from piezopress.errors import MetricError
-from pipelines.characterize import read_manifest
+from pipelines.characterize import read_manifest, run_files
 
 COLUMNS = ["run", "kind", "metric", "value", "unit", "thesis", "thesis_source", "note"]
 
@@ -72,13 +72,8 @@ def run_metrics(run: runformat.Run) -> list[dict]:
 
 def characterization_table(run_dir: str | Path) -> pd.DataFrame:
     """Metrics of every run listed in a run directory's manifest (or every ``*.parquet``)."""
-    run_dir = Path(run_dir)
-    if (run_dir / "manifest.json").is_file():
-        files = [run_dir / r["file"] for r in read_manifest(run_dir)["runs"] if r.get("status", "complete") == "complete"]
-    else:
-        files = sorted(run_dir.glob("*.parquet"))
     rows: list[dict] = []
-    for f in files:
+    for f in run_files(run_dir):
         rows.extend(run_metrics(runformat.read_run(f)))
     return pd.DataFrame(rows, columns=COLUMNS)
 
@@ -177,12 +172,8 @@ def validation_table(run_dir: str | Path) -> pd.DataFrame:
     run_dir = Path(run_dir)
     manifest = read_manifest(run_dir) if (run_dir / "manifest.json").is_file() else {}
     shaper = manifest.get("compensation_options", {}).get("shaper", True)
-    if manifest:
-        files = [run_dir / r["file"] for r in manifest["runs"] if r.get("status", "complete") == "complete"]
-    else:
-        files = sorted(run_dir.glob("*.parquet"))
     rows: list[dict] = []
-    for f in files:
+    for f in run_files(run_dir):
         rows.extend(validation_metrics(runformat.read_run(f), shaper))
     return pd.DataFrame(rows, columns=COLUMNS)
 
