@@ -218,9 +218,8 @@ def dead_zone(y: np.ndarray, d: np.ndarray | float) -> np.ndarray:
     """
     y = np.asarray(y, dtype=np.float64)[..., None]
     d = np.atleast_1d(np.asarray(d, dtype=np.float64))
+    # one pass: clip y - d to [0, inf) where d > 0, (-inf, 0] where d < 0, untouched where d = 0
+    lower = np.where(d > 0, 0.0, -np.inf)
+    upper = np.where(d < 0, 0.0, np.inf)
     out = y - d
-    pos = d > 0
-    neg = d < 0
-    out[..., pos] = np.maximum(out[..., pos], 0.0)
-    out[..., neg] = np.minimum(out[..., neg], 0.0)
-    return out
+    return np.clip(out, lower, upper, out=out)

@@ -331,9 +331,20 @@ def dead_zone_thresholds(m: int, z_lo: float, z_hi: float) -> np.ndarray:
     return np.concatenate([neg, [0.0], pos])
 
 
-def _gram(blocks: Sequence[np.ndarray]) -> np.ndarray:
-    """``M^T M`` for ``M`` the row-wise stack of ``blocks``, without building ``M``."""
-    return sum(b.T @ b for b in blocks)
+def _gram(rows: Sequence[Sequence[np.ndarray]]) -> np.ndarray:
+    """``M^T M`` for ``M = [[X_11 X_12 ...], [X_21 X_22 ...], ...]`` (row blocks of column
+    blocks), computed block by block: ``M`` itself, large for long records, is never built."""
+    sizes = [x.shape[1] for x in rows[0]]
+    edges = np.concatenate([[0], np.cumsum(sizes)])
+    G = np.zeros((edges[-1], edges[-1]))
+    for blocks in rows:
+        for i, a in enumerate(blocks):
+            for j in range(i, len(blocks)):
+                g = a.T @ blocks[j]
+                G[edges[i]:edges[i + 1], edges[j]:edges[j + 1]] += g
+                if j != i:
+                    G[edges[j]:edges[j + 1], edges[i]:edges[i + 1]] += g.T
+    return G
 
 
 def _solve(problem, what: str) -> None:
@@ -395,7 +406,7 @@ def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays:
     n_neg, n_pos = idx0, d_inv.size - idx0 - 1
     nr = r.size
     # QP 1 (thesis Eq. 3.11-3.23): min |A w - B v|^2 over play weights w, inverse dead-zone weights v
-    L = _factor(_gram([np.hstack([a, -b]) for a, b in zip(A, B)]))
+    L = _factor(_gram([(a, -b) for a, b in zip(A, B)]))
     theta = cp.Variable(nr + d_inv.size)
     w, v = theta[:nr], theta[nr:]
     u_max = data.u_absmax
@@ -412,7 +423,7 @@ def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays:
     D = [operators.dead_zone(p, d_fwd) for p in P]
     zt = [z[m] for z, m in zip(data.z, masks)]
     # columns: dead zones, a free output offset (the rest level is only an estimate), -z
-    L2 = _factor(_gram([np.hstack([dm, np.ones((dm.shape[0], 1)), -zz[:, None]]) for dm, zz in zip(D, zt)]))
+    L2 = _factor(_gram([(dm, np.ones((dm.shape[0], 1)), -zz[:, None]) for dm, zz in zip(D, zt)]))
     s = cp.Variable(d_fwd.size)
     offset = cp.Variable(1)
     obj = cp.sum_squares(L2 @ cp.hstack([s, offset, np.ones(1)]))
