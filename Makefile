@@ -8,7 +8,10 @@ OUT    ?= out
 RUNS   ?= sample_runs/characterization
 BUILD  ?= build
 
-.PHONY: demo test test-all bench clean help refit
+SAMPLES ?= sample_runs
+REPORT ?= report
+
+.PHONY: demo test test-all bench clean help refit report sample-runs
 
 help:
 	@echo "make demo      build the environment; characterize, fit and validate on the virtual rig"
@@ -16,6 +19,8 @@ help:
 	@echo "make test-all  also run the slow tests"
 	@echo "make bench     run the benchmark scripts in bench/"
 	@echo "make refit RUNS=dir   rebuild $(BUILD)/bundle.json from a run directory; only stages whose inputs changed"
+	@echo "make report    regenerate $(REPORT)/ from sample_runs/ (nothing to do when nothing changed)"
+	@echo "make sample-runs SAMPLES=dir   record a new sample set from the virtual rig"
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -46,6 +51,15 @@ refit: $(STAMP)
 	$(PP) fit-hysteresis $(RUNS) --creep $(BUILD)/creep.json --out $(BUILD)/hysteresis.json --if-changed
 	$(PP) fit-shaper $(RUNS) --out $(BUILD)/shaper.json --if-changed
 	$(PP) bundle --hysteresis $(BUILD)/hysteresis.json --creep $(BUILD)/creep.json --shaper $(BUILD)/shaper.json --out $(BUILD)/bundle.json --if-changed
+
+# Record the committed sample set again (into a new directory: SAMPLES=somewhere-new).
+sample-runs: $(STAMP)
+	@test ! -e $(SAMPLES)/characterization || { echo "$(SAMPLES)/ already holds runs: give SAMPLES=a-new-directory"; exit 1; }
+	mkdir -p $(SAMPLES)
+	cp rigs/thesis-press.toml $(SAMPLES)/rig.toml
+	$(PP) characterize --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/characterization
+	$(PP) fit $(SAMPLES)/characterization --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/bundle.json
+	$(PP) validate --bundle $(SAMPLES)/bundle.json --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/validation
 
 bench: $(STAMP)
 	@for f in bench/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
