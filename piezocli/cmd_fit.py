@@ -158,9 +158,10 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
 @_runs_arg
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
+@click.option("--base", is_flag=True, help="Fit the thesis's model structure (12 plays, 1 dead zone, 3-pole creep): the base model diagnose extends.")
 @_replace_opt
 @reports_errors
-def fit_all_cmd(runs, out, rig_path, replace) -> None:
+def fit_all_cmd(runs, out, rig_path, base, replace) -> None:
     """Fit hysteresis, creep and shaper from a characterization and write the bundle.
 
     The same as fit-hysteresis, fit-creep, fit-shaper and bundle in a row (their section
@@ -172,7 +173,7 @@ def fit_all_cmd(runs, out, rig_path, replace) -> None:
     """
     from piezopress.acquisition.rig_config import load_rig
 
-    h, hfit, c, cfit = fit_mod.fit_hysteresis_and_creep(runs)
+    h, hfit, c, cfit = fit_mod.fit_hysteresis_and_creep(runs, base=base)
     click.echo(f"hysteresis: {hfit.reason}")
     click.echo(f"creep:      {cfit.reason}")
     s, _ = fit_mod.fit_shaper_section(runs)

@@ -22,18 +22,19 @@ import numpy as np
 
 import piezopress
 from piezopress import runformat
-from piezopress.acquisition.backend import Backend
+from piezopress.acquisition.backend import Backend, Measurement
+from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
 from piezopress.acquisition.plan import Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
-from piezopress.errors import BackendError, OutputExistsError, PiezopressError
+from piezopress.errors import BackendError, ConfigError, OutputExistsError, PiezopressError, PlanError
 
 MANIFEST = "manifest.json"
 MANIFEST_VERSION = 1
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_PLAN = REPO_ROOT / "protocols" / "characterize.toml"
 DEFAULT_RIG = REPO_ROOT / "rigs" / "thesis-press.toml"
-BACKENDS = ("virtual",)
+BACKENDS = ("virtual", "nidaq")
 
 
 def utc_now() -> str:
@@ -69,10 +70,33 @@ def new_output_dir(out_dir: str | Path) -> Path:
     return out
 
 
-def make_backend(name: str, rig_path: str | Path | None) -> Backend:
-    """The backend ``name`` configured from the rig file (``None``: the built-in defaults)."""
-    if name not in BACKENDS:
+def make_backend(name: str | None, rig_path: str | Path | None) -> Backend:
+    """The backend the rig file names in ``[rig] backend``, configured from that file.
+
+    ``name`` (``--backend``), when given, must match the file's backend (``None``: take the
+    file's). No rig file means the virtual rig's built-in defaults. The file is checked
+    completely before a driver is loaded or any hardware touched; the ``nidaq`` backend
+    without the ``nidaqmx`` package is a one-line error saying how to install it.
+    """
+    if name is not None and name not in BACKENDS:
         raise BackendError(f"backend {name!r} is unknown; expected one of {', '.join(BACKENDS)}")
+    if rig_path is None:
+        if name not in (None, "virtual"):
+            raise BackendError(f"backend {name!r} needs a rig file (--rig) describing the hardware; see rigs/nidaq-example.toml")
+        return VirtualRig(load_rig(None))
+    doc = read_rig_document(rig_path)
+    in_file = rig_backend(doc)
+    if in_file not in BACKENDS:
+        raise ConfigError(str(rig_path), [f"[rig] backend = {in_file!r}: expected one of {', '.join(BACKENDS)}"])
+    if name is not None and name != in_file:
+        raise BackendError(
+            f"{rig_path}: the rig file is for backend {in_file!r} ([rig] backend) but backend {name!r} was asked for; "
+            f"pass --backend {in_file} or a rig file for {name!r}"
+        )
+    if in_file == "nidaq":
+        from piezopress.acquisition.nidaq import NidaqBackend  # noqa: PLC0415 (imports nidaqmx lazily itself)
+
+        return NidaqBackend(parse_daq_rig(doc, source=str(rig_path)))
     return VirtualRig(load_rig(rig_path))
 
 
@@ -117,9 +141,27 @@ def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict
     drive = drive_for(proto)
     t_s, command_v = drive.t_s, drive.command_v
     started = utc_now()
-    m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name)
+    try:
+        m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name)
+    except KeyboardInterrupt as exc:
+        # a backend may re-raise Ctrl-C after its ramp-down with what it measured: keep it
+        partial = getattr(exc, "measurement", None)
+        if isinstance(partial, Measurement):
+            try:
+                exc.run = _measured_run(backend, proto, plan, extra_meta, drive, partial, started)  # type: ignore[attr-defined]
+            except PiezopressError:  # fewer than 2 samples: nothing to keep
+                pass
+        raise
+    return _measured_run(backend, proto, plan, extra_meta, drive, m, started)
+
+
+def _measured_run(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any], drive: Drive,
+                  m: Measurement, started: str) -> runformat.Run:
+    t_s, command_v = drive.t_s, drive.command_v
     columns = {"t_s": t_s, "command_v": command_v, **drive.columns}
-    n = min(len(v) for v in m.channels.values()) if not m.complete else len(t_s)
+    n = min((len(v) for v in m.channels.values()), default=0) if not m.complete else len(t_s)
+    if not m.complete and n < 2:
+        raise BackendError(f"{proto.name}: the backend stopped the run before 2 samples were measured ({m.reason}); nothing to keep")
     columns = {k: v[:n] for k, v in columns.items()}
     columns.update({k: np.asarray(v[:n], dtype=np.float64) for k, v in m.channels.items()})
     meta = runformat.make_meta(
@@ -146,7 +188,7 @@ def characterize(
     plan_path: str | Path = DEFAULT_PLAN,
     rig_path: str | Path | None = DEFAULT_RIG,
     backend: Backend | None = None,
-    backend_name: str = "virtual",
+    backend_name: str | None = "virtual",
     on_progress: Callable[[ProgressEvent], None] | None = None,
 ) -> CharacterizeResult:
     """Run every protocol of a plan and write the runs and a manifest into ``out_dir``.
@@ -157,6 +199,7 @@ def characterize(
     """
     backend = backend or make_backend(backend_name, rig_path)
     plan = load_plan(plan_path, backend.limits)
+    check_drives(plan, backend)
     return execute_plan(out_dir, plan, Path(plan_path), backend, kind="characterization", on_progress=on_progress)
 
 
@@ -200,29 +243,23 @@ def execute_plan(
             if on_progress:
                 on_progress(ProgressEvent(i, total, proto, done=False))
             t0 = time.perf_counter()
-            run = run_protocol(backend, proto, plan, extra, drive_for)
-            complete = run.meta["status"] == runformat.STATUS_COMPLETE
-            path = out / (f"{proto.name}.parquet" if complete else f"{proto.name}.incomplete.parquet")
-            sha = runformat.write_run(run, path)
-            manifest["runs"].append(
-                {
-                    "file": path.name,
-                    "sha256": sha,
-                    "name": proto.name,
-                    "kind": proto.run_kind,
-                    "status": run.meta["status"],
-                    "samples": len(run.data),
-                    "duration_s": len(run.data) / proto.sample_rate_hz,
-                }
-            )
-            write_json_atomic(manifest_path, manifest)
+            try:
+                run = run_protocol(backend, proto, plan, extra, drive_for)
+            except KeyboardInterrupt as exc:
+                if getattr(exc, "run", None) is not None:  # Ctrl-C with a partial run: kept as incomplete
+                    _keep_run(out, manifest_path, manifest, proto, exc.run, force_incomplete=True)  # type: ignore[attr-defined]
+                raise
+            path, complete = _keep_run(out, manifest_path, manifest, proto, run)
             if not complete:
                 raise BackendError(f"{proto.name}: the backend stopped the run early ({run.meta['status_reason']}); kept as {path.name}")
             result.runs.append(path)
             if on_progress:
                 on_progress(ProgressEvent(i, total, proto, done=True, elapsed_s=time.perf_counter() - t0, path=path))
     except BaseException as exc:
-        backend.zero_output()
+        try:
+            backend.zero_output()
+        except Exception as zero_exc:  # the manifest must still say how it ended
+            manifest["zero_output_error"] = f"{type(zero_exc).__name__}: {zero_exc}"
         interrupted = isinstance(exc, KeyboardInterrupt)
         manifest["status"] = "interrupted" if interrupted else "failed"
         manifest["status_reason"] = "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}"
@@ -235,6 +272,50 @@ def execute_plan(
     manifest["finished_utc"] = utc_now()
     write_json_atomic(manifest_path, manifest)
     return result
+
+
+def _keep_run(out: Path, manifest_path: Path, manifest: dict[str, Any], proto: Protocol, run: runformat.Run,
+              *, force_incomplete: bool = False) -> tuple[Path, bool]:
+    """Write one run (``NAME.parquet``, or ``NAME.incomplete.parquet`` if cut short) and list it in the manifest."""
+    if force_incomplete and run.meta["status"] == runformat.STATUS_COMPLETE:
+        run.meta["status"] = runformat.STATUS_INCOMPLETE
+        run.meta["status_reason"] = run.meta.get("status_reason") or "interrupted by the user (Ctrl-C)"
+    complete = run.meta["status"] == runformat.STATUS_COMPLETE
+    path = out / (f"{proto.name}.parquet" if complete else f"{proto.name}.incomplete.parquet")
+    sha = runformat.write_run(run, path)
+    manifest["runs"].append(
+        {
+            "file": path.name,
+            "sha256": sha,
+            "name": proto.name,
+            "kind": proto.run_kind,
+            "status": run.meta["status"],
+            "samples": len(run.data),
+            "duration_s": len(run.data) / proto.sample_rate_hz,
+        }
+    )
+    write_json_atomic(manifest_path, manifest)
+    return path, complete
+
+
+def check_drives(plan: Plan, backend: Backend) -> None:
+    """Check every protocol's drive with the backend's own drive check, if it has one, before anything runs.
+
+    A hardware backend checks more than the plan can (slew limits, output ranges); doing it
+    for the whole plan up front keeps a characterization from stopping half-way on protocol 7.
+    """
+    check = getattr(backend, "check_drive", None)
+    if check is None:
+        return
+    problems = []
+    for i, proto in enumerate(plan.protocols, start=1):
+        _, command_v = proto.waveform()
+        try:
+            check(command_v, proto.sample_rate_hz, proto.name)
+        except PiezopressError as exc:
+            problems.append(f"protocol[{i}] '{proto.name}': {exc}")
+    if problems:
+        raise PlanError(plan.source, problems)
 
 
 def read_manifest(run_dir: str | Path) -> dict[str, Any]:

@@ -32,7 +32,8 @@ def _freq(run: runformat.Run) -> float | None:
 def hysteresis_runs(runs: list[runformat.Run], named: bool) -> list[runformat.Run]:
     if named:
         return runs
-    chosen = [r for r in runs if r.kind in ("triangle", "sine", "custom") and (_freq(r) is None or _freq(r) <= STATIC_MAX_FREQ_HZ)]
+    chosen = [r for r in runs if r.kind in ("triangle", "sine", "custom") and (_freq(r) is None or _freq(r) <= STATIC_MAX_FREQ_HZ)
+              and np.ptp(r.command_v) > 0]  # a rest run (no drive) shows no hysteresis
     if not chosen:
         kinds = ", ".join(sorted({f"{r.name} ({r.kind})" for r in runs})) or "none"
         raise BundleError(f"no quasi-static sweep among the runs (triangle/sine at <= {STATIC_MAX_FREQ_HZ:g} Hz); runs given: {kinds}")
@@ -80,7 +81,7 @@ def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] 
             "candidates": fit.candidates,
         },
     }
-    digest = hysteresis_digest(runs, creep, holdout_fraction)
+    digest = hysteresis_digest(runs, creep, holdout_fraction, grid)
     return section("hysteresis", body, runs, digest), fit
 
 
@@ -89,22 +90,31 @@ def select_hysteresis_runs(paths: Iterable[str | Path], names: Iterable[str] = (
     return hysteresis_runs(collect_runs(paths, names=names), bool(names))
 
 
-def hysteresis_digest(runs, creep, holdout_fraction) -> str:
-    return inputs_digest("hysteresis", runs, [creep], holdout_fraction=holdout_fraction)
+def hysteresis_digest(runs, creep, holdout_fraction, grid=None) -> str:
+    return inputs_digest("hysteresis", runs, [creep], holdout_fraction=holdout_fraction, grid=None if grid is None else [c.label for c in grid])
 
 
-def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, holdout_fraction: float = 0.3):
+#: The thesis's model structure (Section 6.2.1: 12 evenly spaced plays, one dead zone;
+#: Section 6.3.1: three poles and one zero): the base model that ``diagnose`` extends.
+THESIS_GRID = (H.Candidate(12, 1.0, 1),)
+THESIS_CREEP_FORMS = ("poles",)
+
+
+def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, holdout_fraction: float = 0.3, base: bool = False):
     """Alternate: hysteresis on the sweeps, creep on the held step given the hysteresis
     model, hysteresis again on the sweeps with that creep removed, ... (``passes`` rounds).
 
-    Returns the last hysteresis and creep sections and fits.
+    ``base`` fits the thesis's structure instead of choosing one (:data:`THESIS_GRID`,
+    :data:`THESIS_CREEP_FORMS`). Returns the last hysteresis and creep sections and fits.
     """
     paths = list(paths)
-    h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction)
-    c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction)
+    grid = THESIS_GRID if base else None
+    forms = THESIS_CREEP_FORMS if base else creep_mod.FORMS
+    h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction, grid=grid)
+    c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction, forms=forms)
     for _ in range(passes - 1):
-        h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction, creep=c)
-        c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction)
+        h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction, creep=c, grid=grid)
+        c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction, forms=forms)
     return h, hfit, c, cfit
 
 
@@ -136,7 +146,7 @@ def _slow_part(t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float) -> t
 
 
 def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *, names: Iterable[str] = (),
-                      holdout_fraction: float = 0.3) -> tuple[dict[str, Any], creep_mod.CreepFit]:
+                      holdout_fraction: float = 0.3, forms: tuple[str, ...] = creep_mod.FORMS) -> tuple[dict[str, Any], creep_mod.CreepFit]:
     """Fit the creep of the hysteresis-compensated press from a held step: the hysteresis
     model's static prediction is the input, the measured force (above the rest level) the
     output."""
@@ -146,7 +156,7 @@ def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *
     u = static - model.y0
     y = run.output - _rest_level(run.output, run.command_v)
     t, u, y = _slow_part(run.t_s, u, y, run.sample_rate_hz)
-    fit = creep_mod.fit_creep(t, u, y, holdout_fraction=holdout_fraction)
+    fit = creep_mod.fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
     fit.model.check_stable(run.sample_rate_hz)
     body = {
         "model": fit.model.to_dict(),
@@ -158,7 +168,7 @@ def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *
             "candidates": [_plain(c) for c in fit.candidates],
         },
     }
-    return section("creep", body, [run], creep_digest(run, hysteresis, holdout_fraction)), fit
+    return section("creep", body, [run], creep_digest(run, hysteresis, holdout_fraction, forms)), fit
 
 
 def select_creep_run(paths: Iterable[str | Path], names: Iterable[str] = ()) -> runformat.Run:
@@ -171,8 +181,17 @@ def select_creep_run(paths: Iterable[str | Path], names: Iterable[str] = ()) -> 
     return max(runs, key=lambda r: r.t_s[-1])
 
 
-def creep_digest(run, hysteresis, holdout_fraction) -> str:
-    return inputs_digest("creep", [run], [hysteresis], holdout_fraction=holdout_fraction)
+def creep_digest(run, hysteresis, holdout_fraction, forms=creep_mod.FORMS) -> str:
+    return inputs_digest("creep", [run], [hysteresis], holdout_fraction=holdout_fraction, forms=list(forms))
+
+
+def _sensor_lowpass(runs: list[runformat.Run]) -> float | None:
+    """The load cell's analog low-pass, when the runs' rig configuration states it."""
+    for r in runs:
+        f = r.meta.get("rig", {}).get("config", {}).get("load_cell", {}).get("lowpass_hz")
+        if f:
+            return float(f)
+    return None
 
 
 def _first_hold_end(command_v: np.ndarray) -> int:
@@ -187,7 +206,11 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
     runs = select_shaper_runs(paths, names)
     cuts = [_first_hold_end(r.command_v) for r in runs]
     drives = [(r.column("monitor_v") if r.column("monitor_v") is not None else r.command_v)[:n] for r, n in zip(runs, cuts)]
-    fit = shaper_mod.identify_mode_runs([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
+    args = ([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
+    # a DAC command is held between samples, a sampled amplifier monitor is closer to linear
+    # between them; both discretisations are exact for their kind of drive: keep the better fit
+    fits = [shaper_mod.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
+    fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
     choice = shaper_mod.choose_shaper(fit.wn, fit.zeta, fs)
     sh = choice.shaper
@@ -196,6 +219,8 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
             "natural_freq_rad_s": fit.wn,
             "damping": fit.zeta,
             "drive_used": "monitor_v" if all(r.column("monitor_v") is not None for r in runs) else "command_v",
+            "hold": fit.hold,
+            "sensor_lowpass_hz": _sensor_lowpass(runs),
             "fit": {k: v for k, v in _plain(fit).items() if k not in ("wn", "zeta")},
         },
         "shaper": {"name": sh.name, "times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes),

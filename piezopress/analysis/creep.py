@@ -865,7 +865,12 @@ def _stable(model: CreepModel, fs_hz: float) -> bool:
     return True
 
 
-def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3) -> CreepFit:
+#: Shortest time constant the thesis form may take, in samples: faster poles only fit what is
+#: left of a step's transient (and can cancel each other into an unstable compensator).
+POLES_TAU_MIN_SAMPLES = 5.0
+
+
+def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...] = FORMS) -> CreepFit:
     """Fit both forms, keep the one that best predicts the held-out end of the record.
 
     Each form of :data:`FITTERS` is fitted on the first ``1 - holdout_fraction`` of the
@@ -918,10 +923,14 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3) -> CreepFit:
     if n_train < MIN_FIT_SAMPLES or t.size - n_train < MIN_FIT_SAMPLES:
         raise FitError(f"{where}: holdout_fraction {h:g} of {t.size} samples leaves {n_train} to fit and {t.size - n_train} to hold out; "
                        f"expected at least {MIN_FIT_SAMPLES} in each")
+    unknown = [f for f in forms if f not in FITTERS]
+    if unknown or not forms:
+        raise FitError(f"{where}: forms {forms!r}; expected some of {', '.join(FORMS)}")
+    options = {"poles": {"tau_bounds_s": (POLES_TAU_MIN_SAMPLES / fs, 10.0 * (t[-1] - t[0]))}, "log": {}}
     candidates = []
-    for form in FORMS:
+    for form in forms:
         try:
-            model = FITTERS[form](t[:n_train], u[:n_train], y[:n_train])
+            model = FITTERS[form](t[:n_train], u[:n_train], y[:n_train], **options[form])
         except FitError as e:
             raise FitError(f"{where}: the training part (first {1 - h:.0%}): {e}") from None
         e_all = y - model.response(u, fs)[0]
@@ -936,7 +945,7 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3) -> CreepFit:
     split_s = float(t[n_train])
     reason = (f"{chosen.form}: lowest held-out RMS {chosen.holdout_rms:.4g} against {others} "
               f"(fitted on {t[0]:.4g}-{split_s:.4g} s, judged on {split_s:.4g}-{t[-1]:.4g} s)")
-    model = FITTERS[chosen.form](t, u, y)
+    model = FITTERS[chosen.form](t, u, y, **options[chosen.form])
     if not _stable(model, fs):  # refitted on everything: check again
         raise FitError(f"{where}: the {chosen.form} form refitted on the whole record gives an unstable compensator ({model.describe()})")
     rms = _rms(y - model.response(u, fs)[0])

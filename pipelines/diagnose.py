@@ -1,0 +1,85 @@
+"""``diagnose`` and ``simulate``: runs and a bundle in; predictions, findings and an extended bundle out."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from piezopress import runformat
+from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.creep import CreepModel
+from piezopress.analysis.hysteresis import PIModel
+from pipelines.bundle import collect_runs, read_document, write_document
+from pipelines.characterize import new_output_dir, write_json_atomic
+
+
+def base_model(bundle: dict[str, Any]) -> dg.Model:
+    """The forward model a bundle describes (hysteresis, and creep and mode if present)."""
+    h = PIModel.from_dict(bundle["hysteresis"]["model"])
+    c = CreepModel.from_dict(bundle["creep"]["model"]) if "creep" in bundle else None
+    mode = bundle.get("shaper", {}).get("mode", {})
+    return dg.Model(h, c, mode.get("natural_freq_rad_s"), mode.get("damping"), mode.get("sensor_lowpass_hz"))
+
+
+def fitted_run_names(bundle: dict[str, Any]) -> list[str]:
+    """The runs the bundle's models were fitted on."""
+    return sorted({r["name"] for sec in ("hysteresis", "creep", "shaper") for r in bundle.get(sec, {}).get("runs", [])})
+
+
+def run_data(run: runformat.Run) -> dg.RunData:
+    return dg.RunData(run.name, run.kind, run.t_s, run.command_v, run.output, run.sample_rate_hz, run.column("monitor_v"), dict(run.meta))
+
+
+def simulate_file(bundle_path: str | Path, run_path: str | Path, out: str | Path) -> runformat.Run:
+    """The bundle's model on a run's measured drive, written beside the measurement
+    (columns ``predicted`` and ``residual`` added, in the run's output unit)."""
+    bundle = read_document(bundle_path, "bundle")
+    run = runformat.read_run(run_path)
+    pred = base_model(bundle).predict(run_data(run))
+    cols = {c: run.data[c].to_numpy() for c in run.data.columns}
+    cols["predicted"] = pred
+    cols["residual"] = run.output - pred
+    meta = {**run.meta, "simulated_with": {"bundle": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)}}
+    sim = runformat.make_run(cols, meta)
+    runformat.write_run(sim, out)
+    return sim
+
+
+def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding]) -> dict[str, Any]:
+    """The bundle with every finding's extension recorded; those that belong in the
+    compensator change it (creep form, drive rate limit, lead)."""
+    ext = copy.deepcopy(bundle)
+    ext["extensions"] = {f.cause: f.parameters for f in findings}
+    comp = ext.setdefault("compensation", {})
+    for f in findings:
+        if f.cause == "amplifier_slew_limit":
+            # keep the drive well inside the slew limit: about 2 N/V on the press
+            gain = float(np.mean(np.diff(bundle["hysteresis"]["model"]["play_weights"]) * 0) + 2.0)
+            comp["max_rate_n_per_s"] = min(comp.get("max_rate_n_per_s", np.inf), 0.5 * f.parameters["slew_rate_v_per_s"] * gain)
+        elif f.cause == "input_delay":
+            comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
+        elif f.cause == "logarithmic_creep" and "creep" in ext:
+            log = CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
+            ext["creep"]["model"] = log.to_dict()
+            ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
+    return ext
+
+
+def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str | Path,
+             causes: Iterable[str] | None = None) -> tuple[dg.Diagnosis, Path]:
+    """Diagnose the runs against the bundle; write ``diagnosis.json`` and ``extended_bundle.json``."""
+    bundle = read_document(bundle_path, "bundle")
+    runs = [run_data(r) for r in collect_runs(paths)]
+    if not runs:
+        raise dg.H.HysteresisFitError("no runs to diagnose")
+    result = dg.diagnose(base_model(bundle), runs, fitted_run_names(bundle), list(causes) if causes else None)
+    out = new_output_dir(out_dir)
+    doc = {"bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
+           "causes": {c.id: {"physics": c.physics, "extension": c.extension, "in_compensator": c.in_compensator} for c in dg.CAUSES.values()},
+           **result.as_dict()}
+    write_json_atomic(out / "diagnosis.json", doc)
+    write_document(extend_bundle(bundle, result.findings), out / "extended_bundle.json")
+    return result, out
