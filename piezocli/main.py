@@ -46,7 +46,7 @@ def cli() -> None:
 
 def _register() -> None:
     # Imported here so that each command module stays small and self-contained.
-    from piezocli import cmd_characterize, cmd_check_rig, cmd_fit, cmd_import, cmd_inspect, cmd_report, cmd_validate  # noqa: F401
+    from piezocli import cmd_characterize, cmd_check_rig, cmd_diagnose, cmd_fit, cmd_import, cmd_inspect, cmd_report, cmd_validate  # noqa: F401
 
 
 _register()

@@ -12,6 +12,7 @@ from piezopress import runformat
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
+from piezopress import plotting
 from pipelines.bundle import collect_runs, read_document, write_document
 from pipelines.characterize import new_output_dir, write_json_atomic
 
@@ -82,4 +83,43 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
            **result.as_dict()}
     write_json_atomic(out / "diagnosis.json", doc)
     write_document(extend_bundle(bundle, result.findings), out / "extended_bundle.json")
+    (out / "residuals.png").write_bytes(plotting.to_png(residual_figure(runs, base_model(bundle), result)))
     return result, out
+
+
+def residual_figure(runs: list[dg.RunData], base: dg.Model, result: dg.Diagnosis):
+    """Residual of each run against its own time, before (base model) and after (extended)."""
+    def curves(model):
+        out = []
+        for r in runs:
+            res = r.y - model.predict(r)
+            t = r.t_s / r.t_s[-1] if r.t_s[-1] > 0 else r.t_s  # every run on a 0-1 time axis
+            out.append(plotting.Curve(t, res, r.name))
+        return out
+
+    return plotting.model_residuals(curves(base), curves(result.model), left_title="base model", right_title="extended by the findings",
+                                    left_xlabel="time / run length", right_xlabel="time / run length",
+                                    title=f"Residuals of {len(runs)} runs: measured - model")
+
+
+def format_summary(result: dg.Diagnosis) -> str:
+    """The diagnosis as a technician reads it."""
+    lines = [f"Diagnosis: {result.summary}", ""]
+    lines.append(f"Residual over all runs: {result.residual_rms_n:.3g} N RMS; sensor noise floor {result.noise_floor_n:.3g} N RMS.")
+    if result.findings:
+        lines.append("")
+        lines.append(f"{'cause':<28} {'held-out RMS: base -> extended':>32} {'gain':>7}  parameters")
+        for f in result.findings:
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in f.parameters.items())
+            lines.append(f"{f.cause:<28} {f.baseline_rms_n:>14.3g} N -> {f.extended_rms_n:.3g} N {f.gain_pct:>6.0f} %  {params}")
+            lines.append(f"    why: {dg.CAUSES[f.cause].physics}; evidence: {f.evidence}")
+            lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension)")
+    else:
+        lines.append("No cause in the catalogue improves the prediction of held-out data beyond the noise: no findings.")
+    if result.unexplained:
+        lines.append("")
+        lines.append("Unexplained (no cause in the catalogue accounts for it):")
+        for u in result.unexplained:
+            lines.append(f"    {u['run']}: {u['rms_n']:.3g} N RMS = {u['ratio']:.1f} x the noise floor, largest at {u['where_s']:.4g} s, "
+                         f"dominant frequency {u['dominant_freq_hz']:.4g} Hz")
+    return "\n".join(lines)

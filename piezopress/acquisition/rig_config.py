@@ -285,6 +285,38 @@ class RigConfig:
         return parse_rig(doc, source=self.source)
 
 
+#: Magnitudes at which each effect is meant to be found by ``diagnose`` (documented ranges;
+#: tests and ``bench/bench_diagnose.py`` draw from them with a seeded generator). Keys of the
+#: effect's section, each ``(low, high)``; a drift is drawn with a random sign.
+DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
+    "rate_dependent_hysteresis": {"rate_v_per_kv_s": (0.05, 0.2)},
+    "amplifier_slew_limit": {},  # with [actuator] capacitance_uf drawn from DETECTABLE_ACTUATOR
+    "drive_coupled_interference": {"depth_n": (20.0, 60.0)},
+    "logarithmic_creep": {"per_decade": (0.008, 0.016)},
+    "second_resonance": {"share": (0.1, 0.25), "natural_freq_rad_s": (14_000.0, 22_000.0)},
+    "sensor_offset_drift": {"drift_n_per_min": (0.3, 1.5)},
+    "input_delay": {"delay_s": (1e-4, 5e-4)},
+    "hysteresis_order": {"saturation": (0.25, 0.6)},
+}
+#: The slew limit's magnitude lives in the actuator: I/C with C in this range is 25-67 V/ms.
+DETECTABLE_ACTUATOR = {"capacitance_uf": (3.0, 8.0)}
+
+
+def hidden_effect(effect: str, rng, base: "RigConfig | None" = None) -> "RigConfig":
+    """A clean rig (or ``base``) with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`,
+    and a noise seed drawn too: the rig a diagnosis test hides one effect in."""
+    cfg = base or RigConfig.clean()
+    cfg = cfg.replace(**_effect_values({effect: True}))
+    draw = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DETECTABLE[effect].items()}
+    if effect == "sensor_offset_drift":
+        draw["drift_n_per_min"] *= float(rng.choice([-1.0, 1.0]))
+    changes: dict[str, dict[str, Any]] = {EFFECTS[effect].section: draw} if draw else {}
+    if effect == "amplifier_slew_limit":
+        changes["actuator"] = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DETECTABLE_ACTUATOR.items()}
+    changes.setdefault("rig", {})["seed"] = int(rng.integers(0, 2**31))
+    return cfg.replace(**changes)
+
+
 def _effect_values(switch: Mapping[str, bool]) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     for name, on in switch.items():

@@ -48,8 +48,8 @@ MIN_RESIDUAL_TO_FLOOR = 1.5
 MIN_IMPROVEMENT_TO_FLOOR = 0.5
 #: Residual structure above this many noise floors that no finding covers is "unexplained".
 UNEXPLAINED_RATIO = 2.5
-#: At most this many findings (each accepted one extends the model for the next round).
-MAX_FINDINGS = 4
+#: At most this many findings: the whole catalogue (each accepted one extends the model for the next round).
+MAX_FINDINGS = len(("rate", "slew", "interference", "creep", "mode2", "drift", "delay", "order"))
 
 
 # --------------------------------------------------------------------------- data
@@ -325,21 +325,29 @@ def _search(objective: Callable[[float], float], lo: float, hi: float, n: int = 
     return float(res.x) if res.fun <= vals[i] else float(grid[i])
 
 
-def _refit_mode(model: Model, fit: list[Segment]) -> Model:
-    """The main mode refitted on the fitting segments (so that a mode distorted by the
-    very effect under test does not decide between causes)."""
+def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.ndarray], Model] | None = None,
+                extra_x0: Sequence[float] = (), extra_bounds: tuple[Sequence[float], Sequence[float]] = ((), ())) -> Model:
+    """The main mode refitted on the fitting segments, within a factor 1.3 in frequency and 3
+    in damping of the identified one (so that a mode distorted by the very effect under test
+    does not decide between causes, and no cause turns the mode into something else), jointly
+    with a cause's own parameters when ``extra`` maps them into the model."""
     if not model.wn:
         return model
+    wn, z = model.wn, model.zeta
 
-    def res(p):
-        return _err(fit, replace(model, wn=p[0], zeta=p[1]).predict)
+    def build(p):
+        m = replace(model, wn=float(p[0]), zeta=float(p[1]))
+        return extra(m, p[2:]) if extra is not None else m
 
+    lo = [0.77 * wn, z / 3.0, *extra_bounds[0]]
+    hi = [1.3 * wn, min(3.0 * z, 0.9), *extra_bounds[1]]
+    x0 = np.clip([wn, z, *extra_x0], lo, hi)
     try:
-        sol = optimize.least_squares(res, [model.wn, model.zeta], bounds=([0.5 * model.wn, 0.005], [2.0 * model.wn, 1.0]), max_nfev=40,
-                                     x_scale=[model.wn * 0.01, 0.01])
+        sol = optimize.least_squares(lambda p: _err(fit, build(p).predict), x0, bounds=(lo, hi), max_nfev=40,
+                                     x_scale=[0.01 * wn, 0.01 * z] + [abs(v) * 0.05 + 1e-9 for v in extra_x0])
     except ValueError:
-        return model
-    return replace(model, wn=float(sol.x[0]), zeta=float(sol.x[1]))
+        return build(x0)
+    return build(sol.x)
 
 
 def _judge(ctx: Context, cause: str, evidence: str, fit: list[Segment], held: list[Segment], extended: Model,
@@ -364,13 +372,11 @@ def cause_input_delay(ctx: Context) -> Finding | None:
     steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
     base = _refit_mode(ctx.model, steps_fit) if steps_fit else ctx.model
 
-    def with_delay(d):
-        return _refit_mode(replace(ctx.model, delay_s=d), steps_fit) if steps_fit else replace(ctx.model, delay_s=d)
-
-    d = _search(lambda d: _cost(fit, replace(base, delay_s=d)), 0.0, 5e-3, 41)
-    ext = with_delay(d)
-    d = _search(lambda d: _cost(fit, replace(ext, delay_s=d)), 0.0, 5e-3, 41)
-    ext = replace(ext, delay_s=d)
+    d = _search(lambda d: _cost(fit, replace(ctx.model, delay_s=d)), 0.0, 5e-3, 41)
+    ext = replace(ctx.model, delay_s=d)
+    if steps_fit:  # the mode and the delay together, on the steps
+        ext = _refit_mode(ctx.model, steps_fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [max(2 * d, 1e-4)]))
+        d = float(ext.delay_s)
     ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike"
     return _judge(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
 
@@ -396,8 +402,9 @@ def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
         return None  # the applied drive follows the command: whatever the residual is, it is not the slew
     fit, held = _split(ctx.independent(steps) or steps)
     base = _refit_mode(ctx.model, fit)
-    s = _search(lambda v: _cost(fit, replace(base, slew_v_per_s=v)), 2e3, 2e6, 31, log=True)
-    ext = _refit_mode(replace(base, slew_v_per_s=s), fit)
+    s = _search(lambda v: _cost(fit, replace(ctx.model, slew_v_per_s=v)), 2e3, 2e6, 31, log=True)
+    ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, slew_v_per_s=float(p[0])), [s], ([0.5 * s], [2.0 * s]))
+    s = float(ext.slew_v_per_s)
     mon = _monitor_slew(steps)
     ev = f"large steps rise slower than small ones: the drive behaves as if limited to {s / 1e3:.3g} V/ms"
     if mon is not None:
@@ -507,6 +514,9 @@ def cause_second_resonance(ctx: Context) -> Finding | None:
                                      max_nfev=60, x_scale=[0.05, 0.01 * w0, 0.01, 0.01 * base.wn, 0.01])
     except ValueError:
         return None
+    lo_b, hi_b = [0.0, 1.2 * base.wn, 0.005], [0.6, 4.0 * base.wn, 0.5]
+    if any(np.isclose(sol.x[i], b, rtol=1e-3) for i, b in enumerate(lo_b[1:], 1)) or any(np.isclose(sol.x[i], b, rtol=1e-3) for i, b in enumerate(hi_b)):
+        return None  # a fit that leans on its bounds is bending a mode to fit something else
     ext = model_for(sol.x)
     ev = (f"the step residuals ring at {sol.x[1] / (2 * np.pi):.4g} Hz, away from the {f1:.4g} Hz mode: a second mode carrying "
           f"{100 * sol.x[0]:.3g} % of the response")
@@ -646,6 +656,7 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
         todo.remove(best.cause)
         last_try.pop(best.cause, None)
         ctx = Context(runs, best.model, ctx.fitted_runs, floor)  # extend and look again
+    findings.sort(key=lambda f: -f.gain_pct)
     after = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
     unexplained = [
         {"run": s.run, "rms_n": s.rms, "noise_floor_n": s.floor, "ratio": s.ratio, "where_s": s.t_max_s, "dominant_freq_hz": s.dominant_freq_hz}
