@@ -212,7 +212,9 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
     fits = [shaper_mod.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
     fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
-    choice = shaper_mod.choose_shaper(fit.wn, fit.zeta, fs)
+    # only the designs valid at the identified damping (EI's closed form stops at 0.5)
+    usable = tuple(n for n in ("zv", "zvd", "zvdd", "ei") if fit.zeta < shaper_mod.SHAPERS[n].zeta_range[1])
+    choice = shaper_mod.choose_shaper(fit.wn, fit.zeta, fs, candidates=usable)
     sh = choice.shaper
     body = {
         "mode": {

@@ -326,7 +326,8 @@ def _search(objective: Callable[[float], float], lo: float, hi: float, n: int = 
 
 
 def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.ndarray], Model] | None = None,
-                extra_x0: Sequence[float] = (), extra_bounds: tuple[Sequence[float], Sequence[float]] = ((), ())) -> Model:
+                extra_x0: Sequence[float] = (), extra_bounds: tuple[Sequence[float], Sequence[float]] = ((), ()),
+                wide: bool = False) -> Model:
     """The main mode refitted on the fitting segments, within a factor 1.3 in frequency and 3
     in damping of the identified one (so that a mode distorted by the very effect under test
     does not decide between causes, and no cause turns the mode into something else), jointly
@@ -339,8 +340,8 @@ def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.nda
         m = replace(model, wn=float(p[0]), zeta=float(p[1]))
         return extra(m, p[2:]) if extra is not None else m
 
-    lo = [0.77 * wn, z / 3.0, *extra_bounds[0]]
-    hi = [1.3 * wn, min(3.0 * z, 0.9), *extra_bounds[1]]
+    lo = [(0.5 if wide else 0.77) * wn, 0.01 if wide else z / 3.0, *extra_bounds[0]]
+    hi = [(2.0 if wide else 1.3) * wn, 0.9 if wide else min(3.0 * z, 0.9), *extra_bounds[1]]
     x0 = np.clip([wn, z, *extra_x0], lo, hi)
     try:
         sol = optimize.least_squares(lambda p: _err(fit, build(p).predict), x0, bounds=(lo, hi), max_nfev=40,
@@ -375,7 +376,8 @@ def cause_input_delay(ctx: Context) -> Finding | None:
     d = _search(lambda d: _cost(fit, replace(ctx.model, delay_s=d)), 0.0, 5e-3, 41)
     ext = replace(ctx.model, delay_s=d)
     if steps_fit:  # the mode and the delay together, on the steps
-        ext = _refit_mode(ctx.model, steps_fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [max(2 * d, 1e-4)]))
+        # a delay distorts the identified mode (the identification has no delay): refit both freely
+        ext = _refit_mode(ctx.model, steps_fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [5e-3]), wide=True)
         d = float(ext.delay_s)
     ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike"
     return _judge(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
