@@ -11,10 +11,10 @@ BUILD  ?= build
 SAMPLES ?= sample_runs
 REPORT ?= report
 
-.PHONY: demo test test-all bench clean help refit report sample-runs
+.PHONY: demo test test-all bench clean help refit report sample-runs expected-metrics
 
 help:
-	@echo "make demo      build the environment; characterize, fit and validate on the virtual rig"
+	@echo "make demo      build the environment; characterize, fit, validate, diagnose and report on the virtual rig"
 	@echo "make test      build the environment and run the fast test suite"
 	@echo "make test-all  also run the slow tests"
 	@echo "make bench     run the benchmark scripts in bench/"
@@ -34,7 +34,11 @@ demo: $(STAMP)
 	$(PP) characterize --out $$d/characterization && \
 	$(PP) fit $$d/characterization --out $$d/bundle.json && \
 	$(PP) validate --bundle $$d/bundle.json --out $$d/validation && \
-	echo "Demo output in $$d"
+	$(PP) fit $$d/characterization --base --out $$d/base-bundle.json && \
+	$(PP) diagnose $$d/characterization --bundle $$d/base-bundle.json --out $$d/diagnosis && \
+	$(PP) report --characterization $$d/characterization --validation $$d/validation --bundle $$d/bundle.json \
+	    --diagnosis $$d/diagnosis --out $$d/report && \
+	echo "" && echo "Report: $$d/report/report.html"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -60,6 +64,20 @@ sample-runs: $(STAMP)
 	$(PP) characterize --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/characterization
 	$(PP) fit $(SAMPLES)/characterization --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/bundle.json
 	$(PP) validate --bundle $(SAMPLES)/bundle.json --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/validation
+	$(PP) fit $(SAMPLES)/characterization --base --rig $(SAMPLES)/rig.toml --out $(SAMPLES)/base-bundle.json
+	$(PP) diagnose $(SAMPLES)/characterization --bundle $(SAMPLES)/base-bundle.json --out $(SAMPLES)/diagnosis
+
+# The report from the committed sample runs; make's timestamps make a second run a no-op.
+REPORT_INPUTS := $(shell find $(SAMPLES) -type f 2>/dev/null) $(shell find piezopress pipelines -name '*.py' 2>/dev/null)
+report: $(REPORT)/metrics.csv
+
+$(REPORT)/metrics.csv: $(REPORT_INPUTS) | $(STAMP)
+	$(PP) report --characterization $(SAMPLES)/characterization --validation $(SAMPLES)/validation \
+	    --bundle $(SAMPLES)/bundle.json --diagnosis $(SAMPLES)/diagnosis --out $(REPORT) --replace
+
+# After a deliberate change of a metric: record the new expected table (review the diff).
+expected-metrics: $(STAMP)
+	$(BIN)/python -c "from pipelines import report as R; R.expected_table(R.build_report('$(SAMPLES)/characterization', '$(SAMPLES)/validation', '$(SAMPLES)/bundle.json', '$(SAMPLES)/diagnosis')).to_csv('$(SAMPLES)/expected_metrics.csv', index=False, float_format='%.6g')"
 
 bench: $(STAMP)
 	@for f in bench/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done

@@ -183,3 +183,20 @@ def model_residuals(left: Sequence[Curve], right: Sequence[Curve], *, unit: str 
     ax_l.set_ylabel(f"measured - model ({unit})")
     fig.suptitle(title)
     return fig
+
+
+def residual_rms_bars(runs: Sequence[str], before: Sequence[float], after: Sequence[float], floor: Sequence[float], *,
+                      unit: str = "N", title: str = "Residual per run: base model against the extended model") -> Figure:
+    """Per-run RMS residual before and after, on a log scale, with each run's noise floor."""
+    fig = _figure(4.4)
+    ax = fig.subplots()
+    x = np.arange(len(runs))
+    ax.bar(x - 0.2, before, width=0.4, color=BEFORE_COLOURS[0], label="base model")
+    ax.bar(x + 0.2, after, width=0.4, color=AFTER_COLOURS[0], label="extended by the findings")
+    ax.plot(x, floor, "k_", markersize=18, mew=2, label="noise floor")
+    ax.set_yscale("log")
+    ax.set_xticks(x, runs, rotation=35, ha="right", fontsize=8)
+    ax.set(ylabel=f"RMS residual ({unit})", title=title)
+    ax.grid(True, axis="y", alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return fig

@@ -83,7 +83,12 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
            **result.as_dict()}
     write_json_atomic(out / "diagnosis.json", doc)
     write_document(extend_bundle(bundle, result.findings), out / "extended_bundle.json")
-    (out / "residuals.png").write_bytes(plotting.to_png(residual_figure(runs, base_model(bundle), result)))
+    before = {s.run: s for s in result.before}
+    after = {s.run: s for s in result.after}
+    names = [r.name for r in runs]
+    bars = plotting.residual_rms_bars(names, [before[n].rms for n in names], [after[n].rms for n in names], [before[n].floor for n in names])
+    (out / "residuals.png").write_bytes(plotting.to_png(bars))
+    (out / "residual_traces.png").write_bytes(plotting.to_png(residual_figure(runs, base_model(bundle), result)))
     return result, out
 
 

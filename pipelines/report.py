@@ -619,11 +619,45 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
 # --------------------------------------------------------------------------- building
 
 
+def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
+    """The diagnosis section: its summary, the findings, what is unexplained, the residuals."""
+    path = Path(path)
+    doc_path = path / "diagnosis.json"
+    if not doc_path.is_file():
+        missing.append(f"{path}: no diagnosis.json; the diagnosis section is missing (run `piezopress diagnose`).")
+        return []
+    import json
+
+    try:
+        d = json.loads(doc_path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        missing.append(f"{doc_path}: not valid JSON ({exc.msg}); the diagnosis section is missing.")
+        return []
+    blocks: list[Block] = [Heading("Diagnosis: what the model gets wrong"), Para(d.get("summary", "")),
+                           Para(f"Residual over all runs {d.get('residual_rms_n', float('nan')):.3g} N RMS; "
+                                f"sensor noise floor {d.get('noise_floor_n', float('nan')):.3g} N RMS. Gains are measured on runs or "
+                                "segments not used to fit the extension.")]
+    findings = d.get("findings", [])
+    if findings:
+        rows = tuple((f["cause"], f"{f['baseline_rms_n']:.3g}", f"{f['extended_rms_n']:.3g}", f"{f['gain_pct']:.0f}",
+                      ", ".join(f"{k} = {v:.4g}" for k, v in f["parameters"].items()), f["evidence"]) for f in findings)
+        blocks.append(Table(("cause", "held-out RMS base (N)", "extended (N)", "gain (%)", "parameters", "evidence"), rows,
+                            ("l", "r", "r", "r", "l", "l")))
+    if d.get("unexplained"):
+        blocks.append(Bullets(tuple(f"Unexplained: {u['run']}, {u['rms_n']:.3g} N RMS ({u['ratio']:.1f} x the noise floor), largest at "
+                                    f"{u['where_s']:.4g} s, dominant frequency {u['dominant_freq_hz']:.4g} Hz" for u in d["unexplained"])))
+    png = path / "residuals.png"
+    if png.is_file():
+        blocks.append(FigureBlock("diagnosis_residuals", "Residuals before and after the diagnosis's extensions",
+                                  "Measured minus model for every run, on each run's own time axis.", png.read_bytes()))
+    return blocks
+
+
 def build_report(characterization: str | Path | None = None, validation: str | Path | None = None,
-                 bundle: str | Path | None = None) -> Report:
+                 bundle: str | Path | None = None, diagnosis: str | Path | None = None) -> Report:
     """Read the inputs given and lay out the report (nothing is written)."""
-    if characterization is None and validation is None and bundle is None:
-        raise ReportError("nothing to report: give at least one of --characterization, --validation, --bundle")
+    if characterization is None and validation is None and bundle is None and diagnosis is None:
+        raise ReportError("nothing to report: give at least one of --characterization, --validation, --bundle, --diagnosis")
     missing: list[str] = []
     char = _load_dir(characterization, "characterization", "characterize", summary.characterization_table) if characterization is not None else None
     val = _load_dir(validation, "validation", "validate", summary.validation_table) if validation is not None else None
@@ -667,6 +701,8 @@ def build_report(characterization: str | Path | None = None, validation: str | P
                            _tracking_figure(val, missing), _residuals_figure(bundle_doc, char, missing)) if f is not None]
     if figures:
         blocks += [Heading("Figures"), *figures]
+    if diagnosis is not None:
+        blocks += _diagnosis_blocks(diagnosis, missing)
     blocks += [Heading("Missing pieces"), Bullets(tuple(missing)) if missing else Para("Nothing missing.")]
     return Report(metrics_table(char, val), comparison, blocks, missing)
 
@@ -840,11 +876,22 @@ def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) 
     return ReportResult(report, out, tuple(out / n for n in names), previous)
 
 
+def expected_table(report: Report) -> pd.DataFrame:
+    """The report's figures as the expected table CI compares against, with a tolerance on
+    each: 0.05 in the figure's own unit (percentage points, N, ms) or 1 %, whichever is larger."""
+    import io
+
+    df = pd.read_csv(io.StringIO(report.metrics_csv()))
+    df = df[df.value.notna()].copy()
+    df["tolerance"] = [max(0.05, 0.01 * abs(v)) for v in df.value]
+    return df[["table", "test", "metric", "unit", "value", "tolerance"]]
+
+
 def generate(out_dir: str | Path, *, characterization: str | Path | None = None, validation: str | Path | None = None,
-             bundle: str | Path | None = None, replace: bool = False) -> ReportResult:
+             bundle: str | Path | None = None, diagnosis: str | Path | None = None, replace: bool = False) -> ReportResult:
     """Check the output directory, build the report and write it."""
     check_output_dir(out_dir, replace)
-    return write_report(build_report(characterization, validation, bundle), out_dir, replace=replace)
+    return write_report(build_report(characterization, validation, bundle, diagnosis), out_dir, replace=replace)
 
 
 __all__ = ["build_report", "write_report", "generate", "check_output_dir", "metrics_csv", "metrics_table", "Report",

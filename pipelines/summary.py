@@ -63,6 +63,10 @@ def run_metrics(run: runformat.Run) -> list[dict]:
             row("overshoot", s.percent, "%", note)
             settle_note = "2 % band below 3x noise" if s.band_below_noise else ("" if s.settled else "did not settle")
             row("settling_time", s.settling_time_s * 1e3 if s.settled else float("nan"), "ms", settle_note, with_thesis=False)
+        elif np.ptp(run.command_v) == 0:  # a rest run: the sensor alone
+            k = np.polyfit(run.t_s, y, 1)
+            row("noise_rms", float(np.std(y - np.polyval(k, run.t_s))), unit_out, f"at rest, {run.t_s[-1]:.0f} s", with_thesis=False)
+            row("drift_per_min", float(k[0] * 60.0), f"{unit_out}/min", f"offset {np.mean(y):.2f} {unit_out} at zero drive", with_thesis=False)
         else:
             row("-", float("nan"), "", f"no characterization metric for kind {run.kind!r}", with_thesis=False)
     except MetricError as exc:

@@ -251,7 +251,12 @@ class Context:
         return sorted([r for r in self.runs if r.kind == "step" and r.fs_hz >= 5000], key=lambda r: r.step_v)
 
     def sweeps(self, lo_hz: float = 0.0, hi_hz: float = np.inf) -> list[RunData]:
-        return [r for r in self.runs if r.kind in ("triangle", "sine", "custom") and r.freq_hz is not None and lo_hz <= r.freq_hz <= hi_hz]
+        """Swept runs between two drive frequencies; a run of unknown frequency (imported)
+        counts as a slow sweep."""
+        def freq(r):
+            return r.freq_hz if r.freq_hz is not None else 0.0
+
+        return [r for r in self.runs if r.kind in ("triangle", "sine", "custom") and np.ptp(r.x) > 0 and lo_hz <= freq(r) <= hi_hz]
 
     def rests(self) -> list[RunData]:
         return [r for r in self.runs if np.ptp(r.x) == 0]
