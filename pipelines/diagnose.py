@@ -109,14 +109,15 @@ def residual_figure(runs: list[dg.RunData], base: dg.Model, result: dg.Diagnosis
 
 def format_summary(result: dg.Diagnosis) -> str:
     """The diagnosis as a technician reads it."""
-    lines = [f"Diagnosis: {result.summary}", ""]
-    lines.append(f"Residual over all runs: {result.residual_rms_n:.3g} N RMS; sensor noise floor {result.noise_floor_n:.3g} N RMS.")
+    u = result.model.hysteresis.output_unit
+    lines = [f"Diagnosis: {result.summary.replace(' N', ' ' + u) if u != 'N' else result.summary}", ""]
+    lines.append(f"Residual over all runs: {result.residual_rms_n:.3g} {u} RMS; sensor noise floor {result.noise_floor_n:.3g} {u} RMS.")
     if result.findings:
         lines.append("")
         lines.append(f"{'cause':<28} {'held-out RMS: base -> extended':>32} {'gain':>7}  parameters")
         for f in result.findings:
             params = ", ".join(f"{k} = {v:.4g}" for k, v in f.parameters.items())
-            lines.append(f"{f.cause:<28} {f.baseline_rms_n:>14.3g} N -> {f.extended_rms_n:.3g} N {f.gain_pct:>6.0f} %  {params}")
+            lines.append(f"{f.cause:<28} {f.baseline_rms_n:>14.3g} {u} -> {f.extended_rms_n:.3g} {u} {f.gain_pct:>6.0f} %  {params}")
             lines.append(f"    why: {dg.CAUSES[f.cause].physics}; evidence: {f.evidence}")
             lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension)")
     else:
@@ -124,7 +125,7 @@ def format_summary(result: dg.Diagnosis) -> str:
     if result.unexplained:
         lines.append("")
         lines.append("Unexplained (no cause in the catalogue accounts for it):")
-        for u in result.unexplained:
-            lines.append(f"    {u['run']}: {u['rms_n']:.3g} N RMS = {u['ratio']:.1f} x the noise floor, largest at {u['where_s']:.4g} s, "
-                         f"dominant frequency {u['dominant_freq_hz']:.4g} Hz")
+        for u_ in result.unexplained:
+            lines.append(f"    {u_['run']}: {u_['rms_n']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at {u_['where_s']:.4g} s, "
+                         f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz")
     return "\n".join(lines)

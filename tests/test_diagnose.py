@@ -104,3 +104,23 @@ def test_cli_diagnose_and_simulate(tmp_path):
 
     sim = rf.read_run(tmp_path / "sim.parquet")
     np.testing.assert_allclose(sim.data["residual"], sim.data["force_n"] - sim.data["predicted"])
+
+
+DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
+
+
+@pytest.mark.skipif(not (DATASETS / "smarthysteresis").is_dir(), reason="shared data sets not found")
+def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
+    runner = CliRunner()
+    run = tmp_path / "smart.parquet"
+    assert runner.invoke(cli, ["import", str(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"), "--out", str(run), "--no-header",
+                               "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4",
+                               "--sample-rate", "5000"]).exit_code == 0
+    assert runner.invoke(cli, ["fit-hysteresis", str(run), "--out", str(tmp_path / "h.json")]).exit_code == 0
+    assert runner.invoke(cli, ["bundle", "--hysteresis", str(tmp_path / "h.json"), "--out", str(tmp_path / "b.json")]).exit_code == 0
+    res = runner.invoke(cli, ["diagnose", str(run), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d")])
+    assert res.exit_code == 0, res.output
+    assert " um RMS" in res.output and " N RMS" not in res.output
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    # what it finds is reported either way: findings, or structure listed as unexplained
+    assert doc["findings"] or doc["unexplained"] or doc["summary"].startswith("No findings")
