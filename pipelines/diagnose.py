@@ -57,11 +57,17 @@ def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding]) -> dict[st
     comp = ext.setdefault("compensation", {})
     for f in findings:
         if f.cause == "amplifier_slew_limit":
-            # keep the drive well inside the slew limit: about 2 N/V on the press
-            gain = float(np.mean(np.diff(bundle["hysteresis"]["model"]["play_weights"]) * 0) + 2.0)
+            # keep the drive at half the slew limit: the reference rate times the press's
+            # largest force per volt (the model's steepest slope) must stay below it
+            model = PIModel.from_dict(bundle["hysteresis"]["model"])
+            v = np.linspace(model.x0, model.x0 + 150.0, 1501)
+            gain = float(np.max(np.diff(model.forward(v)[0]) / np.diff(v)))
             comp["max_rate_n_per_s"] = min(comp.get("max_rate_n_per_s", np.inf), 0.5 * f.parameters["slew_rate_v_per_s"] * gain)
         elif f.cause == "input_delay":
             comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
+        elif f.cause == "hysteresis_order":
+            ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
+            ext["hysteresis"]["extended_by"] = "diagnose: hysteresis_order"
         elif f.cause == "logarithmic_creep" and "creep" in ext:
             log = CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
             ext["creep"]["model"] = log.to_dict()
