@@ -59,8 +59,9 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--effects", nargs="*", help="only these rows (effect ids, or none)")
     a = ap.parse_args()
-    hidden = list(EFFECTS) + ["none"]
+    hidden = a.effects or (list(EFFECTS) + ["none"])
     jobs = [(e, s) for e in hidden for s in range(a.seeds)]
     with ProcessPoolExecutor(a.workers) as pool:
         results = list(pool.map(one, jobs))
