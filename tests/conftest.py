@@ -35,3 +35,13 @@ def pytest_collection_modifyitems(config, items):
 def daq_device(request):
     """The device given with ``--daq`` (tests using it are marked ``daq``)."""
     return request.config.getoption("--daq")
+
+
+# CI must be reproducible: the same examples on every run (locally, Hypothesis explores).
+import os  # noqa: E402
+
+from hypothesis import settings as _hyp_settings  # noqa: E402
+
+_hyp_settings.register_profile("ci", derandomize=True, print_blob=True)
+if os.environ.get("CI"):
+    _hyp_settings.load_profile("ci")

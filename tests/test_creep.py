@@ -156,9 +156,11 @@ def test_compensate_inverts_response(m, fs, f_c):
     f_h, s1 = m.compensate(f_c, fs)
     y, s2 = m.response(f_h, fs)
     scale = max(1.0, float(np.max(np.abs(f_c))))
-    # both are exact recursions; only rounding (modal transform, partial sums) differs
+    # both are exact recursions; only rounding (modal transform, partial sums) differs: the
+    # outputs agree to 1e-9; the internal states go through the eigenvector matrix, whose
+    # conditioning (near-cancelling terms at a low rate) costs up to a decade more
     np.testing.assert_allclose(y, f_c, rtol=0, atol=1e-9 * scale)
-    np.testing.assert_allclose(s1, s2, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(s1, s2, rtol=0, atol=1e-8 * scale)
 
 
 @settings(max_examples=150, deadline=None)
