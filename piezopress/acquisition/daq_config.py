@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from piezopress.acquisition.plan import DriveLimits
-from piezopress.acquisition.rig_config import _check, param
+from piezopress.acquisition.rig_config import SectionedConfig, _check, param
 from piezopress.errors import ConfigError
 
 #: ``ai_terminal`` values and the DAQmx ``TerminalConfiguration`` value of each (stable across
@@ -133,8 +133,10 @@ class InputChannel:
 
 
 @dataclass(frozen=True)
-class DaqRigConfig:
+class DaqRigConfig(SectionedConfig):
     """A complete, checked hardware rig configuration."""
+
+    SECTION_TYPES = SECTIONS
 
     rig: DaqRigSection = DaqRigSection()
     daq: BoardSection = BoardSection()
@@ -178,17 +180,9 @@ class DaqRigConfig:
             out.append(InputChannel("monitor_v", self.monitor.channel, self.monitor.scale_v_per_v, 0.0))
         return tuple(out)
 
-    def as_dict(self) -> dict[str, dict[str, Any]]:
-        return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}
-
-    def replace(self, **sections: Mapping[str, Any]) -> "DaqRigConfig":
-        """A copy with some keys changed, checked like a file: ``cfg.replace(daq={"device": "Dev2"})``."""
-        doc = self.as_dict()
-        for sec, values in sections.items():
-            if sec not in doc:
-                raise ConfigError(self.source, [f"unknown section [{sec}]; expected one of {', '.join(SECTIONS)}"])
-            doc[sec] = {**doc[sec], **values}
-        return parse_daq_rig(doc, source=self.source)
+    @classmethod
+    def _parse(cls, doc: Mapping[str, Any], source: str) -> "DaqRigConfig":
+        return parse_daq_rig(doc, source=source)
 
 
 def _relations(s: Mapping[str, Any]) -> list[str]:

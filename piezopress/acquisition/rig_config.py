@@ -220,9 +220,37 @@ EFFECTS: dict[str, Effect] = {
 }
 
 
+class SectionedConfig:
+    """``as_dict`` and ``replace`` for a configuration made of section dataclasses.
+
+    Subclasses set ``SECTION_TYPES`` (section name -> dataclass) and ``_parse`` (the checked
+    parser of a whole document)."""
+
+    SECTION_TYPES: dict[str, type] = {}
+    source: str
+
+    def as_dict(self) -> dict[str, dict[str, Any]]:
+        return {name: dataclasses.asdict(getattr(self, name)) for name in self.SECTION_TYPES}
+
+    def replace(self, **sections: Mapping[str, Any]):
+        """A copy with some keys changed, checked like a file: ``cfg.replace(mode={"damping": 0.2})``."""
+        doc = self.as_dict()
+        for sec, values in sections.items():
+            if sec not in doc:
+                raise ConfigError(self.source, [f"unknown section [{sec}]; expected one of {', '.join(self.SECTION_TYPES)}"])
+            doc[sec] = {**doc[sec], **values}
+        return self._parse(doc, source=self.source)
+
+    @classmethod
+    def _parse(cls, doc: Mapping[str, Any], source: str):
+        raise NotImplementedError
+
+
 @dataclass(frozen=True)
-class RigConfig:
+class RigConfig(SectionedConfig):
     """A complete, checked rig configuration."""
+
+    SECTION_TYPES = SECTIONS
 
     rig: RigSection = RigSection()
     actuator: ActuatorSection = ActuatorSection()
@@ -272,17 +300,9 @@ class RigConfig:
             max_force_n=self.actuator.max_force_n,
         )
 
-    def as_dict(self) -> dict[str, dict[str, Any]]:
-        return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}
-
-    def replace(self, **sections: Mapping[str, Any]) -> "RigConfig":
-        """A copy with some keys changed, checked like a file: ``cfg.replace(mode={"damping": 0.2})``."""
-        doc = self.as_dict()
-        for sec, values in sections.items():
-            if sec not in doc:
-                raise ConfigError(self.source, [f"unknown section [{sec}]; expected one of {', '.join(SECTIONS)}"])
-            doc[sec] = {**doc[sec], **values}
-        return parse_rig(doc, source=self.source)
+    @classmethod
+    def _parse(cls, doc: Mapping[str, Any], source: str) -> "RigConfig":
+        return parse_rig(doc, source=source)
 
 
 #: Magnitudes at which each effect is meant to be found by ``diagnose`` (documented ranges;
