@@ -13,7 +13,6 @@ terminals, ``drive_*``/``output_*`` are volts across the actuator (after the amp
 
 from __future__ import annotations
 
-import dataclasses
 import re
 import tomllib
 from dataclasses import dataclass, fields
