@@ -54,6 +54,10 @@ def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding]) -> dict[st
     compensator change it (creep form, drive rate limit, lead)."""
     ext = copy.deepcopy(bundle)
     ext["extensions"] = {f.cause: f.parameters for f in findings}
+    # what the compensator applies of them, and what it only records
+    applied = {"amplifier_slew_limit", "input_delay", "logarithmic_creep", "hysteresis_order"}
+    ext["extensions_applied_by_compensator"] = sorted(f.cause for f in findings if f.cause in applied)
+    ext["extensions_recorded_only"] = sorted(f.cause for f in findings if f.cause not in applied)
     comp = ext.setdefault("compensation", {})
     for f in findings:
         if f.cause == "amplifier_slew_limit":
