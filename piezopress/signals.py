@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import signal
 
 
 def rate_limit(u: np.ndarray, v0: float, max_step: float) -> np.ndarray:
@@ -38,3 +39,15 @@ def rate_limit(u: np.ndarray, v0: float, max_step: float) -> np.ndarray:
             k += 1
         done = k
     return v
+
+
+def first_order(x: np.ndarray, tau_s: float, fs_hz: float, y0: float = 0.0) -> np.ndarray:
+    """``1 / (1 + tau s)``, exact for an input held between samples, from output ``y0``."""
+    a = math.exp(-1.0 / (fs_hz * tau_s))
+    y, _ = signal.lfilter([1.0 - a], [1.0, -a], x, zi=[a * y0])
+    return y
+
+
+def rate_envelope(drive: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
+    """``|dV/dt|`` of a sampled drive (V/s), smoothed over ``tau_s``, from rest."""
+    return first_order(np.abs(np.diff(drive, prepend=drive[0])) * fs_hz, tau_s, fs_hz)

@@ -18,7 +18,6 @@ the ``numpy.random.Generator`` passed in; nothing sleeps.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -161,11 +160,8 @@ def modes(cfg: RigConfig) -> Modal | None:
     return modal
 
 
-def first_order(x: np.ndarray, tau_s: float, fs_hz: float, y0: float) -> np.ndarray:
-    """``1 / (1 + tau s)`` exact for a held input, from output ``y0`` (the state)."""
-    a = math.exp(-1.0 / (fs_hz * tau_s))
-    y, _ = signal.lfilter([1.0 - a], [1.0, -a], x, zi=[a * y0])
-    return y
+#: ``1 / (1 + tau s)`` from a given output state: see :func:`piezopress.signals.first_order`.
+first_order = signals.first_order
 
 
 def creep_series(cfg: CreepSection) -> tuple[np.ndarray, np.ndarray]:

@@ -83,12 +83,6 @@ class RunData:
         return self.monitor if self.monitor is not None else self.x
 
 
-def first_order(x: np.ndarray, tau_s: float, fs_hz: float) -> np.ndarray:
-    """``1/(1 + tau s)`` from rest at 0."""
-    a = math.exp(-1.0 / (fs_hz * tau_s))
-    return signal.lfilter([1.0 - a], [1.0, -a], x)
-
-
 @dataclass(frozen=True)
 class Model:
     """The bundle's forward model, and every extension the catalogue can add to it.
@@ -118,7 +112,7 @@ class Model:
             x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
         widen = None
         if self.rate_v_per_kv_s > 0:
-            rate = first_order(np.abs(np.diff(x, prepend=x[0])) * run.fs_hz, 5e-4, run.fs_hz)
+            rate = signals.rate_envelope(x, run.fs_hz, 5e-4)
             widen = self.rate_v_per_kv_s * rate / 1000.0
         Y = operators.play(np.asarray(x, float) - m.x0, np.array(m.r), 0.0, widen=widen)
         return H.dead_zone_superposition(Y @ np.array(m.w), np.array(m.d), np.array(m.s))
@@ -133,7 +127,7 @@ class Model:
             modes.append(self.mode2)
         out = sum(share * mode_response(c, run.fs_hz, wn, z, hold="zoh") for share, wn, z in modes) if modes else c
         if self.sensor_lowpass_hz:
-            out = out[0] + first_order(out - out[0], 1.0 / (2 * np.pi * self.sensor_lowpass_hz), run.fs_hz)
+            out = out[0] + signals.first_order(out - out[0], 1.0 / (2 * np.pi * self.sensor_lowpass_hz), run.fs_hz)
         y = self.hysteresis.y0 + out
         return np.maximum(y, 0.0) if self.hysteresis.output_unit == "N" else y  # the stack only pushes
 
@@ -142,7 +136,7 @@ class Model:
         y = f
         if self.interference:
             g, e0, tau = self.interference
-            env = first_order(np.abs(np.diff(run.drive, prepend=run.drive[0])) * run.fs_hz, tau, run.fs_hz)
+            env = signals.rate_envelope(run.drive, run.fs_hz, tau)
             y = y - g * np.maximum(env - e0, 0.0)
         if self.delay_s > 0:
             t = np.arange(y.size) / run.fs_hz
@@ -427,7 +421,7 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     res = _err(fit, ctx.pred)
     best = (rms(res), None)
     for tau in (0.5e-3, 1e-3, 1.5e-3, 2.5e-3, 4e-3):
-        envs = [first_order(np.abs(np.diff(r.drive, prepend=r.drive[0])) * r.fs_hz, tau, r.fs_hz)[sl] for r, sl in fit]
+        envs = [signals.rate_envelope(r.drive, r.fs_hz, tau)[sl] for r, sl in fit]
         peak = max(float(e.max()) for e in envs)
         for frac in (0.0, 0.1, 0.2, 0.35, 0.5, 0.7):
             A = -np.concatenate([np.maximum(e - frac * peak, 0.0) for e in envs])
