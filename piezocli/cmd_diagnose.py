@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from piezocli.main import cli, reports_errors
+from piezopress import units
 from pipelines import diagnose as diag
 
 
@@ -27,7 +28,8 @@ def simulate_cmd(run, bundle_path, out) -> None:
     """
     sim = diag.simulate_file(bundle_path, run, out)
     res = sim.data["residual"].to_numpy()
-    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} max, {(res ** 2).mean() ** 0.5:.3g} RMS ({sim.output_column})")
+    u = units.label(sim.output_unit)
+    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column})")
 
 
 @cli.command("diagnose")

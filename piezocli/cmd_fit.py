@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
+from piezocli.main import ROWS, cli, reports_errors
+from piezopress import units
 from pipelines import bundle as bundle_mod
 from pipelines import characterize as char
 from pipelines import fit as fit_mod
@@ -14,6 +15,10 @@ from pipelines import fit as fit_mod
 _runs_arg = click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 _names_opt = click.option("--run", "names", multiple=True, help="Use only the run(s) of this name (repeatable).")
 _replace_opt = click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as .prev.json).")
+_skip_opt = click.option("--skip-s", "skip_s", type=click.FloatRange(min=0.0), default=None, metavar="SECONDS",
+                         help="Do not fit the first SECONDS of each sweep (a rest, a start-up transient); they still carry the model's state. "
+                              "Default: detected (the sweep's start until its input has reached both ends of its range).")
+_rows_opt = click.option("--rows", type=ROWS, default=None, help="Fit only rows START to STOP-1 of each sweep (from 0); earlier rows still carry the state.")
 _if_changed_opt = click.option("--if-changed", is_flag=True,
                                help="Do nothing if the output was made from the same inputs; else replace it (keeping .prev.json).")
 
@@ -35,31 +40,36 @@ def _wrote(path: Path, previous: Path | None) -> None:
 @_names_opt
 @click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of each run held out to choose the model.")
 @click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section: remove creep from the outputs first.")
+@_skip_opt
+@_rows_opt
 @_replace_opt
 @_if_changed_opt
 @reports_errors
-def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, replace, if_changed) -> None:
+def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, rows, replace, if_changed) -> None:
     """Fit the modified Prandtl-Ishlinskii model and its inverse on quasi-static sweeps.
 
     RUNS are run files or run directories; without --run, every triangle/sine run at up to
     0.5 Hz is used. With --creep, creep is removed from the outputs first (fit hysteresis,
-    then creep, then hysteresis again with --creep: `piezopress fit` does this). Operator numbers and thresholds are chosen on the held-out end of each
-    run; operators that contribute nothing are pruned.
+    then creep, then hysteresis again with --creep: `piezopress fit` does this). Operator
+    numbers and thresholds are chosen on the held-out end of each run's fitted rows (never a
+    random subset); operators that contribute nothing are pruned. A start that is not part
+    of the sweep (a rest, a start-up transient) is detected, or set with --skip-s / --rows.
+    The fit error printed is the chosen model's on its training rows and on the held-out
+    end, in the run's own unit; the model written is refitted on all fitted rows.
 
     \b
     Example:
       piezopress fit-hysteresis runs/char --out build/hysteresis.json
-      piezopress fit-hysteresis smart.parquet --holdout-fraction 0.5 --out build/smart.json
+      piezopress fit-hysteresis smart.parquet --skip-s 3.3 --out build/smart.json
     """
     creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
-    if _skip(out, fit_mod.hysteresis_digest(fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction), if_changed):
+    digest = fit_mod.hysteresis_digest(fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, skip_s=skip_s, rows=rows)
+    if _skip(out, digest, if_changed):
         return
-    doc, fit = fit_mod.fit_hysteresis_section(runs, names=names, holdout_fraction=holdout_fraction, creep=creep)
-    unit = doc["model"]["output_unit"]
+    doc, fit = fit_mod.fit_hysteresis_section(runs, names=names, holdout_fraction=holdout_fraction, creep=creep, skip_s=skip_s, rows=rows)
     click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])}")
     click.echo(f"Chosen: {fit.reason}")
-    click.echo(f"Fit error: train RMS {fit.train_rms:.4g} {unit}, held-out RMS {fit.holdout_rms:.4g} {unit} "
-               f"= {fit.holdout_rms_pct:.3f} % of the {fit.output_range:.4g} {unit} output range")
+    click.echo(f"Fit error: {_fit_error(fit, doc['model']['output_unit'])}")
     _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
@@ -88,7 +98,7 @@ def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace, if_cha
         return
     doc, fit = fit_mod.fit_creep_section(runs, hyst, names=names, holdout_fraction=holdout_fraction)
     click.echo(f"Run: {doc['runs'][0]['name']}")
-    click.echo(f"Chosen: {fit.reason}")
+    click.echo(f"Chosen: {fit.reason} (RMS in {units.label(hyst['model']['output_unit'])})")
     _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
@@ -125,7 +135,9 @@ def fit_shaper_cmd(runs, out, names, replace, if_changed) -> None:
 @click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section (optional).")
 @click.option("--shaper", "shaper_path", type=click.Path(dir_okay=False, path_type=Path), help="Shaper section (optional).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
-@click.option("--max-rate", type=click.FloatRange(min=1.0), default=40_000.0, show_default=True, help="Largest reference rate passed to the drive, N/s.")
+@click.option("--max-rate", type=click.FloatRange(min=1e-9), default=None,
+              help="Largest reference rate passed to the drive, in the model's output unit per second "
+                   "(N/s or µm/s; default: 40000 N/s for a force model, no limit for a displacement model).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
 @_replace_opt
 @_if_changed_opt
@@ -146,7 +158,7 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
     if shaper_path:
         sections["shaper"] = bundle_mod.read_document(shaper_path, "shaper")
     act = load_rig(rig_path).actuator
-    comp = fit_mod.compensation_settings(sections, max_rate_n_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v)
+    comp = fit_mod.compensation_settings(sections, max_rate_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v)
     doc = bundle_mod.assemble(sections, comp)
     if _skip(out, doc["inputs_digest"], if_changed):
         return
@@ -159,40 +171,67 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
 @click.option("--base", is_flag=True, help="Fit the thesis's model structure (12 plays, 1 dead zone, 3-pole creep): the base model diagnose extends.")
+@_skip_opt
+@_rows_opt
 @_replace_opt
 @reports_errors
-def fit_all_cmd(runs, out, rig_path, base, replace) -> None:
+def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace) -> None:
     """Fit hysteresis, creep and shaper from a characterization and write the bundle.
 
     The same as fit-hysteresis, fit-creep, fit-shaper and bundle in a row (their section
     files are not kept; use the separate commands, or `make refit`, for incremental fits).
+    Each section is fitted if the runs allow it: sweeps alone (e.g. one imported sine) give
+    a bundle with the hysteresis section only, and one line per section not fitted says why.
+    Figures are in the runs' own output unit (N or µm).
 
     \b
     Example:
       piezopress fit runs/char --out build/bundle.json
+      piezopress fit runs/smarthysteresis_150v_1hz.parquet --base --out build/smart-base.json
     """
     from piezopress.acquisition.rig_config import load_rig
 
-    h, hfit, c, cfit = fit_mod.fit_hysteresis_and_creep(runs, base=base)
+    res = fit_mod.fit_all(runs, base=base, skip_s=skip_s, rows=rows)
+    u = units.label(res.unit)
+    hfit = res.fits["hysteresis"]
     click.echo(f"hysteresis: {hfit.reason}")
-    click.echo(f"creep:      {cfit.reason}")
-    s, _ = fit_mod.fit_shaper_section(runs)
-    click.echo(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
-    sections = {"hysteresis": h, "creep": c, "shaper": s}
+    click.echo(f"hysteresis: {_fit_error(hfit, res.unit)}")
+    if "creep" in res.sections:
+        click.echo(f"creep:      {res.fits['creep'].reason} (RMS in {u})")
+    if "shaper" in res.sections:
+        s = res.sections["shaper"]
+        click.echo(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
+    for name, why in res.not_fitted.items():
+        click.echo(f"{name}: not fitted: {why}")
     act = load_rig(rig_path).actuator
-    doc = bundle_mod.assemble(sections, fit_mod.compensation_settings(sections, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v))
+    lo, hi = res.drive_v
+    if lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
+        click.echo(f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
+                   f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this actuator's range)")
+    doc = bundle_mod.assemble(res.sections, fit_mod.compensation_settings(res.sections, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v))
+    bundle_mod.compensator(doc)  # check it builds
     _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+
+
+def _fit_error(fit, unit: str) -> str:
+    """Train and held-out errors of a hysteresis fit, in the output's unit."""
+    u = units.label(unit)
+    return (f"train RMS {fit.train_rms:.4g} {u}, held-out RMS {fit.holdout_rms:.4g} {u} "
+            f"= {fit.holdout_rms_pct:.3f} % of the {fit.output_range:.4g} {u} output range")
 
 
 @cli.command("compensate")
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle.")
 @click.option("--reference", "ref_path", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="CSV with columns t_s and reference_n (force above the preload, uniformly sampled).")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="CSV to write: t_s, reference_n, command_v.")
+              help="CSV with columns t_s and reference_n (force above the preload; reference_um for a displacement bundle), uniformly sampled.")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="CSV to write: t_s, the reference column, command_v.")
 @click.option("--no-shaper", is_flag=True, help="Leave the input shaper out.")
 @reports_errors
 def compensate_cmd(bundle_path, ref_path, out, no_shaper) -> None:
-    """Turn a reference force trajectory into the actuator drive.
+    """Turn a reference force (or displacement) trajectory into the actuator drive.
+
+    The reference is in the bundle's output unit: column reference_n (N above the preload)
+    for a force bundle, reference_um (µm from the model's rest) for a displacement bundle.
 
     Input shaper, creep compensator and inverse hysteresis, in the thesis's order; the
     drive is limited to the actuator's safe range, with a warning where the reference

@@ -19,7 +19,7 @@ given as a number counted from 1 or as a header name. Run columns: t_s, command_
 force_n and/or displacement_um (at least one), reference_n, monitor_v. Without a t_s column
 give --sample-rate; with one, the time column must be uniform within 1e-3 (jitter is
 resampled to an exact grid, a gap is refused) and --sample-rate, if given, is a check.
---scale and --offset convert units (value * scale + offset, to V, N, um, s). --lag
+--scale and --offset convert units (value * scale + offset, to V, N, µm, s). --lag
 RUN_COLUMN=N pairs the input of row i with that column's row i+N (dropping the ends).
 --rows START:STOP keeps data rows START to STOP-1 of the input (counted from 0, after any
 header). The source file's name and sha256 and every option are stored in the run's
@@ -90,7 +90,7 @@ def _rows(text: str | None) -> tuple[int | None, int | None] | None:
 @click.argument("source", type=click.Path(path_type=Path))
 @click.option("--out", "-o", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Run file to write (.parquet); refused if it exists.")
 @click.option("--col", "cols", multiple=True, metavar="RUN_COLUMN=SOURCE", help="Map a run column to a source column (number from 1, or header name). Repeat.")
-@click.option("--scale", "scales", multiple=True, metavar="RUN_COLUMN=FACTOR", help="Multiply a column to get V, N, um or s. Repeat.")
+@click.option("--scale", "scales", multiple=True, metavar="RUN_COLUMN=FACTOR", help="Multiply a column to get V, N, µm or s. Repeat.")
 @click.option("--offset", "offsets", multiple=True, metavar="RUN_COLUMN=VALUE", help="Add to a column after scaling. Repeat.")
 @click.option("--lag", "lags", multiple=True, metavar="RUN_COLUMN=SAMPLES", help="The column was recorded SAMPLES after the input (command_v). Repeat.")
 @click.option("--kind", default="custom", show_default=True, help="Run kind: triangle, step, creep, staircase, sine or custom.")

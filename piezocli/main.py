@@ -32,6 +32,29 @@ def reports_errors(func):
     return wrapper
 
 
+class RowsType(click.ParamType):
+    """``START:STOP``: rows ``START`` to ``STOP - 1`` counted from 0; either end may be left out."""
+
+    name = "START:STOP"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple) or value is None:
+            return value
+        start, sep, stop = str(value).partition(":")
+        try:
+            if not sep:
+                raise ValueError
+            out = (int(start) if start.strip() else None, int(stop) if stop.strip() else None)
+        except ValueError:
+            self.fail(f"{value!r}: expected START:STOP (counted from 0, STOP excluded), e.g. 0:8000 or 11151:", param, ctx)
+        if (out[0] is not None and out[0] < 0) or (out[1] is not None and out[1] < 1) or (None not in out and out[1] <= out[0]):
+            self.fail(f"{value!r}: expected 0 <= START < STOP", param, ctx)
+        return out
+
+
+ROWS = RowsType()
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="piezopress")
 def cli() -> None:

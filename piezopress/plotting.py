@@ -23,6 +23,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from piezopress import units
+
 #: Resolution of the PNGs: 100 dpi, so a 10 x 4 in figure is 1000 x 400 px (a laptop screen's width).
 DPI = 100
 #: Width of every figure (in), fitting the report page (1100 px).
@@ -66,16 +68,20 @@ def to_png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def hysteresis_loops(before: Curve | None, after: Curve | None, *, before_title: str = "", after_title: str = "") -> Figure:
-    """Force against drive before compensation, and force against reference after it, side by side.
+def hysteresis_loops(before: Curve | None, after: Curve | None, *, before_title: str = "", after_title: str = "",
+                     unit: str = "N", after_unit: str | None = None) -> Figure:
+    """Output against drive before compensation, and output against reference after it, side by side.
 
-    ``before``: drive (V) against measured force (N); ``after``: reference force (N)
-    against measured force (N), drawn with the ideal line ``force = reference``.
+    ``before``: drive (V) against the measured output (force in N, or displacement in µm:
+    ``unit``); ``after``: reference against measured output (``after_unit``, default
+    ``unit``), drawn with the ideal line ``output = reference``.
     """
     fig = _figure(4.2)
     ax_b, ax_a = fig.subplots(1, 2)
-    ax_b.set(title=before_title or "Before: uncompensated", xlabel="drive command_v (V)", ylabel="measured force (N)")
-    ax_a.set(title=after_title or "After: compensated", xlabel="reference force (N)", ylabel="measured force (N)")
+    qb, ub = units.quantity(unit), units.label(unit)
+    qa, ua = units.quantity(after_unit or unit), units.label(after_unit or unit)
+    ax_b.set(title=before_title or "Before: uncompensated", xlabel="drive command_v (V)", ylabel=f"measured {qb} ({ub})")
+    ax_a.set(title=after_title or "After: compensated", xlabel=f"reference {qa} ({ua})", ylabel=f"measured {qa} ({ua})")
     if before is not None:
         ax_b.plot(before.x, before.y, color=BEFORE_COLOURS[0], lw=0.8, label=before.label or None)
         if before.label:
@@ -84,7 +90,7 @@ def hysteresis_loops(before: Curve | None, after: Curve | None, *, before_title:
         _no_data(ax_b, "no uncompensated 0.1 Hz triangle")
     if after is not None:
         lo, hi = float(np.nanmin(after.x)), float(np.nanmax(after.x))
-        ax_a.plot([lo, hi], [lo, hi], color="0.6", ls="--", lw=0.8, label="ideal: force = reference")
+        ax_a.plot([lo, hi], [lo, hi], color="0.6", ls="--", lw=0.8, label=f"ideal: {qa} = reference")
         ax_a.plot(after.x, after.y, color=AFTER_COLOURS[0], lw=0.8, label=after.label or "measured")
         ax_a.legend(fontsize=8, loc="upper left")
     else:
@@ -141,24 +147,26 @@ def step_responses(uncompensated: Sequence[Curve], compensated: Sequence[Curve])
     return fig
 
 
-def tracking(t_s: np.ndarray, reference_n: np.ndarray, force_n: np.ndarray, error_n: np.ndarray,
-             evaluated_error_n: np.ndarray | None = None, *, title: str = "Staircase tracking") -> Figure:
-    """Reference and measured force against time, with the error ``force - reference`` below.
+def tracking(t_s: np.ndarray, reference: np.ndarray, measured: np.ndarray, error: np.ndarray,
+             evaluated_error: np.ndarray | None = None, *, title: str = "Staircase tracking", unit: str = "N") -> Figure:
+    """Reference and measured output (force, or displacement: ``unit``) against time, with the
+    error ``measured - reference`` below.
 
-    ``evaluated_error_n``: the error where the metric evaluates it (NaN elsewhere), drawn
+    ``evaluated_error``: the error where the metric evaluates it (NaN elsewhere), drawn
     over the full error.
     """
+    q, u = units.quantity(unit), units.label(unit)
     fig = _figure(5.6)
     ax_f, ax_e = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1))
-    ax_f.plot(t_s, reference_n, color="0.3", lw=1.0, ls="--", label="reference")
-    ax_f.plot(t_s, force_n, color=AFTER_COLOURS[0], lw=0.8, label="measured (compensated)")
-    ax_f.set(title=title, ylabel="force (N)")
+    ax_f.plot(t_s, reference, color="0.3", lw=1.0, ls="--", label="reference")
+    ax_f.plot(t_s, measured, color=AFTER_COLOURS[0], lw=0.8, label="measured (compensated)")
+    ax_f.set(title=title, ylabel=f"{q} ({u})")
     ax_f.legend(fontsize=8, loc="upper left")
-    ax_e.plot(t_s, error_n, color="0.7", lw=0.6, label="error")
-    if evaluated_error_n is not None:
-        ax_e.plot(t_s, evaluated_error_n, color=BEFORE_COLOURS[0], lw=0.5, label="error where evaluated (plateaus)")
+    ax_e.plot(t_s, error, color="0.7", lw=0.6, label="error")
+    if evaluated_error is not None:
+        ax_e.plot(t_s, evaluated_error, color=BEFORE_COLOURS[0], lw=0.5, label="error where evaluated (plateaus)")
     ax_e.axhline(0.0, color="0.4", lw=0.6)
-    ax_e.set(xlabel="time (s)", ylabel="force - reference (N)")
+    ax_e.set(xlabel="time (s)", ylabel=f"{q} - reference ({u})")
     ax_e.legend(fontsize=8, loc="upper left")
     for ax in (ax_f, ax_e):
         ax.grid(True, alpha=0.3)
@@ -168,7 +176,7 @@ def tracking(t_s: np.ndarray, reference_n: np.ndarray, force_n: np.ndarray, erro
 def model_residuals(left: Sequence[Curve], right: Sequence[Curve], *, unit: str = "N", left_title: str = "",
                     right_title: str = "", left_xlabel: str = "time (s)", right_xlabel: str = "time (s)",
                     title: str = "Hysteresis model residuals") -> Figure:
-    """Measured minus modelled output (in ``unit``): two panels, e.g. the raw residual against
+    """Measured minus modelled output (in ``unit``, a code or label: ``N``, ``um``/``µm``): two panels, e.g. the raw residual against
     time and the residual with the creep removed (or against the drive)."""
     fig = _figure(4.2)
     ax_l, ax_r = fig.subplots(1, 2, sharey=True)
@@ -180,7 +188,7 @@ def model_residuals(left: Sequence[Curve], right: Sequence[Curve], *, unit: str 
         ax.axhline(0.0, color="0.3", lw=0.6)
         ax.set(title=sub, xlabel=xlabel)
         ax.grid(True, alpha=0.3)
-    ax_l.set_ylabel(f"measured - model ({unit})")
+    ax_l.set_ylabel(f"measured - model ({units.label(unit)})")
     fig.suptitle(title)
     return fig
 
@@ -196,7 +204,7 @@ def residual_rms_bars(runs: Sequence[str], before: Sequence[float], after: Seque
     ax.plot(x, floor, "k_", markersize=18, mew=2, label="noise floor")
     ax.set_yscale("log")
     ax.set_xticks(x, runs, rotation=35, ha="right", fontsize=8)
-    ax.set(ylabel=f"RMS residual ({unit})", title=title)
+    ax.set(ylabel=f"RMS residual ({units.label(unit)})", title=title)
     ax.grid(True, axis="y", alpha=0.3, which="both")
     ax.legend(fontsize=8)
     return fig

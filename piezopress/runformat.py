@@ -34,6 +34,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from piezopress import units
 from piezopress.errors import OutputExistsError, RunFormatError
 
 SCHEMA_VERSION = 1
@@ -95,6 +96,11 @@ class Run:
     def output_column(self) -> str:
         """The measured output: ``force_n`` when present, else ``displacement_um``."""
         return "force_n" if "force_n" in self.data.columns else "displacement_um"
+
+    @property
+    def output_unit(self) -> str:
+        """Unit code of the measured output: ``N`` (force) or ``um`` (displacement)."""
+        return units.unit_of_column(self.output_column)
 
     @property
     def output(self) -> np.ndarray:

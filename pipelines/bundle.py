@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 import piezopress
-from piezopress import runformat
+from piezopress import runformat, units
 from piezopress.analysis.compensation import Compensator
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
@@ -153,7 +153,7 @@ def compensator(bundle: dict[str, Any], *, use_shaper: bool = True, use_creep: b
             shaper=shaper,
             drive_min_v=float(comp.get("drive_min_v", 0.0)),
             drive_max_v=float(comp.get("drive_max_v", 150.0)),
-            max_rate_n_per_s=comp.get("max_rate_n_per_s"),
+            max_rate_per_s=comp.get(f"max_rate_{units.key(hyst.output_unit)}_per_s"),
             lead_s=float(comp.get("lead_s", 0.0)) if use_shaper else 0.0,
         )
     except (KeyError, TypeError, ValueError) as exc:

@@ -8,7 +8,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from piezopress import runformat
+from piezopress import runformat, units
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
@@ -62,11 +62,13 @@ def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding]) -> dict[st
     for f in findings:
         if f.cause == "amplifier_slew_limit":
             # keep the drive at half the slew limit: the reference rate times the press's
-            # largest force per volt (the model's steepest slope) must stay below it
+            # largest output per volt (the model's steepest slope over the drive range) must stay below it
             model = PIModel.from_dict(bundle["hysteresis"]["model"])
-            v = np.linspace(model.x0, model.x0 + 150.0, 1501)
+            hi = float(comp.get("drive_max_v", model.x0 + 150.0))
+            v = np.linspace(model.x0, hi if hi > model.x0 else model.x0 + 150.0, 1501)  # rest to the top of the drive range
             gain = float(np.max(np.diff(model.forward(v)[0]) / np.diff(v)))
-            comp["max_rate_n_per_s"] = min(comp.get("max_rate_n_per_s", np.inf), 0.5 * f.parameters["slew_rate_v_per_s"] * gain)
+            key = f"max_rate_{units.key(model.output_unit)}_per_s"
+            comp[key] = min(comp.get(key) or np.inf, 0.5 * f.parameters["slew_rate_v_per_s"] * gain)
         elif f.cause == "input_delay":
             comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
         elif f.cause == "hysteresis_order":
@@ -96,7 +98,8 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
     before = {s.run: s for s in result.before}
     after = {s.run: s for s in result.after}
     names = [r.name for r in runs]
-    bars = plotting.residual_rms_bars(names, [before[n].rms for n in names], [after[n].rms for n in names], [before[n].floor for n in names])
+    bars = plotting.residual_rms_bars(names, [before[n].rms for n in names], [after[n].rms for n in names], [before[n].floor for n in names],
+                                      unit=result.unit)
     (out / "residuals.png").write_bytes(plotting.to_png(bars))
     (out / "residual_traces.png").write_bytes(plotting.to_png(residual_figure(runs, base_model(bundle), result)))
     return result, out
@@ -112,22 +115,22 @@ def residual_figure(runs: list[dg.RunData], base: dg.Model, result: dg.Diagnosis
             out.append(plotting.Curve(t, res, r.name))
         return out
 
-    return plotting.model_residuals(curves(base), curves(result.model), left_title="base model", right_title="extended by the findings",
+    return plotting.model_residuals(curves(base), curves(result.model), unit=result.unit, left_title="base model", right_title="extended by the findings",
                                     left_xlabel="time / run length", right_xlabel="time / run length",
                                     title=f"Residuals of {len(runs)} runs: measured - model")
 
 
 def format_summary(result: dg.Diagnosis) -> str:
-    """The diagnosis as a technician reads it."""
-    u = result.model.hysteresis.output_unit
-    lines = [f"Diagnosis: {result.summary.replace(' N', ' ' + u) if u != 'N' else result.summary}", ""]
-    lines.append(f"Residual over all runs: {result.residual_rms_n:.3g} {u} RMS; sensor noise floor {result.noise_floor_n:.3g} {u} RMS.")
+    """The diagnosis as a technician reads it (figures in the runs' unit, N or µm)."""
+    u, k = units.label(result.unit), units.key(result.unit)
+    lines = [f"Diagnosis: {result.summary}", ""]
+    lines.append(f"Residual over all runs: {result.residual_rms:.3g} {u} RMS; sensor noise floor {result.noise_floor:.3g} {u} RMS.")
     if result.findings:
         lines.append("")
         lines.append(f"{'cause':<28} {'held-out RMS: base -> extended':>32} {'gain':>7}  parameters")
         for f in result.findings:
             params = ", ".join(f"{k} = {v:.4g}" for k, v in f.parameters.items())
-            lines.append(f"{f.cause:<28} {f.baseline_rms_n:>14.3g} {u} -> {f.extended_rms_n:.3g} {u} {f.gain_pct:>6.0f} %  {params}")
+            lines.append(f"{f.cause:<28} {f.baseline_rms:>14.3g} {u} -> {f.extended_rms:.3g} {u} {f.gain_pct:>6.0f} %  {params}")
             lines.append(f"    why: {dg.CAUSES[f.cause].physics}; evidence: {f.evidence}")
             lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension)")
     else:
@@ -136,6 +139,6 @@ def format_summary(result: dg.Diagnosis) -> str:
         lines.append("")
         lines.append("Unexplained (no cause in the catalogue accounts for it):")
         for u_ in result.unexplained:
-            lines.append(f"    {u_['run']}: {u_['rms_n']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at {u_['where_s']:.4g} s, "
+            lines.append(f"    {u_['run']}: {u_[f'rms_{k}']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at {u_['where_s']:.4g} s, "
                          f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz")
     return "\n".join(lines)

@@ -34,7 +34,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from piezopress import plotting, runformat, thesis
+from piezopress import plotting, runformat, thesis, units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import metrics
@@ -351,9 +351,8 @@ def _step_curve(run: runformat.Run, drive: np.ndarray, **kw) -> plotting.Curve:
     s = metrics.overshoot(run.t_s, run.output, drive=drive, **kw)
     t_ms = (run.t_s - s.step_time_s) * 1e3
     w = (t_ms >= STEP_WINDOW_MS[0]) & (t_ms <= STEP_WINDOW_MS[1])
-    unit = "N" if run.output_column == "force_n" else "um"
     return plotting.Curve(t_ms[w], (run.output[w] - s.baseline) / s.step_size,
-                          f"{run.name}: {s.step_size:.0f} {unit}, overshoot {s.percent:.1f} %")
+                          f"{run.name}: {s.step_size:.0f} {units.label(run.output_unit)}, overshoot {s.percent:.1f} %")
 
 
 def _figure_block(name: str, title: str, caption: str, fig) -> FigureBlock:
@@ -389,10 +388,12 @@ def _loops_figure(char: _Source | None, val: _Source | None, missing: list[str])
         plotting.Curve(before.command_v, before.output, before.name) if before else None,
         plotting.Curve(after.column("reference_n"), after.output, after.name) if after else None,
         before_title=f"Before: {before.name} (uncompensated)" if before else "",
-        after_title=f"After: {after.name} (compensated)" if after else "")
+        after_title=f"After: {after.name} (compensated)" if after else "",
+        unit=(before or after).output_unit, after_unit=after.output_unit if after else None)
+    q = units.quantity((before or after).output_unit)
     return _figure_block("hysteresis_loops", "Hysteresis loops, before and after",
-                         "Left: measured force against the drive, uncompensated. Right: measured force against the reference "
-                         "force with the compensation; the dashed line is a perfect press.", fig)
+                         f"Left: measured {q} against the drive, uncompensated. Right: measured {q} against the reference "
+                         f"{q} with the compensation; the dashed line is a perfect press.", fig)
 
 
 def _creep_figure(char: _Source | None, val: _Source | None, missing: list[str]) -> FigureBlock | None:
@@ -466,7 +467,7 @@ def _tracking_figure(val: _Source | None, missing: list[str]) -> FigureBlock | N
         evaluated = np.where(tr.mask, err, np.nan)
     except PiezopressError as exc:
         missing.append(f"{r.name}: the tracking metric does not suit it ({exc}); the full error is drawn.")
-    fig = plotting.tracking(r.t_s, ref, y, err, evaluated, title=f"Staircase tracking: {r.name} (compensated)")
+    fig = plotting.tracking(r.t_s, ref, y, err, evaluated, title=f"Staircase tracking: {r.name} (compensated)", unit=r.output_unit)
     return _figure_block("tracking", "Staircase tracking",
                          f"Reference and measured force; below, the error. The relative error is evaluated on the plateaus "
                          f"(outside the ramps) from {summary.TRACKING_MIN_REFERENCE_N:g} N above the preload up.", fig)
@@ -501,7 +502,7 @@ def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missi
     if bundle["hysteresis"].get("creep_removed") and "creep" in bundle:
         cm = creep_mod.CreepModel.from_dict(bundle["creep"]["model"])
     raw, other = [], []
-    unit = bundle["hysteresis"]["model"].get("output_unit", "N")
+    unit = units.label(bundle["hysteresis"]["model"].get("output_unit", units.FORCE))
     for r in _fitting_runs(bundle, char, missing):
         pred, _ = model.forward(r.command_v)
         res = r.output - pred
@@ -549,10 +550,11 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
                                                          "fitted on and on data held out of the fit.")]
     h = bundle["hysteresis"]
     fit, model = h.get("fit", {}), h.get("model", {})
-    train, unit = _unit_key(fit, "train_rms_")
+    code = model.get("output_unit")
+    train, key = _unit_key(fit, "train_rms_")
     held, _ = _unit_key(fit, "holdout_rms_")
     rng, _ = _unit_key(fit, "output_range_")
-    unit = {"n": "N"}.get(unit, unit)
+    unit = units.label(code or key)
     runs = ", ".join(r.get("name", "?") for r in h.get("runs", []))
     blocks += [
         Heading("Hysteresis (modified Prandtl-Ishlinskii)", 3),
@@ -575,7 +577,7 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
             Heading("Creep", 3),
             Para(f"Fitted on {', '.join(r.get('name', '?') for r in c.get('runs', []))}, the end "
                  f"({100 * float(cf.get('holdout_fraction', math.nan)):g} %) of the hold held out."),
-            Table(("form", "train RMS (N)", "held-out RMS (N)", "chosen"), rows, ("l", "r", "r", "l")),
+            Table(("form", f"train RMS ({unit})", f"held-out RMS ({unit})", "chosen"), rows, ("l", "r", "r", "l")),
             Para(f"Chosen: `{chosen}`. Why: {cf.get('reason', 'not recorded')}."),
         ]
     else:
@@ -585,7 +587,7 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
         mode, sh, choice = s.get("mode", {}), s.get("shaper", {}), s.get("choice", {})
         wn, zeta = float(mode.get("natural_freq_rad_s", math.nan)), float(mode.get("damping", math.nan))
         mfit = mode.get("fit", {})
-        resid = ", ".join(f"{_num(r, 3)} N ({_num(p, 2)} % of the step)" for r, p in zip(mfit.get("rms_residual", []), mfit.get("residual_pct_of_step", [])))
+        resid = ", ".join(f"{_num(r, 3)} {unit} ({_num(p, 2)} % of the step)" for r, p in zip(mfit.get("rms_residual", []), mfit.get("residual_pct_of_step", [])))
         rows = tuple((str(k.get("name")), str(k.get("impulses")), _num(k.get("delay_ms"), 3), _num(k.get("nominal_residual_pct"), 2),
                       _num(k.get("worst_residual_pct"), 2), "yes" if k.get("name") == sh.get("name") else "")
                      for k in choice.get("candidates", []))
@@ -610,9 +612,10 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
         missing.append("The bundle has no shaper section: the mode and shaper quality are missing (run `piezopress fit` with a low-amplitude step).")
     comp = bundle.get("compensation")
     if comp:
+        rate = units.keyed(comp, "max_rate_", code)  # max_rate_n_per_s or max_rate_um_per_s; null: no limit
+        rate_text = f"rate limit {_num(float(rate) / 1e3, 1)} {unit}/ms" if rate else "no rate limit"
         blocks.append(Para(f"Compensation settings: drive {_num(comp.get('drive_min_v'), 0)} to {_num(comp.get('drive_max_v'), 0)} V, "
-                           f"rate limit {_num(float(comp.get('max_rate_n_per_s') or math.nan) / 1e3, 1)} N/ms, "
-                           f"lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms."))
+                           f"{rate_text}, lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms."))
     return blocks
 
 
@@ -633,18 +636,21 @@ def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
     except json.JSONDecodeError as exc:
         missing.append(f"{doc_path}: not valid JSON ({exc.msg}); the diagnosis section is missing.")
         return []
+    code = d.get("output_unit", units.FORCE)  # diagnoses written before the unit was carried are in N
+    k, un = units.key(code), units.label(code)
+    nan = float("nan")
     blocks: list[Block] = [Heading("Diagnosis: what the model gets wrong"), Para(d.get("summary", "")),
-                           Para(f"Residual over all runs {d.get('residual_rms_n', float('nan')):.3g} N RMS; "
-                                f"sensor noise floor {d.get('noise_floor_n', float('nan')):.3g} N RMS. Gains are measured on runs or "
+                           Para(f"Residual over all runs {d.get(f'residual_rms_{k}', nan):.3g} {un} RMS; "
+                                f"sensor noise floor {d.get(f'noise_floor_{k}', nan):.3g} {un} RMS. Gains are measured on runs or "
                                 "segments not used to fit the extension.")]
     findings = d.get("findings", [])
     if findings:
-        rows = tuple((f["cause"], f"{f['baseline_rms_n']:.3g}", f"{f['extended_rms_n']:.3g}", f"{f['gain_pct']:.0f}",
-                      ", ".join(f"{k} = {v:.4g}" for k, v in f["parameters"].items()), f["evidence"]) for f in findings)
-        blocks.append(Table(("cause", "held-out RMS base (N)", "extended (N)", "gain (%)", "parameters", "evidence"), rows,
+        rows = tuple((f["cause"], f"{f[f'baseline_rms_{k}']:.3g}", f"{f[f'extended_rms_{k}']:.3g}", f"{f['gain_pct']:.0f}",
+                      ", ".join(f"{k_} = {v:.4g}" for k_, v in f["parameters"].items()), f["evidence"]) for f in findings)
+        blocks.append(Table(("cause", f"held-out RMS base ({un})", f"extended ({un})", "gain (%)", "parameters", "evidence"), rows,
                             ("l", "r", "r", "r", "l", "l")))
     if d.get("unexplained"):
-        blocks.append(Bullets(tuple(f"Unexplained: {u['run']}, {u['rms_n']:.3g} N RMS ({u['ratio']:.1f} x the noise floor), largest at "
+        blocks.append(Bullets(tuple(f"Unexplained: {u['run']}, {u[f'rms_{k}']:.3g} {un} RMS ({u['ratio']:.1f} x the noise floor), largest at "
                                     f"{u['where_s']:.4g} s, dominant frequency {u['dominant_freq_hz']:.4g} Hz" for u in d["unexplained"])))
     png = path / "residuals.png"
     if png.is_file():

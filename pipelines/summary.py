@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from piezopress import runformat, thesis
+from piezopress import runformat, thesis, units
 from piezopress.analysis import metrics
 from piezopress.errors import MetricError
 from pipelines.characterize import read_manifest, run_files
@@ -42,7 +42,7 @@ def run_metrics(run: runformat.Run) -> list[dict]:
     """The table rows of one run."""
     rows: list[dict] = []
     y = run.output
-    unit_out = "N" if run.output_column == "force_n" else "um"
+    unit_out = units.label(run.output_unit)  # N or µm
 
     def row(metric: str, value: float, unit: str, note: str = "", with_thesis: bool = True) -> None:
         ref, src = _thesis_for(run, metric) if with_thesis else (float("nan"), "")
@@ -136,6 +136,7 @@ def validation_metrics(run: runformat.Run, shaper: bool = True) -> list[dict]:
     rows: list[dict] = []
     ref = run.column("reference_n")
     y = run.output
+    u = units.label(run.output_unit)  # N on a force press
 
     def row(metric, value, unit, note="", with_thesis=True):
         th, src = _validation_thesis(run, metric, shaper) if with_thesis else (float("nan"), "")
@@ -148,22 +149,22 @@ def validation_metrics(run: runformat.Run, shaper: bool = True) -> list[dict]:
     try:
         if run.kind == "triangle":
             h = metrics.max_hysteresis(ref, y)
-            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} N of {h.output_range:.1f} N")
+            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {u} of {h.output_range:.1f} {u}")
         elif run.kind == "creep":
             c = metrics.creep(run.t_s, y, drive=ref)
             row("creep", c.percent, "%", f"F_ss {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step")
         elif run.kind == "step":
             st = metrics.overshoot(run.t_s, y, drive=ref, end_margin_s=STEP_END_MARGIN_S)
-            row("overshoot", st.percent, "%", f"step {st.step_size:.1f} N" + ("" if st.significant else "; not above the noise"))
+            row("overshoot", st.percent, "%", f"step {st.step_size:.1f} {u}" + ("" if st.significant else "; not above the noise"))
             row("settling_time", st.settling_time_s * 1e3 if st.settled else float("nan"), "ms",
                 "2 % band below 3x noise" if st.band_below_noise else ("" if st.settled else "did not settle"))
         elif run.kind == "staircase":
             tr = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=TRACKING_MIN_REFERENCE_N)
             row("tracking_relative", tr.max_abs_relative_percent, "%",
-                f"max |error|/reference from {TRACKING_MIN_REFERENCE_N:g} N up, outside the ramps; range {tr.min_relative_percent:.2f} to {tr.max_relative_percent:.2f} %")
+                f"max |error|/reference from {TRACKING_MIN_REFERENCE_N:g} {u} up, outside the ramps; range {tr.min_relative_percent:.2f} to {tr.max_relative_percent:.2f} %")
             full = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=1e-9)
-            row("tracking_absolute", max(abs(full.max_error_n), abs(full.min_error_n)), "N",
-                f"max |error| outside the ramps, all stairs; {full.min_error_n:.2f} to {full.max_error_n:.2f} N, RMS {full.rms_error_n:.2f} N")
+            row("tracking_absolute", max(abs(full.max_error_n), abs(full.min_error_n)), u,
+                f"max |error| outside the ramps, all stairs; {full.min_error_n:.2f} to {full.max_error_n:.2f} {u}, RMS {full.rms_error_n:.2f} {u}")
         else:
             row("-", float("nan"), "", f"no validation metric for kind {run.kind!r}", with_thesis=False)
     except MetricError as exc:

@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Callable
 
 
-from piezopress import runformat
+from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
-from pipelines.bundle import compensator, read_document
+from pipelines.bundle import BundleError, compensator, read_document
 from pipelines.characterize import (
     DEFAULT_RIG,
     REPO_ROOT,
@@ -44,6 +44,11 @@ def validate(
 ) -> CharacterizeResult:
     """Compensate every reference of the validation plan and run it; see the module docstring."""
     bundle = read_document(bundle_path, "bundle")
+    unit = bundle["hysteresis"]["model"].get("output_unit", units.FORCE)
+    if not units.is_force(unit):
+        raise BundleError(f"{bundle_path}: its model's output is {units.quantity(unit)} ({units.label(unit)}); validate plays the "
+                          "validation plan's force references (N above the preload) on a press that measures force, "
+                          "expected a force bundle (compensate takes references in the bundle's unit)")
     comp = compensator(bundle, use_shaper=use_shaper, use_creep=use_creep)
     backend = backend or make_backend(backend_name, rig_path)
     lim = backend.limits

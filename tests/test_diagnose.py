@@ -45,7 +45,7 @@ def test_a_hidden_effect_is_found_and_named(tmp_path, effect):
     top = result.findings[0]
     assert top.cause == effect, result.summary
     assert top.gain_pct >= MIN_TEST_GAIN_PCT
-    assert top.extended_rms_n < top.baseline_rms_n
+    assert top.extended_rms < top.baseline_rms
     doc = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     assert doc["findings"][0]["cause"] == effect and doc["findings"][0]["heldout"]
 
@@ -54,7 +54,7 @@ def test_clean_rig_gives_no_findings_and_says_so(tmp_path):
     result = run_diagnosis(tmp_path, RigConfig.clean())
     assert result.findings == [], result.summary
     assert result.summary.startswith("No")
-    assert f"{result.noise_floor_n:.3g} N" in result.summary  # the two numbers: residual and noise floor
+    assert f"{result.noise_floor:.3g} N" in result.summary  # the two numbers: residual and noise floor
 
 
 def test_two_hidden_effects_are_both_found(tmp_path):
@@ -120,7 +120,7 @@ def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
     assert runner.invoke(cli, ["bundle", "--hysteresis", str(tmp_path / "h.json"), "--out", str(tmp_path / "b.json")]).exit_code == 0
     res = runner.invoke(cli, ["diagnose", str(run), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d")])
     assert res.exit_code == 0, res.output
-    assert " um RMS" in res.output and " N RMS" not in res.output
+    assert " µm RMS" in res.output and " N RMS" not in res.output
     doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     # what it finds is reported either way: findings, or structure listed as unexplained
     assert doc["findings"] or doc["unexplained"] or doc["summary"].startswith("No findings")

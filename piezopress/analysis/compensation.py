@@ -2,7 +2,7 @@
 
 The thesis's order (Fig. 3.1)::
 
-    reference (N above the preload)
+    reference (the hysteresis model's output unit: N above the preload, or um)
       -> rate limit            keeps the drive inside the amplifier's linear range
       -> input shaper          cancels the mode (centred: the whole reference is known)
       -> creep compensator     F_h = F_c / (K_c + C(s))       (Eq. 3.38)
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopress import signals
+from piezopress import signals, units
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import Shaper
@@ -49,16 +49,17 @@ class Compensator:
     Parameters
     ----------
     hysteresis : PIModel
-        Maps drive (V) to force; its inverse is the last stage.
+        Maps drive (V) to the output (force in N, or displacement in um: its
+        ``output_unit``, the unit of the reference); its inverse is the last stage.
     creep : CreepModel or None
         Creep of the hysteresis-compensated press; ``None`` skips the stage.
     shaper : Shaper or None
         Input shaper for the press's mode; ``None`` skips the stage.
     drive_min_v, drive_max_v : float
         The actuator's safe range; the drive is clipped to it, with a warning.
-    max_rate_n_per_s : float or None
-        Largest reference rate passed on (a step becomes a ramp). Keeps the drive current
-        below the amplifier's limit, where the press is linear.
+    max_rate_per_s : float or None
+        Largest reference rate passed on, in the output unit per second (a step becomes a
+        ramp). Keeps the drive current below the amplifier's limit, where the press is linear.
     lead_s : float
         Advance of the drive to cancel the linear model's remaining delay.
     """
@@ -68,30 +69,36 @@ class Compensator:
     shaper: Shaper | None = None
     drive_min_v: float = 0.0
     drive_max_v: float = 150.0
-    max_rate_n_per_s: float | None = None
+    max_rate_per_s: float | None = None
     lead_s: float = 0.0
     options: dict[str, Any] = field(default_factory=dict)
 
-    def drive(self, reference_n: np.ndarray, fs_hz: float) -> CompensationResult:
-        """The drive for ``reference_n`` (force above the preload, sampled at ``fs_hz``)."""
-        r = np.asarray(reference_n, dtype=np.float64)
+    def drive(self, reference: np.ndarray, fs_hz: float) -> CompensationResult:
+        """The drive for ``reference`` (in the model's output unit: force above the preload,
+        or displacement from the model's rest, sampled at ``fs_hz``).
+
+        ``stages`` names each intermediate signal with the unit's key (``reference_n``,
+        ``shaped_um``, ...) and the drive ``unclipped_v``.
+        """
+        r = np.asarray(reference, dtype=np.float64)
         if r.ndim != 1 or r.size < 2 or not np.all(np.isfinite(r)):
             raise ValueError(f"reference of shape {r.shape} with non-finite values or fewer than 2 samples; expected a finite 1-D trajectory")
-        stages: dict[str, np.ndarray] = {"reference_n": r}
-        if self.max_rate_n_per_s:
-            r = signals.rate_limit(r, r[0], self.max_rate_n_per_s / fs_hz)
-            stages["rate_limited_n"] = r
+        k = units.key(self.hysteresis.output_unit)
+        stages: dict[str, np.ndarray] = {f"reference_{k}": r}
+        if self.max_rate_per_s:
+            r = signals.rate_limit(r, r[0], self.max_rate_per_s / fs_hz)
+            stages[f"rate_limited_{k}"] = r
         notes = []
         if self.shaper is not None:
             try:
                 r = self.shaper.apply_centered(r, fs_hz)
-                stages["shaped_n"] = r
+                stages[f"shaped_{k}"] = r
             except FitError:
                 # too slow to resolve the mode: the drive's steps are too small to ring it
                 notes.append(f"shaper skipped: {fs_hz:g} Hz cannot resolve the {self.shaper.wn / (2 * np.pi):.0f} Hz mode")
         if self.creep is not None:
             r, _ = self.creep.compensate(r, fs_hz)
-            stages["creep_compensated_n"] = r
+            stages[f"creep_compensated_{k}"] = r
         x, _ = self.hysteresis.inverse(self.hysteresis.y0 + r)
         n_lead = int(round(self.lead_s * fs_hz))
         if n_lead > 0:

@@ -71,10 +71,16 @@ __all__ = [
     "fit_creep",
     "FITTERS",
     "log_taus",
+    "MODEL_FORMS",
+    "KV_TAUS_S",
+    "fit_sweep_creep",
 ]
 
 #: The model forms, in the order :func:`fit_creep` lists them.
 FORMS = ("poles", "log")
+#: Every form a model may have: the fitted-from-a-step forms, and ``"kv"`` (Kelvin-Voigt
+#: elements on a fixed time grid, fitted from sweeps by :func:`fit_sweep_creep`).
+MODEL_FORMS = FORMS + ("kv",)
 #: Fewest samples a fit accepts (and the fewest in each part of :func:`fit_creep`).
 MIN_FIT_SAMPLES = 50
 #: A step in ``u`` must span this many times the noise of ``u``.
@@ -214,8 +220,8 @@ class CreepModel:
 
     def __post_init__(self):
         where = "CreepModel"
-        if self.form not in FORMS:
-            raise FitError(f"{where}: form is {self.form!r}; expected one of {', '.join(map(repr, FORMS))}")
+        if self.form not in MODEL_FORMS:
+            raise FitError(f"{where}: form is {self.form!r}; expected one of {', '.join(map(repr, MODEL_FORMS))}")
         object.__setattr__(self, "static_gain", _finite(where, "static_gain (K_c)", self.static_gain))
         taus = tuple(_positive(where, f"taus_s[{i}]", t) for i, t in enumerate(np.atleast_1d(self.taus_s).tolist()))
         gains = tuple(_finite(where, f"gains[{i}]", g) for i, g in enumerate(np.atleast_1d(self.gains).tolist()))
@@ -950,3 +956,47 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
         raise FitError(f"{where}: the {chosen.form} form refitted on the whole record gives an unstable compensator ({model.describe()})")
     rms = _rms(y - model.response(u, fs)[0])
     return CreepFit(model, chosen.form, rms, tuple(candidates), reason, split_s, fs)
+
+
+# ---------------------------------------------------------------------------------------
+# Creep from sweeps (no held step)
+# ---------------------------------------------------------------------------------------
+
+#: Default time constants of the Kelvin-Voigt elements fitted from sweeps: two per decade
+#: from 10 s to 300 s (a record of minutes cannot tell longer ones from an offset).
+KV_TAUS_S = (10.0, 30.0, 100.0, 300.0)
+
+
+def kv_columns(u: np.ndarray, fs_hz: float, taus_s=KV_TAUS_S) -> np.ndarray:
+    """``u`` and each element's unit-gain first-order response to it from rest (columns)."""
+    a, b = _decays(np.asarray(taus_s, float), fs_hz)
+    return np.column_stack([u] + [lfilter([bk], [1.0, -ak], u) for ak, bk in zip(a, b)])
+
+
+def fit_sweep_creep(u, y, fs_hz: float, mask, taus_s=KV_TAUS_S) -> tuple[CreepModel, float]:
+    """Creep of a swept press from its own record: ``y ~ c + K_c u + sum_k g_k / (1 + tau_k s) u``.
+
+    ``u`` is the hysteresis model's static prediction and ``y`` the measured output, both
+    relative to the model's rest output (the relaxed actuator at its lowest drive), over the
+    whole record (the elements start at rest before its first sample); ``mask`` selects the
+    samples fitted. Kelvin-Voigt elements only add compliance over time, so ``g_k >= 0`` and
+    ``K_c >= 0`` (non-negative least squares, the offset ``c`` free): the model is then
+    positive real, and its compensator stable. Returns the model (form ``"kv"``) and ``c``.
+    """
+    from scipy.optimize import nnls
+
+    u = _signal("fit_sweep_creep", "u", u, MIN_FIT_SAMPLES)
+    y = _signal("fit_sweep_creep", "y", y, u.size)
+    mask = np.asarray(mask, bool)
+    if mask.shape != u.shape or mask.sum() < MIN_FIT_SAMPLES:
+        raise FitError(f"fit_sweep_creep: {int(mask.sum())} samples selected of {u.size}; expected at least {MIN_FIT_SAMPLES}")
+    X = kv_columns(u, fs_hz, taus_s)
+    A = np.column_stack([X, np.ones_like(u), -np.ones_like(u)])
+    scale = np.maximum(np.sqrt(np.mean(A[mask] ** 2, axis=0)), 1e-300)
+    coef, _ = nnls(A[mask] / scale, y[mask])
+    coef = coef / scale
+    k_c, gains = float(coef[0]), tuple(float(g) for g in coef[1:-2])
+    if k_c <= 0:
+        raise FitError("fit_sweep_creep: the gain the instant after a change came out 0; expected a press that follows its drive")
+    model = CreepModel("kv", k_c, tuple(float(t) for t in taus_s), gains)
+    return model, float(coef[-2] - coef[-1])

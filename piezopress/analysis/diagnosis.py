@@ -2,7 +2,12 @@
 
 The model judged is the bundle's forward model ("the simulation")::
 
-    y_hat = y0 + lowpass( mode( creep( H(x) - y0 ) ) )       (clipped at zero force: contact)
+    y_hat = y0 + lowpass( mode( creep( H(x) - y0 ) ) )       (a force clipped at 0 N: contact)
+
+Everything is in the model's output unit (``hysteresis.output_unit``: N for a force run, um
+for a displacement run): residuals, noise floors, the keys of :meth:`Diagnosis.as_dict`
+(``residual_rms_n`` or ``residual_rms_um``) and the texts. The contact clip applies to
+force only: a displacement goes negative wherever the data do.
 
 On every run the residual ``y - y_hat`` is compared with the sensor's noise floor and
 analysed (whiteness; correlation with the drive level, rate, current and time since a
@@ -34,7 +39,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import optimize, signal
 
-from piezopress import operators, signals
+from piezopress import operators, signals, units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis.shaper import mode_response
@@ -99,10 +104,15 @@ class Model:
     # extensions
     slew_v_per_s: float | None = None  # amplifier_slew_limit
     rate_v_per_kv_s: float = 0.0  # rate_dependent_hysteresis
-    interference: tuple[float, float, float] | None = None  # (gain N per V/s, threshold V/s, tau s)
+    interference: tuple[float, float, float] | None = None  # (gain output unit per V/s, threshold V/s, tau s)
     mode2: tuple[float, float, float] | None = None  # (share, wn, zeta): second_resonance
     delay_s: float = 0.0  # input_delay
-    drift_n_per_s: float = 0.0  # sensor_offset_drift
+    drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second
+
+    @property
+    def unit(self) -> str:
+        """The output unit code (``N`` or ``um``)."""
+        return self.hysteresis.output_unit
 
     def static(self, run: RunData, x: np.ndarray | None = None) -> np.ndarray:
         """``H(x) - y0`` with the slew limit and the rate dependence, if any."""
@@ -129,7 +139,8 @@ class Model:
         if self.sensor_lowpass_hz:
             out = out[0] + signals.first_order(out - out[0], 1.0 / (2 * np.pi * self.sensor_lowpass_hz), run.fs_hz)
         y = self.hysteresis.y0 + out
-        return np.maximum(y, 0.0) if self.hysteresis.output_unit == "N" else y  # the stack only pushes
+        # a press only pushes: a force reads no less than 0 N; a displacement is never clipped
+        return np.maximum(y, 0.0) if units.is_force(self.unit) else y
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, drift."""
@@ -141,8 +152,8 @@ class Model:
         if self.delay_s > 0:
             t = np.arange(y.size) / run.fs_hz
             y = np.interp(t - self.delay_s, t, y, left=y[0])
-        if self.drift_n_per_s:
-            y = y + self.drift_n_per_s * run.t_s
+        if self.drift_per_s:
+            y = y + self.drift_per_s * run.t_s
         return y
 
     def predict(self, run: RunData) -> np.ndarray:
@@ -258,33 +269,39 @@ class Context:
 
 @dataclass(frozen=True)
 class Finding:
-    """A cause that explains part of the residual, with its held-out gain."""
+    """A cause that explains part of the residual, with its held-out gain (RMS, range and
+    floor in the model's output unit, :attr:`unit`)."""
 
     cause: str
     evidence: str
-    baseline_rms_n: float
-    extended_rms_n: float
+    baseline_rms: float
+    extended_rms: float
     gain_pct: float
     parameters: dict[str, float]
     runs: list[str]
     heldout: list[str]
-    output_range_n: float
-    floor_n: float
+    output_range: float
+    floor: float
     model: Model
 
     @property
+    def unit(self) -> str:
+        return self.model.unit
+
+    @property
     def accepted(self) -> bool:
-        return (self.gain_pct >= MIN_GAIN_PCT and self.baseline_rms_n >= MIN_RESIDUAL_TO_FLOOR * self.floor_n
-                and self.baseline_rms_n - self.extended_rms_n >= MIN_IMPROVEMENT_TO_FLOOR * self.floor_n)
+        return (self.gain_pct >= MIN_GAIN_PCT and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
+                and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor)
 
     def as_dict(self) -> dict[str, Any]:
+        k = units.key(self.unit)
         return {
             "cause": self.cause, "evidence": self.evidence,
-            "baseline_rms_n": self.baseline_rms_n, "extended_rms_n": self.extended_rms_n,
-            "baseline_pct_of_range": 100 * self.baseline_rms_n / self.output_range_n,
-            "extended_pct_of_range": 100 * self.extended_rms_n / self.output_range_n,
-            "gain_pct": self.gain_pct, "parameters": {k: float(v) for k, v in self.parameters.items()},
-            "runs": self.runs, "heldout": self.heldout, "noise_floor_n": self.floor_n,
+            f"baseline_rms_{k}": self.baseline_rms, f"extended_rms_{k}": self.extended_rms,
+            "baseline_pct_of_range": 100 * self.baseline_rms / self.output_range,
+            "extended_pct_of_range": 100 * self.extended_rms / self.output_range,
+            "gain_pct": self.gain_pct, "parameters": {k_: float(v) for k_, v in self.parameters.items()},
+            "runs": self.runs, "heldout": self.heldout, f"noise_floor_{k}": self.floor,
         }
 
 
@@ -435,9 +452,11 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
         return None
     g, e0, tau = best[1]
     ext = replace(ctx.model, interference=(g, e0, tau))
-    ev = (f"the reading dips while the drive current is high: {g * 1e3:.3g} N per kV/s of drive rate above {e0 / 1e3:.3g} kV/s "
-          f"(envelope {tau * 1e3:.3g} ms), an artefact of the reading, not force")
-    return _judge(ctx, "drive_coupled_interference", ev, fit, held, ext, {"gain_n_per_v_per_s": g, "threshold_v_per_s": e0, "tau_s": tau})
+    u = ctx.model.unit
+    ev = (f"the reading dips while the drive current is high: {g * 1e3:.3g} {units.label(u)} per kV/s of drive rate above "
+          f"{e0 / 1e3:.3g} kV/s (envelope {tau * 1e3:.3g} ms), an artefact of the reading, not {units.quantity(u)}")
+    return _judge(ctx, "drive_coupled_interference", ev, fit, held, ext,
+                  {f"gain_{units.key(u)}_per_v_per_s": g, "threshold_v_per_s": e0, "tau_s": tau})
 
 
 def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
@@ -467,7 +486,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     h = ctx.model.static(run)
     t, u = _slow(run, h)
     # the force as the accepted reading terms (drift) leave it
-    _, y = _slow(run, run.y - ctx.model.drift_n_per_s * run.t_s - ctx.model.hysteresis.y0)
+    _, y = _slow(run, run.y - ctx.model.drift_per_s * run.t_s - ctx.model.hysteresis.y0)
     k = int(t.size * 0.6)
     fs = 1.0 / (t[1] - t[0])
     try:
@@ -477,7 +496,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         return None
     kk = int(run.t_s.size * 0.6)
     fit, held = [(run, slice(0, kk))], [(run, slice(kk, None))]
-    ev = (f"after the step the force keeps rising {100 * log.params['per_decade']:.3g} % of the step per decade of time where "
+    ev = (f"after the step the {units.quantity(ctx.model.unit)} keeps rising {100 * log.params['per_decade']:.3g} % of the step per decade of time where "
           f"the fitted poles saturate (both forms fitted on the first 60 % of the hold, judged on the rest)")
     return _judge(ctx, "logarithmic_creep", ev, fit, held, replace(ctx.model, creep=log),
                   {"per_decade": log.params["per_decade"], "static_gain": log.static_gain}, replace(ctx.model, creep=poles))
@@ -534,9 +553,10 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     R = _err(fit, ctx.pred)
     T1 = np.column_stack([T, np.ones_like(T)])  # drift and a run offset; only the drift carries over
     (b, _), *_ = np.linalg.lstsq(T1, R, rcond=None)
-    ext = replace(ctx.model, drift_n_per_s=float(b))
-    ev = f"the reading drifts {b * 60:.3g} N per minute whatever the drive does (seen on runs the model was not fitted on)"
-    return _judge(ctx, "sensor_offset_drift", ev, fit, held, ext, {"drift_n_per_s": float(b)})
+    ext = replace(ctx.model, drift_per_s=float(b))
+    u = ctx.model.unit
+    ev = f"the reading drifts {b * 60:.3g} {units.label(u)} per minute whatever the drive does (seen on runs the model was not fitted on)"
+    return _judge(ctx, "sensor_offset_drift", ev, fit, held, ext, {f"drift_{units.key(u)}_per_s": float(b)})
 
 
 def cause_hysteresis_order(ctx: Context) -> Finding | None:
@@ -559,11 +579,14 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         return None
     fit = [(r, data.train[i]) for i, r in enumerate(sweeps)]
     held = [(r, data.holdout[i]) for i, r in enumerate(sweeps)]
-    rich = rich_fit.model
+    # the refitted models measure what the base model measures (a displacement model must not
+    # be taken for a force and clipped at 0 N)
+    rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
+    base_model = replace(base_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
     ev = (f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} dead zones (chosen on "
           f"held-out data) capture asymmetry and saturation that {len(m.r)} plays and {len(m.d)} dead zones miss")
     return _judge(ctx, "hysteresis_order", ev, fit, held, replace(ctx.model, hysteresis=rich),
-                  {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone}, replace(ctx.model, hysteresis=base_fit.model))
+                  {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone}, replace(ctx.model, hysteresis=base_model))
 
 
 @dataclass(frozen=True)
@@ -606,16 +629,23 @@ class Diagnosis:
     unexplained: list[dict[str, Any]]
     before: list[ResidualStats]
     after: list[ResidualStats]
-    residual_rms_n: float
-    noise_floor_n: float
+    residual_rms: float
+    noise_floor: float
     summary: str
     model: Model
 
+    @property
+    def unit(self) -> str:
+        """The output unit code of every figure (``N`` or ``um``)."""
+        return self.model.unit
+
     def as_dict(self) -> dict[str, Any]:
+        k = units.key(self.unit)
         return {
             "summary": self.summary,
-            "residual_rms_n": self.residual_rms_n,
-            "noise_floor_n": self.noise_floor_n,
+            "output_unit": self.unit,
+            f"residual_rms_{k}": self.residual_rms,
+            f"noise_floor_{k}": self.noise_floor,
             "findings": [f.as_dict() for f in self.findings],
             "unexplained": self.unexplained,
             "considered_not_found": [f.as_dict() for f in self.considered],
@@ -659,16 +689,17 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
         ctx = Context(runs, best.model, ctx.fitted_runs, floor)  # extend and look again
     findings.sort(key=lambda f: -f.gain_pct)
     after = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
+    k, u = units.key(base.unit), units.label(base.unit)
     unexplained = [
-        {"run": s.run, "rms_n": s.rms, "noise_floor_n": s.floor, "ratio": s.ratio, "where_s": s.t_max_s, "dominant_freq_hz": s.dominant_freq_hz}
+        {"run": s.run, f"rms_{k}": s.rms, f"noise_floor_{k}": s.floor, "ratio": s.ratio, "where_s": s.t_max_s, "dominant_freq_hz": s.dominant_freq_hz}
         for s in after if s.ratio > UNEXPLAINED_RATIO
     ]
     if findings:
         head = "; ".join(f"{f.cause} (held-out gain {f.gain_pct:.0f} %)" for f in findings)
     elif total_rms <= MIN_RESIDUAL_TO_FLOOR * total_floor or not unexplained:
-        head = f"No findings: the residual ({total_rms:.3g} N RMS) is near the noise floor ({total_floor:.3g} N)"
+        head = f"No findings: the residual ({total_rms:.3g} {u} RMS) is near the noise floor ({total_floor:.3g} {u})"
     else:
-        head = f"No cause in the catalogue explains the residual ({total_rms:.3g} N RMS against a noise floor of {total_floor:.3g} N)"
+        head = f"No cause in the catalogue explains the residual ({total_rms:.3g} {u} RMS against a noise floor of {total_floor:.3g} {u})"
     if unexplained:
         head += "; unexplained structure in " + ", ".join(u["run"] for u in unexplained)
     return Diagnosis(findings, list(last_try.values()), unexplained, before, after, total_rms, total_floor, head, ctx.model)

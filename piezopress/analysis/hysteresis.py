@@ -276,35 +276,87 @@ def rest_offset(x: np.ndarray, y: np.ndarray, fraction: float = 0.03) -> tuple[f
     return x0, float(np.mean(y[:n]))
 
 
+def settled_start(x: np.ndarray, rel_tol: float = 0.02) -> int:
+    """First sample from which the model's state no longer depends much on the unknown state
+    before the record.
+
+    A record that starts at its lowest input (within ``rel_tol`` of its span) starts in the
+    model's rest state (the relaxed actuator at its lowest drive): every sample counts (0).
+    Any other start (mid-range, after a rest at some level, in a sensor's start-up
+    transient) leaves the play operators' states unknown until the input has moved over
+    their width (the wiping-out property: a play of threshold ``r`` forgets its past once the
+    input has covered a range of ``2 r``; every threshold is below half the span). The
+    settled start is the first sample by which the input has reached both its lowest and
+    its highest value (within ``rel_tol`` of the span: every play settled), or, when that
+    leaves less than a quarter of the record (a growing amplitude), by which it has covered
+    half its span (the plays that carry most weight settled). Samples before are evaluated
+    (they carry the state) but not fitted.
+    """
+    x = np.asarray(x, float)
+    lo, hi = float(np.min(x)), float(np.max(x))
+    tol = rel_tol * (hi - lo)
+    if x[0] <= lo + tol:
+        return 0
+    first = max(int(np.argmax(x <= lo + tol)), int(np.argmax(x >= hi - tol)))
+    if first > 3 * x.size // 4:
+        covered = np.maximum.accumulate(x) - np.minimum.accumulate(x)
+        first = int(np.argmax(covered >= 0.5 * (hi - lo)))
+    return first
+
+
 def prepare(runs: Sequence[tuple[str, np.ndarray, np.ndarray]], *, holdout_fraction: float = 0.3, burn_in_fraction: float = 0.0,
-            x0: float | None = None, y0: float | None = None) -> HysteresisData:
-    """Prepare ``(name, input, output)`` runs: the last ``holdout_fraction`` of each run is held out.
+            x0: float | None = None, y0: float | None = None, skip: Sequence[int] | int | None = None) -> HysteresisData:
+    """Prepare ``(name, input, output)`` runs: the last ``holdout_fraction`` of each run's
+    fitted samples is held out (the end of the record, never a random subset).
 
     ``x0``/``y0`` default to the rest input and output estimated from the first run
-    (:func:`rest_offset`); every run is taken relative to them.
+    (:func:`rest_offset`); every run is taken relative to them. The rest output is only a
+    starting value: the fit estimates the output offset with the weights. A first run that
+    does not start at its lowest input (see :func:`settled_start`) has its rest state
+    taken as the relaxed actuator at the lowest input of the runs.
+
+    ``skip`` gives, per run (or one for all), the samples at the start that are not fitted
+    (a rest, a start-up transient); by default :func:`settled_start` decides. Skipped
+    samples are still evaluated, so the operators' states carry on into the fitted ones.
     """
     if not runs:
         raise HysteresisFitError("no runs to fit; expected at least one run with a swept input")
     if not 0 <= holdout_fraction < 1:
         raise HysteresisFitError(f"holdout_fraction = {holdout_fraction}; expected 0 <= fraction < 1")
+    if skip is not None and not isinstance(skip, (int, np.integer)) and len(skip) != len(runs):
+        raise HysteresisFitError(f"skip holds {len(skip)} values for {len(runs)} runs; expected one per run")
     ex0, ey0 = rest_offset(runs[0][1], runs[0][2])
+    first0 = settled_start(np.asarray(runs[0][1], float)) if skip is None else int(np.atleast_1d(skip)[0])
+    if first0 > 0 and first0 < len(runs[0][2]):
+        # not from rest: the rest state is the relaxed actuator at the lowest drive (the
+        # start is then a jump from it), and the rest output is fitted from a starting value
+        ex0 = float(min(np.min(r[1]) for r in runs))
+        ey0 = float(np.min(np.asarray(runs[0][2], float)[first0:]))
     x0 = ex0 if x0 is None else x0
     y0 = ey0 if y0 is None else y0
     names, us, zs, tr, ho = [], [], [], [], []
-    for name, x, y in runs:
+    for i, (name, x, y) in enumerate(runs):
         x = np.asarray(x, float)
         y = np.asarray(y, float)
         if x.shape != y.shape or x.ndim != 1:
             raise HysteresisFitError(f"{name}: input and output have shapes {x.shape} and {y.shape}; expected equal 1-D arrays")
         if x.size < 20:
             raise HysteresisFitError(f"{name}: {x.size} samples; expected at least 20")
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+            raise HysteresisFitError(f"{name}: the input or output holds NaN or infinite values; expected finite samples")
         if np.ptp(x) <= 0:
             raise HysteresisFitError(f"{name}: the input does not move; expected a sweep")
         n = x.size
-        cut = int(round(n * (1 - holdout_fraction)))
-        start = int(round(n * burn_in_fraction))
+        if skip is None:
+            first = settled_start(x)
+        else:
+            first = int(skip if isinstance(skip, (int, np.integer)) else skip[i])
+            if not 0 <= first < n:
+                raise HysteresisFitError(f"{name}: skip of {first} samples; expected 0 to {n - 1} (the run has {n})")
+        first = max(first, int(round(n * burn_in_fraction)))
+        cut = first + int(round((n - first) * (1 - holdout_fraction)))
         t = np.zeros(n, bool)
-        t[start:cut] = True
+        t[first:cut] = True
         h = np.zeros(n, bool)
         h[cut:] = True
         names.append(name)
@@ -312,6 +364,8 @@ def prepare(runs: Sequence[tuple[str, np.ndarray, np.ndarray]], *, holdout_fract
         zs.append(y - y0)
         tr.append(t)
         ho.append(h)
+    if sum(int(t.sum()) for t in tr) < 10:
+        raise HysteresisFitError("fewer than 10 samples left to fit after the skipped start; expected a longer record or a shorter skip")
     return HysteresisData(tuple(names), tuple(us), tuple(zs), tuple(tr), tuple(ho), float(x0), float(y0))
 
 
@@ -379,46 +433,100 @@ class Candidate:
         return f"n={self.n_play} gamma={self.gamma:g} m={self.m_dead_zone}"
 
 
-def _slope_constraints(v, idx0: int, n_neg: int, n_pos: int, eps: float) -> list:
-    # partial sums outward from index idx0 (the d = 0 weight) stay >= eps: S monotone
-    cons = [v[idx0] >= eps]
+#: Bounds that keep the static map well conditioned, so its inverse never plateaus (a
+#: forward slope far above the mean: the drive almost stops while the reference moves) or
+#: jumps (a slope near zero). The play superposition is normalised to a mean loading slope
+#: of about 1 (``P(u_max) = u_max`` on the loading curve); its slope just after a reversal
+#: (``w_0``) is at least :data:`PLAY_SLOPE_MIN` of that and its steepest (``sum w``) at most
+#: :data:`PLAY_SLOPE_MAX`. A piezo stack's branch starts at roughly half its mean slope and
+#: never flat, and its steepest part is within about twice the mean (thesis Fig. 5.2, and
+#: the 5-15 % hysteresis of the stacks it cites), so these bounds leave real loops free and
+#: exclude only the near-vertical or flat pieces that over-fitting makes. The dead-zone
+#: slopes (the static gain) stay within a factor :data:`DEAD_ZONE_SLOPE_RATIO` of the mean
+#: gain (output span over input span).
+PLAY_SLOPE_MIN = 0.1
+PLAY_SLOPE_MAX = 4.0
+DEAD_ZONE_SLOPE_RATIO = 4.0
+
+
+def slope_bounds(data: "HysteresisData") -> tuple[float, float]:
+    """The fitted loading curve's slope bounds (output per input) for ``data``:
+    ``(PLAY_SLOPE_MIN * g / DEAD_ZONE_SLOPE_RATIO, PLAY_SLOPE_MAX * g * DEAD_ZONE_SLOPE_RATIO)``
+    with ``g`` the mean gain; the inverse's drive moves at least ``1 / upper`` per unit of
+    reference."""
+    g = _mean_gain(data)
+    return PLAY_SLOPE_MIN * g / DEAD_ZONE_SLOPE_RATIO, PLAY_SLOPE_MAX * g * DEAD_ZONE_SLOPE_RATIO
+
+
+def _mean_gain(data: "HysteresisData") -> float:
+    z_lo, z_hi = data.z_range
+    return (z_hi - z_lo) / (data.u_span or 1.0)
+
+
+def _partial_sums(idx0: int, n_neg: int, n_pos: int) -> np.ndarray:
+    """Rows: the slopes of a dead-zone superposition beyond each threshold (partial sums of
+    the weights outward from index ``idx0``, the ``d = 0`` weight), as a matrix on the weights."""
+    size = n_neg + 1 + n_pos
+    M = np.zeros((size, size))
+    M[0, idx0] = 1.0
     for j in range(1, n_pos + 1):
-        cons.append(v[idx0] + sum(v[idx0 + l] for l in range(1, j + 1)) >= eps)
+        M[j, idx0: idx0 + j + 1] = 1.0
     for j in range(1, n_neg + 1):
-        cons.append(v[idx0] + sum(v[idx0 - l] for l in range(1, j + 1)) >= eps)
-    return cons
+        M[n_pos + j, idx0 - j: idx0 + 1] = 1.0
+    return M
+
+
+def _check_rising(data: "HysteresisData") -> None:
+    u = np.concatenate([u[m] for u, m in zip(data.u, data.train)])
+    z = np.concatenate([z[m] for z, m in zip(data.z, data.train)])
+    if u.size > 2 and np.ptp(u) > 0 and np.ptp(z) > 0 and np.corrcoef(u, z)[0, 1] < 0:
+        raise HysteresisFitError("the output falls as the input rises; the model expects a rising output: "
+                                 "import the output with --scale COLUMN=-1 (and say so in --units-note)")
 
 
 def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays: Sequence[np.ndarray], rows: str = "train") -> PIModel:
     """Fit weights for fixed play thresholds ``r`` and inverse dead-zone thresholds ``d_inv``.
 
     ``plays`` are the play outputs of each run for thresholds ``r`` (whole runs); ``rows``
-    selects the samples fitted (``train`` or ``all``).
+    selects the samples fitted (``train``, or ``all``: training and held-out rows, never
+    the skipped start). Both quadratic programs estimate the output offset with the weights,
+    and bound the slopes (:data:`PLAY_SLOPE_MIN`, :data:`PLAY_SLOPE_MAX`,
+    :data:`DEAD_ZONE_SLOPE_RATIO`).
     """
     import cvxpy as cp
 
-    masks = data.train if rows == "train" else tuple(np.ones(u.size, bool) for u in data.u)
+    masks = data.train if rows == "train" else tuple(t | h for t, h in zip(data.train, data.holdout))
     A = [Y[m] for Y, m in zip(plays, masks)]
     B = [operators.dead_zone(z[m], d_inv) for z, m in zip(data.z, masks)]
     if sum(a.shape[0] for a in A) < 10:
         raise HysteresisFitError("fewer than 10 samples to fit; expected more data")
     idx0 = int(np.flatnonzero(d_inv == 0.0)[0])
     n_neg, n_pos = idx0, d_inv.size - idx0 - 1
+    M = _partial_sums(idx0, n_neg, n_pos)
     nr = r.size
-    # QP 1 (thesis Eq. 3.11-3.23): min |A w - B v|^2 over play weights w, inverse dead-zone weights v
-    L = _factor(_gram([(a, -b) for a, b in zip(A, B)]))
-    theta = cp.Variable(nr + d_inv.size)
-    w, v = theta[:nr], theta[nr:]
     u_max = data.u_absmax
-    z_scale = max(abs(x) for x in data.z_range) or 1.0
-    eps_w, eps_v = 1e-3, 1e-3 * u_max / z_scale
-    cons = [w[0] >= eps_w, w[1:] >= 0, np.maximum(u_max - r, 0.0) @ w == u_max]
-    cons += _slope_constraints(v, idx0, n_neg, n_pos, eps_v)
+    g = _mean_gain(data)
+    k = DEAD_ZONE_SLOPE_RATIO
+    # QP 1 (thesis Eq. 3.11-3.23): min |A w + c - B v|^2 over play weights w, inverse
+    # dead-zone weights v and an offset c (the rest level is an estimate, not a given)
+    L = _factor(_gram([(a, np.ones((a.shape[0], 1)), -b) for a, b in zip(A, B)]))
+    theta = cp.Variable(nr + 1 + d_inv.size)
+    w, v = theta[:nr], theta[nr + 1:]
+    cons = [w[0] >= PLAY_SLOPE_MIN, w[1:] >= 0, cp.sum(w) <= PLAY_SLOPE_MAX, np.maximum(u_max - r, 0.0) @ w == u_max,
+            M @ v >= 1.0 / (k * g), M @ v <= k / g]
     _solve(cp.Problem(cp.Minimize(cp.sum_squares(L @ theta)), cons), f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)")
     w_val = np.maximum(np.asarray(w.value, float), 0.0)
-    w_val[0] = max(w_val[0], eps_w)
-    d_fwd, s_init = invert_dead_zone_weights(d_inv, np.asarray(v.value, float))
-    # QP 2: refit the forward dead-zone weights on the output error |S[P[u]] - z|^2
+    w_val[0] = max(w_val[0], PLAY_SLOPE_MIN)
+    c1 = float(theta.value[nr])
+    d_img, _ = invert_dead_zone_weights(d_inv, np.asarray(v.value, float))
+    # QP 1 found z = S(P[u] + c1): the forward dead zones sit at S^-1's images shifted by
+    # -c1; with 0 (the identity) added they span every continuous piecewise-linear map with
+    # those corners, which QP 2 fits on the output error |S[P[u]] + c - z|^2
+    span = max(float(np.ptp(np.concatenate([a @ w_val for a in A]))), 1e-12)
+    shifted = np.sort(np.concatenate([d_img[d_img != 0.0] - c1, [0.0]]))
+    d_fwd = shifted[(shifted == 0.0) | (np.abs(shifted) > 1e-6 * span)]
+    idx0 = int(np.flatnonzero(d_fwd == 0.0)[0])
+    M = _partial_sums(idx0, idx0, d_fwd.size - idx0 - 1)
     P = [a @ w_val for a in A]
     D = [operators.dead_zone(p, d_fwd) for p in P]
     zt = [z[m] for z, m in zip(data.z, masks)]
@@ -427,14 +535,12 @@ def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays:
     s = cp.Variable(d_fwd.size)
     offset = cp.Variable(1)
     obj = cp.sum_squares(L2 @ cp.hstack([s, offset, np.ones(1)]))
-    eps_s = 1e-3 * z_scale / u_max
-    _solve(cp.Problem(cp.Minimize(obj), _slope_constraints(s, idx0, n_neg, n_pos, eps_s)), "forward dead-zone refit")
+    _solve(cp.Problem(cp.Minimize(obj), [M @ s >= g / k, M @ s <= g * k]), "forward dead-zone refit")
     s_val = np.asarray(s.value, float)
-    c = float(offset.value[0]) if np.all(np.isfinite(s_val)) else 0.0
-    if not np.all(np.isfinite(s_val)):
-        s_val = s_init
+    if not np.all(np.isfinite(s_val)) or not np.isfinite(offset.value[0]):
+        raise HysteresisFitError(f"forward dead-zone refit ({d_fwd.size} dead zones): the solver returned non-finite weights")
     return PIModel(tuple(map(float, r)), tuple(map(float, w_val)), tuple(map(float, d_fwd)), tuple(map(float, s_val)),
-                   x0=data.x0, y0=data.y0 + c)
+                   x0=data.x0, y0=data.y0 + float(offset.value[0]))
 
 
 def predict_rows(model: PIModel, plays: Sequence[np.ndarray], masks: Sequence[np.ndarray], y0: float = 0.0) -> list[np.ndarray]:
@@ -492,7 +598,7 @@ def decimate(data: HysteresisData, step: int) -> HysteresisData:
 
 
 #: Above this many samples the model is chosen on a decimated copy, then fitted on all.
-SELECT_MAX_SAMPLES = 200_000
+SELECT_MAX_SAMPLES = 20_000
 
 
 def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] | None = None, *, tolerance: float = 0.01,
@@ -510,6 +616,7 @@ def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] | None = None
     """
     if not any(h.any() for h in data.holdout):
         raise HysteresisFitError("no held-out samples; expected holdout_fraction > 0 to choose the model")
+    _check_rising(data)
     z_lo, z_hi = data.z_range
     out_range = z_hi - z_lo
     full = data

@@ -1,0 +1,284 @@
+"""A second test press, written apart from :mod:`piezopress.acquisition.rig_physics`.
+
+The virtual rig and the fitted models come from the same hands: a pipeline can pass every
+test on the virtual rig because it models exactly what the rig simulates. This press is
+built from other physics, in other forms, so that a test on it asks whether the chain
+works on a press it did not make. It must never import the virtual rig's physics or its
+configuration (``rig_physics``, ``virtual_rig``, ``rig_config``); ``tests/test_independent_press.py``
+checks that with :mod:`ast`. It implements the :class:`piezopress.acquisition.backend.Backend`
+protocol only, so ``pipelines.characterize.characterize(..., backend=press)`` and
+``pipelines.validate.validate(..., backend=press)`` run the default plans through it.
+
+The signal chain, per run, on the run's own sample grid::
+
+    command_v --DAC (16 bit over +/-10 V, gain 15)--> amplifier (first-order 20 kHz
+      bandwidth; optional slew limit) = monitor_v
+      --optional input delay (fractional, by linear interpolation)
+      --two Bouc-Wen elements (n = 1, irregular scales; integrated exactly in the drive,
+        so the loop is rate independent unless rate_dependence widens it with a
+        smoothed, saturating drive rate)
+      --softening static map (slope 1 at zero drive, 1 - saturation at the top)
+      --creep: a chain of Kelvin-Voigt elements (parallel spring/dashpot in series)
+      --press: one lightly damped mode near 1 kHz (optionally a second one above it),
+        ZOH-discretised state space (scipy.signal), force = preload + stiffness * x
+      --contact (no tension) --load cell: + drive-current interference (optional, no
+        threshold), first-order anti-alias filter, drift (optional), noise, 14-bit ADC
+      --> force_n
+
+Deterministic per ``(seed, label)``: the same run on the same press gives the same data.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Callable
+
+import numpy as np
+from scipy import signal
+
+from piezopress.acquisition.backend import Measurement
+from piezopress.acquisition.plan import DriveLimits
+from piezopress.errors import BackendError
+
+
+@dataclass(frozen=True)
+class BoucWenElement:
+    """``dz/dv = A - (beta sgn(dv z) + gamma) |z|`` (exponent 1), written with its
+    saturation ``z_max = A / (beta + gamma)`` (V), the drive over which it saturates on a
+    loading branch ``1 / (beta + gamma)`` (V), and ``back = (beta - gamma) / (beta + gamma)``
+    (the shape of the branch right after a reversal; 0 < back <= 1). ``weight`` scales the
+    element's share of the drive lost to hysteresis."""
+
+    z_max_v: float
+    scale_v: float
+    back: float
+    weight: float = 1.0
+
+    @property
+    def coefficients(self) -> tuple[float, float, float]:
+        k_plus = 1.0 / self.scale_v
+        return self.z_max_v * k_plus, k_plus, self.back * k_plus  # A, beta + gamma, beta - gamma
+
+
+def _bouc_wen_step(z: float, dv: float, a: float, k_plus: float, k_minus: float) -> float:
+    """Exact state after a drive change ``dv`` (the ODE is linear in z on each side of 0)."""
+    if dv == 0.0:
+        return z
+    s = 1.0 if dv > 0.0 else -1.0
+    dist = dv * s
+    y = z * s  # in the frame where the drive rises
+    if y < 0.0:
+        y_eq = a / k_minus  # > 0: the branch after a reversal heads for it until z crosses 0
+        to_zero = math.log1p(-y / y_eq) / k_minus
+        if dist <= to_zero:
+            return s * (y_eq + (y - y_eq) * math.exp(-k_minus * dist))
+        dist -= to_zero
+        y = 0.0
+    y_eq = a / k_plus
+    return s * (y_eq + (y - y_eq) * math.exp(-k_plus * dist))
+
+
+def _first_order(x: np.ndarray, tau_s: float, fs_hz: float, x0: float) -> np.ndarray:
+    """``1 / (1 + tau s)`` for an input held between samples, settled at ``x0`` before the start."""
+    a = math.exp(-1.0 / (fs_hz * tau_s))
+    b, den = np.array([0.0, 1.0 - a]), np.array([1.0, -a])
+    return signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x0)[0]
+
+
+def _settled_lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``lfilter`` started at rest under the input's first value."""
+    return signal.lfilter(b, a, x, zi=signal.lfilter_zi(b, a) * x[0])[0]
+
+
+def _label_seed(label: str) -> int:
+    return int.from_bytes(hashlib.blake2b(label.encode("utf-8"), digest_size=8).digest(), "big")
+
+
+class IndependentPress:
+    """A simulated press for tests, with optional effects switched by the constructor.
+
+    Parameters (all optional)
+    -------------------------
+    seed : noise seed; with the run's label it fixes every run's noise.
+    input_delay_s : pure delay between the amplifier output (monitor) and the stack, 0.3-0.6 ms typical.
+    rate_dependence : the loop's width grows by this factor at high drive rates
+        (``1 + rate_dependence * tanh(rate / rate_saturation_v_per_s)``, rate smoothed over ``rate_tau_s``).
+    interference_n_per_a : drive-coupled interference, newtons per ampere of drive current, no threshold.
+    second_mode_share : share of the response through a second mode at ``second_mode_hz``.
+    drift_n_per_min : in-run drift of the load cell's offset.
+    slew_v_per_ms : amplifier slew limit (None: none).
+    """
+
+    name = "independent-test-press"
+
+    #: hysteresis of the stack: irregular, unequal elements (drive volts)
+    ELEMENTS = (BoucWenElement(3.1, 9.0, 0.35, 1.0), BoucWenElement(5.3, 47.0, 0.6, 1.0))
+
+    def __init__(
+        self,
+        *,
+        seed: int = 7321,
+        input_delay_s: float = 0.0,
+        rate_dependence: float = 0.0,
+        rate_saturation_v_per_s: float = 4000.0,
+        rate_tau_s: float = 0.002,
+        interference_n_per_a: float = 0.0,
+        second_mode_share: float = 0.0,
+        second_mode_hz: float = 3400.0,
+        drift_n_per_min: float = 0.0,
+        slew_v_per_ms: float | None = None,
+        mode_hz: float = 1030.0,
+        mode_damping: float = 0.09,
+        saturation: float = 0.28,
+        full_force_n: float = 300.0,
+        creep_taus_s: tuple[float, ...] = (0.4, 6.0, 55.0, 700.0),
+        creep_gains: tuple[float, ...] = (0.007, 0.009, 0.011, 0.013),
+        noise_n: float = 0.3,
+        capacitance_uf: float = 5.5,
+    ):
+        self.seed = int(seed)
+        self.input_delay_s = float(input_delay_s)
+        self.rate_dependence = float(rate_dependence)
+        self.rate_saturation_v_per_s = float(rate_saturation_v_per_s)
+        self.rate_tau_s = float(rate_tau_s)
+        self.interference_n_per_a = float(interference_n_per_a)
+        self.second_mode_share = float(second_mode_share)
+        self.second_mode_hz = float(second_mode_hz)
+        self.drift_n_per_min = float(drift_n_per_min)
+        self.slew_v_per_ms = slew_v_per_ms
+        self.mode_hz = float(mode_hz)
+        self.mode_damping = float(mode_damping)
+        self.saturation = float(saturation)
+        self.creep_taus_s = tuple(creep_taus_s)
+        self.creep_gains = tuple(creep_gains)
+        self.noise_n = float(noise_n)
+        self.capacitance_uf = float(capacitance_uf)
+        self.amp_gain = 15.0
+        self.amp_bandwidth_hz = 20_000.0
+        self.dac_bits, self.dac_range_v = 16, 10.0
+        self.adc_bits, self.adc_range_v = 14, 10.0
+        self.sensitivity_v_per_n = 0.012
+        self.antialias_hz = 6000.0
+        self.top_v = 150.0
+        self.output_v = 0.0
+        # stiffness: the first loading to the top drive gives full_force_n above the preload
+        ramp = np.linspace(0.0, self.top_v, 1501)
+        self.stiffness_n = 1.0
+        self.stiffness_n = float(full_force_n / self._static(ramp, self._hysteretic_loss(ramp))[-1])
+
+    # ------------------------------------------------------------------ Backend protocol
+
+    @property
+    def limits(self) -> DriveLimits:
+        return DriveLimits(drive_min_v=-30.0, drive_max_v=150.0, max_sample_rate_hz=100_000.0, max_force_n=800.0)
+
+    def describe(self) -> dict[str, Any]:
+        params = {k: v for k, v in vars(self).items() if k != "output_v"}
+        params["elements"] = [asdict(e) for e in self.ELEMENTS]
+        return {"backend": self.name, "simulation": "tests/independent_press.py", "parameters": params}
+
+    def zero_output(self) -> None:
+        self.output_v = 0.0
+
+    def run(self, command_v: np.ndarray, sample_rate_hz: float, *, preload_n: float, label: str,
+            progress: Callable[[float], None] | None = None) -> Measurement:
+        u = np.asarray(command_v, dtype=np.float64)
+        lim = self.limits
+        if u.ndim != 1 or u.size < 2 or not np.all(np.isfinite(u)):
+            raise BackendError(f"{self.name}: expected a finite 1-D drive of at least 2 samples")
+        if u.min() < lim.drive_min_v - 1e-9 or u.max() > lim.drive_max_v + 1e-9:
+            raise BackendError(f"{self.name}: drive {u.min():g} to {u.max():g} V outside {lim.drive_min_v:g} to {lim.drive_max_v:g} V")
+        if not 0.0 < sample_rate_hz <= lim.max_sample_rate_hz:
+            raise BackendError(f"{self.name}: sample rate {sample_rate_hz:g} Hz outside the board's range")
+        rng = np.random.default_rng([self.seed, _label_seed(label)])
+        try:
+            self.output_v = float(u[0])
+            channels = self.simulate(u, float(sample_rate_hz), float(preload_n), rng)
+        finally:
+            self.zero_output()
+        if progress is not None:
+            progress(1.0)
+        return Measurement(channels=channels, info={"seed": self.seed, "label": label})
+
+    # ------------------------------------------------------------------ physics
+
+    def _amplifier(self, u: np.ndarray, fs: float) -> np.ndarray:
+        lsb = 2.0 * self.dac_range_v / 2**self.dac_bits
+        dac = np.clip(np.round(u / self.amp_gain / lsb), -(2 ** (self.dac_bits - 1)), 2 ** (self.dac_bits - 1) - 1) * lsb
+        v = dac * self.amp_gain
+        if self.slew_v_per_ms is not None:
+            step = self.slew_v_per_ms * 1e3 / fs
+            out = np.empty_like(v)
+            prev = v[0]
+            for i, target in enumerate(v.tolist()):
+                prev += min(max(target - prev, -step), step)
+                out[i] = prev
+            v = out
+        return _first_order(v, 1.0 / (2.0 * math.pi * self.amp_bandwidth_hz), fs, float(v[0]))
+
+    def _hysteretic_loss(self, v: np.ndarray) -> np.ndarray:
+        """Drive lost to hysteresis, ``sum_i weight_i z_i`` (V), from rest at ``v[0]``."""
+        total = np.zeros(v.size)
+        dv = np.diff(v, prepend=v[0]).tolist()
+        for e in self.ELEMENTS:
+            a, kp, km = e.coefficients
+            z = 0.0
+            out = [0.0] * v.size
+            for i, d in enumerate(dv):
+                if d != 0.0:
+                    z = _bouc_wen_step(z, d, a, kp, km)
+                out[i] = z
+            total += e.weight * np.asarray(out)
+        return total
+
+    def _static(self, v: np.ndarray, loss: np.ndarray) -> np.ndarray:
+        """Force above the preload (before creep and modes) for a drive and its hysteretic loss."""
+        x = v - loss
+        k = self.saturation / (2.0 * self.top_v)  # slope 1 - saturation at the top drive
+        return self.stiffness_n * np.where(x > 0.0, x - k * x * x, x)
+
+    def _creep(self, f: np.ndarray, fs: float) -> np.ndarray:
+        """Kelvin-Voigt chain: each element adds ``g_i`` of the force after ``tau_i`` (from rest)."""
+        out = f.copy()
+        for tau, g in zip(self.creep_taus_s, self.creep_gains):
+            out += g * _first_order(f, tau, fs, 0.0)
+        return out
+
+    def _modes(self, f: np.ndarray, fs: float) -> np.ndarray:
+        """Unit-gain mode(s) as a ZOH-discretised state space, started at rest under ``f[0]``."""
+        def mode(hz: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
+            wn = 2.0 * math.pi * hz
+            A = np.array([[0.0, 1.0], [-wn * wn, -2.0 * zeta * wn]])
+            B = np.array([[0.0], [wn * wn]])
+            C = np.array([[1.0, 0.0]])
+            ad, bd, cd, dd, _ = signal.cont2discrete((A, B, C, np.zeros((1, 1))), 1.0 / fs, method="zoh")
+            num, den = signal.ss2tf(ad, bd, cd, dd)
+            return np.asarray(num[0]), np.asarray(den)
+
+        share2 = self.second_mode_share
+        y = (1.0 - share2) * _settled_lfilter(*mode(self.mode_hz, self.mode_damping), f)
+        if share2 > 0.0:
+            y += share2 * _settled_lfilter(*mode(self.second_mode_hz, 0.04), f)
+        return y
+
+    def simulate(self, command_v: np.ndarray, fs: float, preload_n: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        amp = self._amplifier(command_v, fs)
+        t = np.arange(amp.size) / fs
+        v = amp if self.input_delay_s <= 0.0 else np.interp(t - self.input_delay_s, t, amp, left=amp[0])
+        loss = self._hysteretic_loss(v)
+        if self.rate_dependence > 0.0:
+            rate = _first_order(np.abs(np.diff(v, prepend=v[0])) * fs, self.rate_tau_s, fs, 0.0)
+            loss = loss * (1.0 + self.rate_dependence * np.tanh(rate / self.rate_saturation_v_per_s))
+        f = self._modes(self._creep(self._static(v, loss), fs), fs)
+        force = np.maximum(preload_n + f, 0.0)
+        if self.interference_n_per_a:
+            current_a = self.capacitance_uf * 1e-6 * np.diff(v, prepend=v[0]) * fs
+            force = force - self.interference_n_per_a * _first_order(current_a, 2e-4, fs, 0.0)
+        reading = _first_order(force, 1.0 / (2.0 * math.pi * self.antialias_hz), fs, float(force[0]))
+        reading = reading + self.drift_n_per_min * t / 60.0 + self.noise_n * rng.standard_normal(amp.size)
+        lsb = 2.0 * self.adc_range_v / 2**self.adc_bits
+        volts = np.clip(np.round(self.sensitivity_v_per_n * reading / lsb), -(2 ** (self.adc_bits - 1)), 2 ** (self.adc_bits - 1) - 1) * lsb
+        monitor = amp + 0.02 * rng.standard_normal(amp.size)
+        return {"force_n": volts / self.sensitivity_v_per_n, "monitor_v": monitor}
