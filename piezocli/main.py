@@ -55,7 +55,50 @@ class RowsType(click.ParamType):
 ROWS = RowsType()
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+#: Every command: the module that defines it and the line ``piezopress --help`` shows. Commands
+#: are imported only when run (or asked for their own help), so ``--version``, ``--help`` and
+#: shell completion start without numpy's, scipy's, pandas' or matplotlib's import time.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "bundle": ("cmd_fit", "Join fitted sections into a parameter bundle."),
+    "characterize": ("cmd_characterize", "Run the characterization protocols through a backend into runs."),
+    "check-rig": ("cmd_check_rig", "Drive a small, safe signal and say whether the force follows."),
+    "compensate": ("cmd_fit", "Turn a reference trajectory into the compensated drive."),
+    "diagnose": ("cmd_diagnose", "Find what the model gets wrong, name the cause, measure the gain."),
+    "fit": ("cmd_fit", "Fit hysteresis, creep and shaper from runs and write the bundle."),
+    "fit-creep": ("cmd_fit", "Fit creep on a held step given the hysteresis model."),
+    "fit-hysteresis": ("cmd_fit", "Fit the Prandtl-Ishlinskii model and its inverse on sweeps."),
+    "fit-shaper": ("cmd_fit", "Identify the mode from steps and design the input shaper."),
+    "import": ("cmd_import", "Convert a CSV/TSV measurement into a run file."),
+    "inspect": ("cmd_inspect", "Validate run files and print a summary of each."),
+    "protocols": ("cmd_characterize", "List the protocol kinds a plan may use and their keys."),
+    "report": ("cmd_report", "Write the report: Table 6.13 beside the thesis, figures, model quality."),
+    "rig-keys": ("cmd_characterize", "List every key of a rig file with its unit, default and range."),
+    "simulate": ("cmd_diagnose", "Run the bundle's model on a run's drive; write prediction and residual."),
+    "validate": ("cmd_validate", "Run the thesis's chapter 6 tests with the compensation applied."),
+}
+
+
+class LazyGroup(click.Group):
+    """A group whose commands are imported on first use (see :data:`COMMANDS`)."""
+
+    def list_commands(self, ctx):
+        return sorted(set(COMMANDS) | set(self.commands))
+
+    def get_command(self, ctx, name):
+        if name not in self.commands and name in COMMANDS:
+            import importlib
+
+            importlib.import_module(f"piezocli.{COMMANDS[name][0]}")  # its decorators add the command to this group
+        return self.commands.get(name)
+
+    def format_commands(self, ctx, formatter):
+        rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx) if name in COMMANDS]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="piezopress")
 def cli() -> None:
     """Open-loop force control of piezoelectric presses.
@@ -65,11 +108,3 @@ def cli() -> None:
       piezopress characterize --out runs/2026-11-21      # scripted protocols -> Parquet runs
       piezopress import data.csv --out run.parquet ...   # measured data from elsewhere
     """
-
-
-def _register() -> None:
-    # Imported here so that each command module stays small and self-contained.
-    from piezocli import cmd_characterize, cmd_check_rig, cmd_diagnose, cmd_fit, cmd_import, cmd_inspect, cmd_report, cmd_validate  # noqa: F401
-
-
-_register()

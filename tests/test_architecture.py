@@ -38,6 +38,42 @@ def test_imports_go_one_way(package):
     assert not bad, "\n".join(bad)
 
 
+def _all_commands():
+    import click
+
+    ctx = click.Context(cli)
+    return {name: cli.get_command(ctx, name) for name in cli.list_commands(ctx)}
+
+
 def test_every_command_has_help_with_an_example():
-    for name, cmd in cli.commands.items():
+    commands = _all_commands()
+    assert len(commands) >= 16
+    for name, cmd in commands.items():
+        assert cmd is not None, f"`piezopress {name}` is listed but its module defines no such command"
         assert cmd.help and "Example" in cmd.help, f"`piezopress {name}` lacks help text with an Example"
+
+
+def test_the_command_table_lists_exactly_the_commands_the_modules_define():
+    import importlib
+
+    from piezocli.main import COMMANDS
+
+    for module in {m for m, _ in COMMANDS.values()}:
+        importlib.import_module(f"piezocli.{module}")
+    assert set(cli.commands) == set(COMMANDS)  # every defined command is listed, and no listed one is missing
+    for name, (module, short) in COMMANDS.items():
+        assert cli.commands[name].callback.__module__ == f"piezocli.{module}", name
+        assert short.endswith(".") and len(short) <= 80, name
+
+
+@pytest.mark.parametrize("args", [["--version"], ["--help"]])
+def test_start_up_imports_no_heavy_library(args):
+    """--version, --help and shell completion load no command module (issue 12: under 0.5 s)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from piezocli.main import cli\n"
+            "try:\n    cli.main(%r, standalone_mode=False)\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('numpy', 'scipy', 'pandas', 'matplotlib', 'cvxpy', 'pyarrow') if m in sys.modules))") % (args,)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    assert out.strip().splitlines()[-1] == "[]", out
