@@ -150,14 +150,12 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
       piezopress bundle --hysteresis build/hysteresis.json --creep build/creep.json \\
           --shaper build/shaper.json --out build/bundle.json
     """
-    from piezopress.acquisition.rig_config import load_rig
-
     sections = {"hysteresis": bundle_mod.read_document(hyst_path, "hysteresis")}
     if creep_path:
         sections["creep"] = bundle_mod.read_document(creep_path, "creep")
     if shaper_path:
         sections["shaper"] = bundle_mod.read_document(shaper_path, "shaper")
-    act = load_rig(rig_path).actuator
+    act = char.rig_limits(rig_path)  # the drive range of whichever backend the rig file names
     comp = fit_mod.compensation_settings(sections, max_rate_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v)
     doc = bundle_mod.assemble(sections, comp)
     if _skip(out, doc["inputs_digest"], if_changed):
@@ -189,8 +187,8 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace) -> None:
       piezopress fit runs/char --out build/bundle.json
       piezopress fit runs/smarthysteresis_150v_1hz.parquet --base --out build/smart-base.json
     """
-    from piezopress.acquisition.rig_config import load_rig
-
+    act = char.rig_limits(rig_path)  # the rig file checked, and its drive range, before any fitting
+    bundle_mod.check_output(out, replace=replace)
     res = fit_mod.fit_all(runs, base=base, skip_s=skip_s, rows=rows)
     u = units.label(res.unit)
     hfit = res.fits["hysteresis"]
@@ -203,7 +201,6 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace) -> None:
         click.echo(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
     for name, why in res.not_fitted.items():
         click.echo(f"{name}: not fitted: {why}")
-    act = load_rig(rig_path).actuator
     lo, hi = res.drive_v
     if lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
         click.echo(f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "

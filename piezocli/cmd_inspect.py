@@ -53,7 +53,7 @@ def _describe(run: Run) -> list[str]:
 def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool) -> None:
     """Validate run files and print a summary of each.
 
-    For each RUN: kind, name, sample rate, duration and number of samples; minimum,
+    For each RUN (a run file, or a directory: every run file in it): kind, name, sample rate, duration and number of samples; minimum,
     maximum and mean of every column; the other metadata (units note, protocol, ...) and,
     for imported runs, the source file, its sha256 and the import options. A file that
     is not a valid run gets one line on stderr; the others are still shown, and the
@@ -62,9 +62,20 @@ def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool) -> None:
     \b
     Example:
       piezopress inspect runs/smarthysteresis_150v_1hz.parquet runs/aye_ang_model.parquet
+      piezopress inspect sample_runs/characterization
     """
+    files: list[Path] = []
     bad = 0
-    for i, path in enumerate(runs):
+    for path in runs:
+        if path.is_dir():
+            found = sorted(path.glob("*.parquet"))
+            if not found:
+                bad += 1
+                click.echo(f"Error: {path}: a directory with no run files (*.parquet)", err=True)
+            files.extend(found)
+        else:
+            files.append(path)
+    for i, path in enumerate(files):
         try:
             run = read_run(path, allow_incomplete=allow_incomplete)
         except PiezopressError as exc:

@@ -94,14 +94,23 @@ def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run], dige
             "fitted_utc": utc_now(), "inputs_digest": digest or inputs_digest(kind, runs), "runs": provenance(runs), **body}
 
 
+def check_output(path: str | Path, *, replace: bool = False) -> None:
+    """Refuse, before any work, an output file that exists (without ``replace``) or a
+    directory in its place."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputExistsError(f"{path}: is a directory; expected a file name for the JSON document")
+    if path.exists() and not replace:
+        raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it, keeping the old one as .prev.json)")
+
+
 def write_document(doc: dict[str, Any], path: str | Path, *, replace: bool = False) -> Path | None:
     """Write a section or bundle; an existing file is replaced only with ``replace``, and then
     kept as ``<name>.prev.json`` (returned) so nothing is lost."""
     path = Path(path)
     previous = None
+    check_output(path, replace=replace)
     if path.exists():
-        if not replace:
-            raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it, keeping the old one as .prev.json)")
         previous = path.with_name(path.stem + ".prev.json")
         shutil.copy2(path, previous)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ import piezopress
 from piezopress import runformat
 from piezopress.acquisition.backend import Backend, Measurement
 from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
-from piezopress.acquisition.plan import Plan, Protocol, load_plan
+from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.errors import BackendError, ConfigError, OutputExistsError, PiezopressError, PlanError
@@ -68,6 +68,18 @@ def new_output_dir(out_dir: str | Path) -> Path:
         raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory (runs are never overwritten)")
     out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+def rig_limits(rig_path: str | Path | None) -> DriveLimits:
+    """The limits (drive range, sample rate, force) a rig file states, whichever backend it
+    names, checked completely and without loading a driver (no rig file: the virtual rig's)."""
+    if rig_path is None:
+        return load_rig(None).limits
+    doc = read_rig_document(rig_path)
+    in_file = rig_backend(doc)
+    if in_file not in BACKENDS:
+        raise ConfigError(str(rig_path), [f"[rig] backend = {in_file!r}: expected one of {', '.join(BACKENDS)}"])
+    return parse_daq_rig(doc, source=str(rig_path)).limits if in_file == "nidaq" else load_rig(rig_path).limits
 
 
 def make_backend(name: str | None, rig_path: str | Path | None) -> Backend:

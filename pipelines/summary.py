@@ -51,9 +51,10 @@ def run_metrics(run: runformat.Run) -> list[dict]:
     try:
         if run.kind in ("triangle", "sine"):
             x = run.column("reference_n")
+            x_unit = "V" if x is None else "N"  # against the drive, or the reference force of a compensated run
             x = run.command_v if x is None else x
             h = metrics.max_hysteresis(x, y)
-            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {unit_out} at {h.x_at_max:.1f}")
+            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {unit_out} at {h.x_at_max:.1f} {x_unit}")
         elif run.kind == "creep":
             c = metrics.creep(run.t_s, y, drive=run.command_v)
             row("creep", c.percent, "%", f"F_ss taken {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step size")

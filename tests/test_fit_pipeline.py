@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pandas as pd
+from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
@@ -140,3 +141,26 @@ def test_if_changed_skips_unchanged_inputs_and_refits_changed_ones(runs, tmp_pat
     res = invoke("fit-hysteresis", runs / "char", "--out", h, "--if-changed", "--holdout-fraction", "0.4")
     assert res.exit_code == 0 and "previous version kept" in res.output
     assert json.loads(h.read_text())["fit"]["holdout_fraction"] == 0.4
+
+
+# --------------------------------------------------------------------------- command-line checks before work (issue 12)
+
+
+def test_fit_refuses_an_existing_output_before_fitting(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+    from pipelines import fit as fit_mod
+
+    (tmp_path / "bundle.json").write_text("{}")
+    monkeypatch.setattr(fit_mod, "fit_all", lambda *a, **k: pytest.fail("fitted although the output exists"))
+    res = CliRunner().invoke(cli, ["fit", str(tmp_path), "--out", str(tmp_path / "bundle.json")])
+    assert res.exit_code != 0 and "already exists" in res.output
+    assert (tmp_path / "bundle.json").read_text() == "{}"
+
+
+def test_fit_reads_the_drive_range_of_a_hardware_rig_file_without_its_driver():
+    from pipelines import characterize as char
+
+    lim = char.rig_limits(Path(__file__).resolve().parents[1] / "rigs" / "nidaq-example.toml")
+    assert lim.drive_min_v < lim.drive_max_v and lim.max_sample_rate_hz > 0

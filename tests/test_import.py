@@ -403,3 +403,18 @@ def test_time_going_backwards_is_refused(tmp_path):
     src = write(tmp_path / "back.csv", "0,1,1\n0.1,1,1\n0.05,1,1\n0.3,1,1\n")
     with pytest.raises(ImportFormatError, match=r"back\.csv: time column 1 does not increase at data row 2 \(line 3\)"):
         import_table(src, columns={"t_s": 1, "command_v": 2, "force_n": 3})
+
+
+def test_inspect_takes_a_directory_of_runs(good_csv, tmp_path):
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for name in ("a", "b"):
+        assert invoke(["import", good_csv, "--out", runs / f"{name}.parquet", "--col", "t_s=1", "--col", "command_v=2",
+                       "--col", "displacement_um=3"]).exit_code == 0
+    result = invoke(["inspect", runs])
+    assert result.exit_code == 0, result.output
+    assert result.output.count("20 samples at 1000 Hz") == 2
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = invoke(["inspect", empty])
+    assert result.exit_code == 1 and "a directory with no run files" in result.output

@@ -82,3 +82,30 @@ def test_invalid_toml_is_one_problem(tmp_path):
     f.write_text("[plan\nname=")
     with pytest.raises(PlanError, match="not valid TOML"):
         load_plan(f, LIMITS)
+
+
+# --------------------------------------------------------------------------- rig file keys and range errors (issue 12)
+
+
+def test_rig_keys_lists_every_key_including_those_with_one_bound():
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+
+    res = CliRunner().invoke(cli, ["rig-keys"])
+    assert res.exit_code == 0, res.output
+    assert "seed = 20261121, range >= 0:" in res.output  # a lower bound only: once a TypeError
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[rig]\nseed = -1\n", "[rig] seed = -1: outside the allowed range >= 0"),
+    ("[rig]\nseed = 1.5\n", "[rig] seed = 1.5: expected int"),
+])
+def test_a_rig_value_outside_its_range_is_one_line_naming_it(tmp_path, text, message):
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+
+    (tmp_path / "rig.toml").write_text(text)
+    res = CliRunner().invoke(cli, ["check-rig", "--rig", str(tmp_path / "rig.toml")])
+    assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output, res.output

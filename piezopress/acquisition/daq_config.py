@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from piezopress.acquisition.plan import DriveLimits
-from piezopress.acquisition.rig_config import SectionedConfig, _check, param
+from piezopress.acquisition.rig_config import SectionedConfig, _check, describe_sections, param
 from piezopress.errors import ConfigError
 
 #: ``ai_terminal`` values and the DAQmx ``TerminalConfiguration`` value of each (stable across
@@ -305,12 +305,4 @@ def load_daq_rig(path: str | Path) -> DaqRigConfig:
 
 def describe_keys() -> str:
     """Every section and key of a hardware rig file with unit, default, range and meaning."""
-    lines = []
-    for sec, cls in SECTIONS.items():
-        lines.append(f"[{sec}]")
-        for f in fields(cls):
-            m = f.metadata
-            unit = f" [{m['unit']}]" if m["unit"] else ""
-            rng = f", range {'(' if m['lo_open'] else '['}{m['lo']:g}, {m['hi']:g}]" if m["lo"] is not None else ""
-            lines.append(f"  {f.name}{unit} = {f.default!r}{rng}: {m['help']}")
-    return "\n".join(lines)
+    return describe_sections(SECTIONS)

@@ -19,6 +19,15 @@ from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import ConfigError
 
 
+def allowed_range(lo: float | None, hi: float | None, lo_open: bool = False) -> str:
+    """``[lo, hi]``, ``(lo, hi]``, ``>= lo``, ``> lo`` or ``<= hi``: a range with a missing bound written as such."""
+    if lo is not None and hi is not None:
+        return f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+    if lo is not None:
+        return f"{'>' if lo_open else '>='} {lo:g}"
+    return f"<= {hi:g}" if hi is not None else "any value"
+
+
 def param(default: Any, help: str, unit: str = "", lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> Any:
     """A configuration key: default, meaning, unit and allowed range ``[lo, hi]`` (``(lo, hi]`` if lo_open)."""
     return field(default=default, metadata={"help": help, "unit": unit, "lo": lo, "hi": hi, "lo_open": lo_open})
@@ -370,8 +379,7 @@ def _check(section: str, cls: type, table: Mapping[str, Any], problems: list[str
             below = lo is not None and (v <= lo if lo_open else v < lo)
             above = hi is not None and v > hi
             if below or above:
-                rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{unit}"
-                problems.append(f"{where}: outside the allowed range {rng}")
+                problems.append(f"{where}: outside the allowed range {allowed_range(lo, hi, lo_open)}{unit}")
                 continue
         values[key] = v
     return cls(**values)
@@ -424,16 +432,22 @@ def load_rig(path: str | Path | None) -> RigConfig:
     return parse_rig(doc, source=str(path))
 
 
-def describe_keys() -> str:
-    """Every section and key with unit, default, range and meaning."""
+def describe_sections(sections: Mapping[str, type]) -> str:
+    """Every section and key of ``sections`` (name -> config dataclass) with unit, default,
+    range and meaning."""
     lines = []
-    for sec, cls in SECTIONS.items():
+    for sec, cls in sections.items():
         lines.append(f"[{sec}]")
         for f in fields(cls):
             m = f.metadata
             unit = f" [{m['unit']}]" if m["unit"] else ""
             rng = ""
-            if m["lo"] is not None:
-                rng = f", range {'(' if m['lo_open'] else '['}{m['lo']:g}, {m['hi']:g}]"
+            if m["lo"] is not None or m["hi"] is not None:
+                rng = f", range {allowed_range(m['lo'], m['hi'], m['lo_open'])}"
             lines.append(f"  {f.name}{unit} = {f.default!r}{rng}: {m['help']}")
     return "\n".join(lines)
+
+
+def describe_keys() -> str:
+    """Every section and key of a virtual rig file with unit, default, range and meaning."""
+    return describe_sections(SECTIONS)
