@@ -11,23 +11,47 @@ from pipelines import characterize as char
 from pipelines import summary
 
 
+def _duration(seconds: float) -> str:
+    """``42 s``, ``6 min 41 s`` or ``2 h 05 min``."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{seconds:.3g} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
 def _print_progress(ev: char.ProgressEvent) -> None:
+    """One line per protocol; on a terminal, a bar while the backend reports progress."""
     p = ev.protocol
     width = len(str(ev.total))
+    tty = click.get_text_stream("stdout").isatty()
+    head = f"[{ev.index:>{width}}/{ev.total}] {p.name:<28} {p.kind:<9} {p.duration_s:8.2f} s at {p.sample_rate_hz:g} Hz ... "
+    if ev.index == 1 and not ev.done and ev.fraction is None:
+        from datetime import datetime, timedelta
+
+        end = (datetime.now() + timedelta(seconds=ev.plan_s)).strftime("%H:%M")
+        click.echo(f"{ev.total} protocols, {_duration(ev.plan_s)} of drive in all (on a press in real time: done at about {end}; "
+                   f"the virtual rig simulates faster)")
+    if ev.fraction is not None:
+        if tty:  # redraw the line with a bar
+            n = int(round(20 * min(max(ev.fraction, 0.0), 1.0)))
+            click.echo(f"\r{head}[{'#' * n}{'.' * (20 - n)}] {100 * ev.fraction:3.0f} %", nl=False)
+        return
     if not ev.done:
-        click.echo(
-            f"[{ev.index:>{width}}/{ev.total}] {p.name:<28} {p.kind:<9} {p.duration_s:8.2f} s at {p.sample_rate_hz:g} Hz ... ",
-            nl=False,
-        )
+        click.echo(head, nl=False)
     else:
-        click.echo(f"done in {ev.elapsed_s:.2f} s")
+        if tty:
+            click.echo(f"\r{head}", nl=False)
+        left = f", {_duration(ev.remaining_s)} of drive left" if ev.remaining_s > 0 else ""
+        click.echo(f"done in {ev.elapsed_s:.2f} s{left}")
 
 
 @cli.command("characterize")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory for the runs (must not exist or be empty).")
 @click.option("--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_PLAN, show_default="protocols/characterize.toml", help="Protocol plan (TOML).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig configuration (TOML).")
-@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default="virtual", show_default=True, help="Which rig runs the plan.")
+@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default=None, help="Which rig runs the plan (default: the rig file's [rig] backend).")
 @reports_errors
 def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_name: str) -> None:
     """Run the scripted characterization protocols and save each run as Parquet.

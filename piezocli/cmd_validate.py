@@ -18,7 +18,7 @@ from pipelines import validate as val
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory for the runs.")
 @click.option("--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), default=val.DEFAULT_VALIDATION_PLAN, show_default="protocols/validate.toml", help="Reference plan (forces in N above the preload).")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig configuration.")
-@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default="virtual", show_default=True)
+@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default=None, help="Which rig runs the plan (default: the rig file's [rig] backend).")
 @click.option("--no-shaper", is_flag=True, help="Run without the input shaper (Table 6.12's comparison).")
 @click.option("--no-creep", is_flag=True, help="Run without the creep compensator.")
 @reports_errors

@@ -114,7 +114,10 @@ def make_backend(name: str | None, rig_path: str | Path | None) -> Backend:
 
 @dataclass(frozen=True)
 class ProgressEvent:
-    """Reported before (``done`` false) and after each protocol."""
+    """Reported before each protocol (``done`` false, ``fraction`` None), while it runs (the
+    backend's progress: ``fraction`` of its samples measured) and after it (``done``).
+    ``plan_s`` is the whole plan's drive time and ``remaining_s`` the drive time from this
+    protocol's start to the plan's end."""
 
     index: int
     total: int
@@ -122,6 +125,9 @@ class ProgressEvent:
     done: bool
     elapsed_s: float = 0.0
     path: Path | None = None
+    fraction: float | None = None
+    plan_s: float = 0.0
+    remaining_s: float = 0.0
 
 
 @dataclass
@@ -148,13 +154,14 @@ def plain_drive(proto: Protocol) -> Drive:
 
 
 def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any],
-                 drive_for: Callable[[Protocol], Drive] = plain_drive) -> runformat.Run:
-    """Play one protocol through ``backend`` and return it as a run (complete or not)."""
+                 drive_for: Callable[[Protocol], Drive] = plain_drive, progress: Callable[[float], None] | None = None) -> runformat.Run:
+    """Play one protocol through ``backend`` and return it as a run (complete or not);
+    ``progress`` receives the fraction measured, as the backend reports it."""
     drive = drive_for(proto)
     t_s, command_v = drive.t_s, drive.command_v
     started = utc_now()
     try:
-        m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name)
+        m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name, progress=progress)
     except KeyboardInterrupt as exc:
         # a backend may re-raise Ctrl-C after its ramp-down with what it measured: keep it
         partial = getattr(exc, "measurement", None)
@@ -200,7 +207,7 @@ def characterize(
     plan_path: str | Path = DEFAULT_PLAN,
     rig_path: str | Path | None = DEFAULT_RIG,
     backend: Backend | None = None,
-    backend_name: str | None = "virtual",
+    backend_name: str | None = None,
     on_progress: Callable[[ProgressEvent], None] | None = None,
 ) -> CharacterizeResult:
     """Run every protocol of a plan and write the runs and a manifest into ``out_dir``.
@@ -250,13 +257,21 @@ def execute_plan(
     result = CharacterizeResult(out, manifest_path, plan=plan)
     extra = {"software_version": piezopress.__version__, "rig": backend.describe()}
     total = len(plan.protocols)
+    plan_s = plan.duration_s
+    remaining = plan_s
     try:
         for i, proto in enumerate(plan.protocols, start=1):
+            at = {"plan_s": plan_s, "remaining_s": remaining}
             if on_progress:
-                on_progress(ProgressEvent(i, total, proto, done=False))
+                on_progress(ProgressEvent(i, total, proto, done=False, **at))
             t0 = time.perf_counter()
+
+            def progress(fraction: float, i=i, proto=proto, at=at) -> None:
+                if on_progress:
+                    on_progress(ProgressEvent(i, total, proto, done=False, fraction=float(fraction), **at))
+
             try:
-                run = run_protocol(backend, proto, plan, extra, drive_for)
+                run = run_protocol(backend, proto, plan, extra, drive_for, progress)
             except KeyboardInterrupt as exc:
                 if getattr(exc, "run", None) is not None:  # Ctrl-C with a partial run: kept as incomplete
                     _keep_run(out, manifest_path, manifest, proto, exc.run, force_incomplete=True)  # type: ignore[attr-defined]
@@ -265,8 +280,10 @@ def execute_plan(
             if not complete:
                 raise BackendError(f"{proto.name}: the backend stopped the run early ({run.meta['status_reason']}); kept as {path.name}")
             result.runs.append(path)
+            remaining -= proto.duration_s
             if on_progress:
-                on_progress(ProgressEvent(i, total, proto, done=True, elapsed_s=time.perf_counter() - t0, path=path))
+                on_progress(ProgressEvent(i, total, proto, done=True, elapsed_s=time.perf_counter() - t0, path=path, plan_s=plan_s,
+                                          remaining_s=remaining))
     except BaseException as exc:
         try:
             backend.zero_output()

@@ -36,7 +36,7 @@ def validate(
     plan_path: str | Path = DEFAULT_VALIDATION_PLAN,
     rig_path: str | Path | None = DEFAULT_RIG,
     backend: Backend | None = None,
-    backend_name: str = "virtual",
+    backend_name: str | None = None,
     use_shaper: bool = True,
     use_creep: bool = True,
     on_progress: Callable[[ProgressEvent], None] | None = None,

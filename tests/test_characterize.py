@@ -146,3 +146,39 @@ def test_cli_prints_progress_and_table(tmp_path, plan):
     assert "[1/3] tri" in res.output and "[3/3] step" in res.output
     assert "hysteresis" in res.output and "creep" in res.output and "overshoot" in res.output
     assert (tmp_path / "runs" / "characterization.csv").is_file()
+
+
+# --------------------------------------------------------------------------- backend from the rig file, progress (issue 12)
+
+
+def test_the_backend_comes_from_the_rig_file_unless_overridden(tmp_path):
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+
+    rig = Path(__file__).resolve().parents[1] / "rigs" / "nidaq-example.toml"
+    res = CliRunner().invoke(cli, ["characterize", "--rig", str(rig), "--out", str(tmp_path / "runs")])
+    # the file names the nidaq backend: it is chosen (and, without the driver, says how to install it)
+    assert res.exit_code != 0 and "nidaqmx" in res.output and "was asked for" not in res.output, res.output
+    res = CliRunner().invoke(cli, ["characterize", "--rig", str(rig), "--backend", "virtual", "--out", str(tmp_path / "runs")])
+    assert res.exit_code != 0 and "the rig file is for backend 'nidaq'" in res.output, res.output
+    assert not (tmp_path / "runs").exists()
+
+
+def test_progress_gives_the_plan_total_up_front_and_the_backend_fractions(tmp_path):
+    from pipelines import characterize as char
+
+    events = []
+    plan = tmp_path / "plan.toml"
+    plan.write_text('[plan]\nname = "two"\n\n[[protocol]]\nname = "a"\nkind = "triangle"\nfreq_hz = 1.0\npeak_v = 20.0\n'
+                    'cycles = 2\nsample_rate_hz = 1000.0\n\n[[protocol]]\nname = "b"\nkind = "triangle"\nfreq_hz = 1.0\n'
+                    'peak_v = 30.0\ncycles = 1\nsample_rate_hz = 1000.0\n')
+    char.characterize(tmp_path / "runs", plan_path=plan, on_progress=events.append)
+    first = events[0]
+    assert first.index == 1 and not first.done and first.fraction is None
+    assert first.plan_s == pytest.approx(first.remaining_s) and first.plan_s >= 3.0
+    fractions = [e.fraction for e in events if e.fraction is not None]
+    assert fractions and fractions[-1] == pytest.approx(1.0)  # the virtual rig reports when done
+    done = [e for e in events if e.done]
+    assert len(done) == 2 and done[-1].remaining_s == pytest.approx(0.0, abs=1e-9)
+    assert done[0].remaining_s == pytest.approx(first.plan_s - done[0].protocol.duration_s)
