@@ -30,15 +30,7 @@ $(STAMP): pyproject.toml
 
 # The whole chain on the virtual rig, into a new dated directory (nothing is overwritten).
 demo: $(STAMP)
-	@d=$(OUT)/demo-$$(date -u +%Y%m%dT%H%M%SZ) && mkdir -p $$d && \
-	$(PP) characterize --out $$d/characterization && \
-	$(PP) fit $$d/characterization --out $$d/bundle.json && \
-	$(PP) validate --bundle $$d/bundle.json --out $$d/validation && \
-	$(PP) fit $$d/characterization --base --out $$d/base-bundle.json && \
-	$(PP) diagnose $$d/characterization --bundle $$d/base-bundle.json --out $$d/diagnosis && \
-	$(PP) report --characterization $$d/characterization --validation $$d/validation --bundle $$d/bundle.json \
-	    --diagnosis $$d/diagnosis --out $$d/report && \
-	echo "" && echo "Report: $$d/report/report.html"
+	@$(PP) demo --out $(OUT)/demo-$$(date -u +%Y%m%dT%H%M%SZ)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

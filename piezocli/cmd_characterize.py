@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
@@ -25,7 +26,7 @@ def _print_progress(ev: char.ProgressEvent) -> None:
     """One line per protocol; on a terminal, a bar while the backend reports progress."""
     p = ev.protocol
     width = len(str(ev.total))
-    tty = click.get_text_stream("stdout").isatty()
+    tty = sys.stdout.isatty()
     head = f"[{ev.index:>{width}}/{ev.total}] {p.name:<28} {p.kind:<9} {p.duration_s:8.2f} s at {p.sample_rate_hz:g} Hz ... "
     if ev.index == 1 and not ev.done and ev.fraction is None:
         from datetime import datetime, timedelta

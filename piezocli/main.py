@@ -63,6 +63,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "characterize": ("cmd_characterize", "Run the characterization protocols through a backend into runs."),
     "check-rig": ("cmd_check_rig", "Drive a small, safe signal and say whether the force follows."),
     "compensate": ("cmd_fit", "Turn a reference trajectory into the compensated drive."),
+    "demo": ("cmd_demo", "Run the whole chain on the virtual rig, as make demo does."),
     "diagnose": ("cmd_diagnose", "Find what the model gets wrong, name the cause, measure the gain."),
     "fit": ("cmd_fit", "Fit hysteresis, creep and shaper from runs and write the bundle."),
     "fit-creep": ("cmd_fit", "Fit creep on a held step given the hysteresis model."),
