@@ -17,8 +17,8 @@ HELP = """Convert a CSV/TSV measurement (SOURCE) into a run file (--out, never o
 Map run columns to source columns with --col RUN_COLUMN=SOURCE_COLUMN, the source column
 given as a number counted from 1 or as a header name. Run columns: t_s, command_v (required),
 force_n and/or displacement_um (at least one), reference_n, monitor_v. Without a t_s column
-give --sample-rate; with one, the time column must be uniform within 1e-3 (jitter is
-resampled to an exact grid, a gap is refused) and --sample-rate, if given, is a check.
+give --sample-rate-hz; with one, the time column must be uniform within 1e-3 (jitter is
+resampled to an exact grid, a gap is refused) and --sample-rate-hz, if given, is a check.
 --scale and --offset convert units (value * scale + offset, to V, N, µm, s). --lag
 RUN_COLUMN=N pairs the input of row i with that column's row i+N (dropping the ends).
 --rows START:STOP keeps data rows START to STOP-1 of the input (counted from 0, after any
@@ -31,13 +31,13 @@ Examples (data sets in ../shared/datasets, see its README.md and docs/import.md)
   # SmartHysteresis: +-150 V, 1 Hz sine, displacement in um, 5 kHz time column
   piezopress import ../shared/datasets/smarthysteresis/hysteresis_v_150_1hz.csv \\
       --out runs/smarthysteresis_150v_1hz.parquet --no-header --kind sine \\
-      --col t_s=2 --col displacement_um=3 --col command_v=4 --sample-rate 5000
+      --col t_s=2 --col displacement_um=3 --col command_v=4 --sample-rate-hz 5000
 
 \b
   # Aye & Ang 2018: 0-3.6 V amplifier input, raw capacitive sensor read one sample late
   piezopress import ../shared/datasets/aye-ang-2018/Model_Vi_Do.dat \\
       --out runs/aye_ang_model.parquet --no-header --delimiter tab --kind sine \\
-      --col command_v=1 --col displacement_um=5 --lag displacement_um=1 --sample-rate 200 \\
+      --col command_v=1 --col displacement_um=5 --lag displacement_um=1 --sample-rate-hz 200 \\
       --units-note "command_v: amplifier input, gain undocumented; displacement_um: raw sensor units (scale 1, arbitrary offset, about 1 um per unit)"
 """
 
@@ -95,7 +95,7 @@ def _rows(text: str | None) -> tuple[int | None, int | None] | None:
 @click.option("--lag", "lags", multiple=True, metavar="RUN_COLUMN=SAMPLES", help="The column was recorded SAMPLES after the input (command_v). Repeat.")
 @click.option("--kind", default="custom", show_default=True, help="Run kind: triangle, step, creep, staircase, sine or custom.")
 @click.option("--name", default=None, help="Run name  [default: the source file name without suffix]")
-@click.option("--sample-rate", "sample_rate_hz", type=float, default=None, metavar="HZ", help="Sample rate; required without a t_s column, checked against it otherwise.")
+@click.option("--sample-rate-hz", "--sample-rate", "sample_rate_hz", type=float, default=None, metavar="HZ", help="Sample rate; required without a t_s column, checked against it otherwise.")
 @click.option("--delimiter", default="auto", show_default=True, help="auto, comma, tab, semicolon, whitespace or one character.")
 @click.option("--header/--no-header", default=None, help="Whether line 1 holds column names  [default: guessed from line 1]")
 @click.option("--rows", "rows_text", default=None, metavar="START:STOP", help="Keep these data rows of the input (from 0, STOP excluded; either end may be left out).")
