@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import ROWS, cli, reports_errors
+from piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
 from piezopress import units
 from pipelines import bundle as bundle_mod
 from pipelines import characterize as char
@@ -172,8 +172,9 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
 @_skip_opt
 @_rows_opt
 @_replace_opt
+@json_option
 @reports_errors
-def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace) -> None:
+def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> None:
     """Fit hysteresis, creep and shaper from a characterization and write the bundle.
 
     The same as fit-hysteresis, fit-creep, fit-shaper and bundle in a row (their section
@@ -189,25 +190,42 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace) -> None:
     """
     act = char.rig_limits(rig_path)  # the rig file checked, and its drive range, before any fitting
     bundle_mod.check_output(out, replace=replace)
-    res = fit_mod.fit_all(runs, base=base, skip_s=skip_s, rows=rows)
+
+    def say(text: str) -> None:
+        click.echo(text, err=as_json)
+
+    res = fit_mod.fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=lambda stage: say(f"fitting {stage} ..."))
     u = units.label(res.unit)
     hfit = res.fits["hysteresis"]
-    click.echo(f"hysteresis: {hfit.reason}")
-    click.echo(f"hysteresis: {_fit_error(hfit, res.unit)}")
+    say(f"hysteresis: {hfit.reason}")
+    say(f"hysteresis: {_fit_error(hfit, res.unit)}")
     if "creep" in res.sections:
-        click.echo(f"creep:      {res.fits['creep'].reason} (RMS in {u})")
+        say(f"creep:      {res.fits['creep'].reason} (RMS in {u})")
     if "shaper" in res.sections:
         s = res.sections["shaper"]
-        click.echo(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
+        say(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
     for name, why in res.not_fitted.items():
-        click.echo(f"{name}: not fitted: {why}")
+        say(f"{name}: not fitted: {why}")
     lo, hi = res.drive_v
     if lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
-        click.echo(f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
-                   f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this actuator's range)")
+        say(f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
+            f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this actuator's range)")
     doc = bundle_mod.assemble(res.sections, fit_mod.compensation_settings(res.sections, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v))
     bundle_mod.compensator(doc)  # check it builds
-    _wrote(out, bundle_mod.write_document(doc, out, replace=replace))
+    previous = bundle_mod.write_document(doc, out, replace=replace)
+    if as_json:
+        say(f"Wrote {out}" + (f" (previous version kept as {previous})" if previous else ""))
+        emit_json({
+            "bundle": out, "previous": previous, "output_unit": res.unit, "sections": list(res.sections),
+            "not_fitted": res.not_fitted,
+            "hysteresis": {"reason": hfit.reason, "train_rms": hfit.train_rms, "holdout_rms": hfit.holdout_rms,
+                           "holdout_rms_pct_of_range": hfit.holdout_rms_pct, "output_range": hfit.output_range},
+            "creep": res.fits["creep"].reason if "creep" in res.sections else None,
+            "shaper": res.sections["shaper"]["choice"]["reason"] if "shaper" in res.sections else None,
+            "drive_v": list(res.drive_v), "rig_drive_v": [act.drive_min_v, act.drive_max_v],
+        })
+    else:
+        _wrote(out, previous)
 
 
 def _fit_error(fit, unit: str) -> str:

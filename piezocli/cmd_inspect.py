@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
+from piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress.errors import PiezopressError
 from piezopress.runformat import REQUIRED_METADATA, Run, read_run
 
@@ -46,11 +46,21 @@ def _describe(run: Run) -> list[str]:
     return lines
 
 
+def _as_dict(run: Run) -> dict:
+    stats = run.data.agg(["min", "max", "mean"])
+    t = run.t_s
+    return {"path": run.path, "kind": run.kind, "name": run.name, "samples": len(run.data), "sample_rate_hz": run.sample_rate_hz,
+            "duration_s": float(t[-1] - t[0]), "status": run.meta.get("status", "complete"),
+            "columns": {c: {"min": float(stats[c]["min"]), "max": float(stats[c]["max"]), "mean": float(stats[c]["mean"])} for c in run.data.columns},
+            "meta": run.meta}
+
+
 @cli.command("inspect")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--allow-incomplete", is_flag=True, help="Also show runs marked incomplete (interrupted, aborted).")
+@json_option
 @reports_errors
-def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool) -> None:
+def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool, as_json: bool) -> None:
     """Validate run files and print a summary of each.
 
     For each RUN (a run file, or a directory: every run file in it): kind, name, sample rate, duration and number of samples; minimum,
@@ -75,15 +85,22 @@ def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool) -> None:
             files.extend(found)
         else:
             files.append(path)
+    docs = []
     for i, path in enumerate(files):
         try:
             run = read_run(path, allow_incomplete=allow_incomplete)
         except PiezopressError as exc:
             bad += 1
             click.echo(f"Error: {exc}", err=True)
+            docs.append({"path": path, "error": str(exc)})
+            continue
+        if as_json:
+            docs.append(_as_dict(run))
             continue
         if i:
             click.echo()
         click.echo("\n".join(_describe(run)))
+    if as_json:
+        emit_json({"runs": docs, "bad": bad})
     if bad:
         raise SystemExit(1)

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from piezocli.cmd_characterize import _print_progress
-from piezocli.main import cli, reports_errors
+from piezocli.main import cli, emit_json, json_option, reports_errors
 from pipelines import characterize as char
 from pipelines import summary
 from pipelines import validate as val
@@ -21,8 +21,9 @@ from pipelines import validate as val
 @click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default=None, help="Which rig runs the plan (default: the rig file's [rig] backend).")
 @click.option("--no-shaper", is_flag=True, help="Run without the input shaper (Table 6.12's comparison).")
 @click.option("--no-creep", is_flag=True, help="Run without the creep compensator.")
+@json_option
 @reports_errors
-def validate_cmd(bundle_path, out_dir, plan_path, rig_path, backend_name, no_shaper, no_creep) -> None:
+def validate_cmd(bundle_path, out_dir, plan_path, rig_path, backend_name, no_shaper, no_creep, as_json) -> None:
     """Run the thesis's chapter 6 tests with the compensation applied.
 
     Every reference of the plan is compensated with the bundle (shaper, creep compensator,
@@ -33,11 +34,20 @@ def validate_cmd(bundle_path, out_dir, plan_path, rig_path, backend_name, no_sha
     Example:
       piezopress validate --bundle build/bundle.json --out runs/validation
     """
+    warnings: list[str] = []
+
+    def warn(w: str) -> None:
+        warnings.append(w)
+        click.echo(f"\n  warning: {w}", err=True)
+
     result = val.validate(out_dir, bundle_path, plan_path=plan_path, rig_path=rig_path, backend_name=backend_name,
-                          use_shaper=not no_shaper, use_creep=not no_creep, on_progress=_print_progress,
-                          on_warning=lambda w: click.echo(f"\n  warning: {w}", err=True))
-    click.echo(f"\n{len(result.runs)} runs written to {result.out_dir}\n")
+                          use_shaper=not no_shaper, use_creep=not no_creep, on_progress=None if as_json else _print_progress,
+                          on_warning=warn)
     table = summary.validation_table(result.out_dir)
-    click.echo(summary.format_table(table, title="Validation (compensated)"))
     path = summary.write_table(table, result.out_dir / "validation.csv")
+    if as_json:
+        emit_json({"out_dir": result.out_dir, "runs": result.runs, "table": path, "warnings": warnings, "rows": table.to_dict(orient="records")})
+        return
+    click.echo(f"\n{len(result.runs)} runs written to {result.out_dir}\n")
+    click.echo(summary.format_table(table, title="Validation (compensated)"))
     click.echo(f"\nTable saved as {path}")

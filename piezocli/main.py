@@ -32,6 +32,30 @@ def reports_errors(func):
     return wrapper
 
 
+def json_option(func):
+    """``--json``: print one machine-readable document on stdout; the human lines go to stderr."""
+    return click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout (the usual lines go to stderr).")(func)
+
+
+def emit_json(doc) -> None:
+    """The ``--json`` document: numbers as numbers, non-finite values as null, paths as text."""
+    import json
+    import math
+
+    def clean(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {str(k): clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        if hasattr(v, "item") and not isinstance(v, (str, bytes)):  # numpy scalars
+            return clean(v.item())
+        return v if isinstance(v, (str, int, float, bool)) or v is None else str(v)
+
+    click.echo(json.dumps(clean(doc), indent=2, ensure_ascii=False))
+
+
 class RowsType(click.ParamType):
     """``START:STOP``: rows ``START`` to ``STOP - 1`` counted from 0; either end may be left out."""
 

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from types import SimpleNamespace
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -487,17 +487,19 @@ def _why_runs_unfit(section: str, runs: list[runformat.Run], unit: str) -> str |
 
 
 def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | None = None,
-            rows: tuple[int | None, int | None] | None = None) -> FitAll:
+            rows: tuple[int | None, int | None] | None = None, on_stage: Callable[[str], None] | None = None) -> FitAll:
     """Fit every stage the runs allow: hysteresis (needed: a sweep), creep (a creep run),
     shaper (low-amplitude steps); the sections that cannot be fitted are named with the
     reason instead of stopping the fit. From sweeps alone the bundle holds the hysteresis
     section, which is all the compensator needs, and a creep section fitted from the sweeps
     when their drift predicts the held-out ends better (:func:`fit_sweep_sections`; not
     with ``base``). ``skip_s``/``rows``: the sweeps' fitted rows (:func:`fitted_rows`).
+    ``on_stage`` is told each stage's name before it starts (progress).
 
     ``base`` fits the thesis's structure (:data:`THESIS_GRID`, :data:`THESIS_CREEP_FORMS`).
     """
     paths = list(paths)
+    stage = on_stage or (lambda name: None)
     hruns = select_hysteresis_runs(paths)  # no sweep: no bundle (BundleError)
     unit = hruns[0].output_unit
     drive = (min(float(np.min(r.command_v)) for r in hruns), max(float(np.max(r.command_v)) for r in hruns))
@@ -509,6 +511,7 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
     except BundleError as exc:
         why = str(exc)
     if why is None:
+        stage("hysteresis and creep (alternating, each creep form checked against the sweeps)")
         try:
             h, hfit, c, cfit = fit_hysteresis_and_creep(paths, base=base, skip_s=skip_s, rows=rows)
             sections.update(hysteresis=h, creep=c)
@@ -516,10 +519,12 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
         except (FitError, CompensatorUnstableError) as exc:
             why = f"the creep fit failed ({exc})"
     if why is not None and base:
+        stage("hysteresis (the thesis's structure)")
         not_fitted["creep"] = why
         h, hfit = fit_hysteresis_section(paths, grid=THESIS_GRID, skip_s=skip_s, rows=rows)
         sections["hysteresis"], fits["hysteresis"] = h, hfit
     elif why is not None:  # no held step: creep from the sweeps themselves, if they show it
+        stage("hysteresis, and creep from the sweeps")
         h, c, found = fit_sweep_sections(paths, skip_s=skip_s, rows=rows)
         sections["hysteresis"], fits["hysteresis"] = h, found
         if c is not None:
@@ -531,6 +536,7 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
     except BundleError as exc:
         why = str(exc)
     if why is None:
+        stage("shaper (mode from the low-amplitude steps)")
         try:
             sections["shaper"], fits["shaper"] = fit_shaper_section(paths)
         except FitError as exc:
