@@ -75,27 +75,69 @@ def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_nam
     click.echo(f"\nTable saved as {path}")
 
 
+def _copy_new(sources: list[Path], dest_dir: Path) -> list[Path]:
+    """Copy files into ``dest_dir`` (made if missing); an existing file there is refused, before any copy."""
+    import shutil
+
+    from piezopress.errors import OutputExistsError
+
+    targets = [dest_dir / src.name for src in sources]
+    clash = [t for t in targets if t.exists()]
+    if clash:
+        raise OutputExistsError(f"{', '.join(map(str, clash))}: already exist(s); expected a directory without these files (nothing copied)")
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    for src, dst in zip(sources, targets):
+        shutil.copyfile(src, dst)
+    return targets
+
+
 @cli.command("protocols")
-def protocols_cmd() -> None:
-    """List the protocol kinds a plan may use and the keys of each.
+@click.option("--copy", "copy_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Write editable copies of the shipped plans into this directory.")
+@reports_errors
+def protocols_cmd(copy_dir: Path | None) -> None:
+    """List the protocol kinds a plan may use and the keys of each; with --copy, write
+    editable copies of the shipped plans (characterize.toml, validate.toml, ...).
 
     \b
     Example:
       piezopress protocols
+      piezopress protocols --copy my-plans      # then: characterize --plan my-plans/characterize.toml
     """
     from piezopress.acquisition.plan import describe_kinds
 
+    if copy_dir is not None:
+        for path in _copy_new(sorted(Path(char.DEFAULT_PLAN).parent.glob("*.toml")), copy_dir):
+            click.echo(f"Wrote {path}")
+        return
     click.echo(describe_kinds())
 
 
 @cli.command("rig-keys")
-def rig_keys_cmd() -> None:
-    """List every key of a rig file with its unit, default and allowed range.
+@click.option("--template", "template", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write an editable rig file: the shipped one of --backend.")
+@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default="virtual", show_default=True,
+              help="With --template: a virtual press (thesis-press.toml) or an NI-DAQmx press (nidaq-example.toml).")
+@reports_errors
+def rig_keys_cmd(template: Path | None, backend_name: str) -> None:
+    """List every key of a rig file with its unit, default and allowed range; with
+    --template, write an editable copy of a shipped rig file.
 
     \b
     Example:
       piezopress rig-keys
+      piezopress rig-keys --template my-press.toml --backend nidaq
     """
     from piezopress.acquisition.rig_config import describe_keys
 
+    if template is not None:
+        from piezopress.errors import OutputExistsError
+
+        if template.exists():
+            raise OutputExistsError(f"{template}: already exists; expected a new file name for the rig file")
+        src = Path(char.DEFAULT_RIG).parent / ("thesis-press.toml" if backend_name == "virtual" else "nidaq-example.toml")
+        template.parent.mkdir(parents=True, exist_ok=True)
+        template.write_bytes(src.read_bytes())
+        click.echo(f"Wrote {template} (from {src.name}; edit it, then: piezopress check-rig --rig {template})")
+        return
     click.echo(describe_keys())

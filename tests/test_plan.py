@@ -109,3 +109,34 @@ def test_a_rig_value_outside_its_range_is_one_line_naming_it(tmp_path, text, mes
     (tmp_path / "rig.toml").write_text(text)
     res = CliRunner().invoke(cli, ["check-rig", "--rig", str(tmp_path / "rig.toml")])
     assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output, res.output
+
+
+def test_protocols_copy_writes_the_shipped_plans_and_never_overwrites(tmp_path):
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+
+    root = Path(__file__).resolve().parents[1]
+    res = CliRunner().invoke(cli, ["protocols", "--copy", str(tmp_path / "plans")])
+    assert res.exit_code == 0, res.output
+    for name in ("characterize.toml", "validate.toml"):
+        assert (tmp_path / "plans" / name).read_text() == (root / "protocols" / name).read_text()
+    (tmp_path / "plans" / "characterize.toml").write_text("# edited")
+    res = CliRunner().invoke(cli, ["protocols", "--copy", str(tmp_path / "plans")])
+    assert res.exit_code != 0 and "already exist" in res.output
+    assert (tmp_path / "plans" / "characterize.toml").read_text() == "# edited"
+
+
+@pytest.mark.parametrize("backend, source", [("virtual", "thesis-press.toml"), ("nidaq", "nidaq-example.toml")])
+def test_rig_keys_template_writes_an_editable_rig_file(tmp_path, backend, source):
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "my-press.toml"
+    res = CliRunner().invoke(cli, ["rig-keys", "--template", str(out), "--backend", backend])
+    assert res.exit_code == 0, res.output
+    assert out.read_text() == (root / "rigs" / source).read_text()
+    res = CliRunner().invoke(cli, ["rig-keys", "--template", str(out)])
+    assert res.exit_code != 0 and "already exists" in res.output
