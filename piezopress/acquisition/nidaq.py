@@ -2,8 +2,9 @@
 
 It implements :class:`piezopress.acquisition.backend.Backend`, like the virtual rig, for a
 board configured by a hardware rig file (:mod:`piezopress.acquisition.daq_config`,
-``rigs/nidaq-example.toml``). The ``nidaqmx`` package is optional (``pip install
-'piezopress[nidaq]'``) and imported only when a backend is created without a fake driver.
+``rigs/nidaq-example.toml``). The ``nidaqmx`` package is optional (the ``nidaq`` extra:
+``pip install '.[nidaq]'`` from the piezopress folder) and imported only when a backend is
+created without a fake driver.
 
 Timing: one sample clock, one start trigger
 -------------------------------------------
@@ -58,7 +59,8 @@ from piezopress.acquisition.daq_config import TERMINALS, DaqRigConfig, SafetySec
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import BackendError, PiezopressError
 
-INSTALL_HINT = "pip install 'piezopress[nidaq]' (in a checkout: .venv/bin/pip install -e '.[nidaq]')"
+INSTALL_HINT = ("pip install nidaqmx into piezopress's environment (or reinstall piezopress with its extra: pip install "
+                "'PATH-TO-PIEZOPRESS[nidaq]'), and the NI-DAQmx driver from ni.com")
 #: Added to the expected duration of every blocking driver call before it times out.
 TIMEOUT_MARGIN_S = 2.0
 #: Relative difference allowed between the requested and the board's coerced sample rate.
