@@ -17,6 +17,7 @@ import numpy as np
 from piezopress import runformat, units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
+from piezopress.analysis import mode_fit
 from piezopress.analysis import shaper as shaper_mod
 from piezopress.errors import CompensatorUnstableError, FitError
 from pipelines.bundle import BundleError, collect_runs, inputs_digest, section
@@ -377,7 +378,7 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
     args = ([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
     # a DAC command is held between samples, a sampled amplifier monitor is closer to linear
     # between them; both discretisations are exact for their kind of drive: keep the better fit
-    fits = [shaper_mod.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
+    fits = [mode_fit.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
     fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
     # only the designs valid at the identified damping (EI's closed form stops at 0.5)

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, lfilter, lsim
 
+from piezopress.analysis.mode import mode_foh, mode_zoh
+from piezopress.analysis.mode_fit import identify_mode, identify_mode_runs
 from piezopress.analysis.shaper import (
     SHAPERS,
     THESIS_TABLE_6_8,
@@ -19,10 +21,6 @@ from piezopress.analysis.shaper import (
     choose_shaper,
     design_shaper,
     ei_shaper,
-    identify_mode,
-    identify_mode_runs,
-    mode_foh,
-    mode_zoh,
     residual_vibration,
     thesis_shaper_residual,
     zv_family,

@@ -42,7 +42,7 @@ from scipy import optimize, signal
 from piezopress import operators, signals, units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
-from piezopress.analysis.shaper import mode_response
+from piezopress.analysis.mode import mode_response
 
 #: A finding needs at least this held-out improvement of the RMS residual (percent) ...
 MIN_GAIN_PCT = 20.0

@@ -1,0 +1,109 @@
+"""A lightly damped second-order mode in discrete time (the press's ring, thesis Eq. 6.2).
+
+``G(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2)`` discretised exactly for a drive held between
+samples (``zoh``: a DAC's command) or linear between them (``foh``: a sampled continuous
+voltage such as the amplifier monitor), and its response to a sampled drive. Used by the
+mode identification (:mod:`piezopress.analysis.mode_fit`), the input shapers
+(:mod:`piezopress.analysis.shaper`) and the diagnosis's forward model. Invalid arguments
+raise :class:`~piezopress.errors.FitError` naming the value and the range expected.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import lfilter
+
+from piezopress.errors import FitError
+
+__all__ = ["HOLDS", "mode_zoh", "mode_foh", "mode_response", "check_mode", "check_fs", "damped"]
+
+
+def check_mode(wn: float, zeta: float, *, zeta_max: float = 1.0) -> tuple[float, float]:
+    wn, zeta = float(wn), float(zeta)
+    if not (math.isfinite(wn) and wn > 0):
+        raise FitError(f"wn={wn!r} rad/s: expected a finite natural frequency > 0")
+    if not (math.isfinite(zeta) and 0.0 <= zeta < zeta_max):
+        raise FitError(f"zeta={zeta!r}: expected a damping ratio in [0, {zeta_max:g})")
+    return wn, zeta
+
+
+def check_fs(fs_hz: float) -> float:
+    fs_hz = float(fs_hz)
+    if not (math.isfinite(fs_hz) and fs_hz > 0):
+        raise FitError(f"fs_hz={fs_hz!r}: expected a finite sample rate > 0 Hz")
+    return fs_hz
+
+
+def damped(wn: float, zeta: float) -> tuple[float, float]:
+    """(sigma, wd): decay rate and damped angular frequency (rad/s)."""
+    return zeta * wn, wn * math.sqrt(1.0 - zeta * zeta)
+
+
+
+def mode_zoh(wn: float, zeta: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order-hold discretisation ``(b, a)`` of ``wn^2 / (s^2 + 2 zeta wn s + wn^2)``.
+
+    From the sampled unit-step response ``1 - exp(-sigma k T) (cos(wd k T) + sigma/wd sin(wd k T))``
+    times ``(1 - z^-1)``: with ``alpha = exp(-sigma T)``, ``beta = wd T``,
+    ``b = [0, 1 - alpha (cos beta + sigma/wd sin beta), alpha^2 + alpha (sigma/wd sin beta - cos beta)]``,
+    ``a = [1, -2 alpha cos beta, alpha^2]``. Unit DC gain; exact for a drive held between
+    samples (a DAC's output).
+    """
+    wn, zeta = check_mode(wn, zeta)
+    fs_hz = check_fs(fs_hz)
+    sigma, wd = damped(wn, zeta)
+    dt = 1.0 / fs_hz
+    alpha, beta = math.exp(-sigma * dt), wd * dt
+    ratio = sigma / wd
+    cb, sb = math.cos(beta), math.sin(beta)
+    b = np.array([0.0, 1.0 - alpha * (cb + ratio * sb), alpha * alpha + alpha * (ratio * sb - cb)])
+    a = np.array([1.0, -2.0 * alpha * cb, alpha * alpha])
+    return b, a
+
+
+def mode_foh(wn: float, zeta: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact first-order-hold (triangle) discretisation ``(b, a)`` of the unit-gain mode.
+
+    Exact for a drive that is linear between its samples, e.g. the sampled monitor of an
+    amplifier slewing at a constant rate: ``G_foh(z) = (z - 1)^2 / (T z) Z{r(kT)}`` with the
+    unit-ramp response ``r(t) = t - c0 + exp(-sigma t) (c0 cos(wd t) + c1 sin(wd t))``,
+    ``c0 = 2 zeta / wn``, ``c1 = (2 zeta^2 - 1) / wd``. Over the common denominator
+    ``D = z^2 - 2 alpha cos(beta) z + alpha^2`` (the poles of :func:`mode_zoh`) the numerator
+    is ``D (1 - c0 (z - 1) / T) + (z - 1)^2 (c0 (z - alpha cos beta) + c1 alpha sin beta) / T``,
+    whose cubic terms cancel. Same as ``scipy.signal.cont2discrete(..., method="foh")``, 300
+    times faster; ``b[0] != 0`` (the output at a sample depends on the drive at it). Like
+    :func:`mode_zoh` it loses about ``1e-16 / (wn / fs)^2`` to cancellation: 1e-15 for the
+    press's mode at 20 kHz, 1e-9 for a mode 200 times slower.
+    """
+    wn, zeta = check_mode(wn, zeta)
+    fs_hz = check_fs(fs_hz)
+    sigma, wd = damped(wn, zeta)
+    dt = 1.0 / fs_hz
+    alpha, beta = math.exp(-sigma * dt), wd * dt
+    cb, sb = math.cos(beta), math.sin(beta)
+    c0, c1 = 2.0 * zeta / wn, (2.0 * zeta * zeta - 1.0) / wd
+    a = np.array([1.0, -2.0 * alpha * cb, alpha * alpha])
+    num = np.polyadd(
+        np.polymul(a, [-c0 / dt, 1.0 + c0 / dt]),
+        np.polymul([1.0, -2.0, 1.0], [c0 / dt, (c1 * alpha * sb - c0 * alpha * cb) / dt]),
+    )
+    return num[1:], a  # num[0] == 0 up to rounding
+
+
+#: The drive between samples -> its exact discretisation.
+HOLDS = {"zoh": mode_zoh, "foh": mode_foh}
+
+
+def mode_response(drive, fs_hz: float, wn: float, zeta: float, *, hold: str = "zoh") -> np.ndarray:
+    """Output of the unit-gain mode to the sampled ``drive``, at rest at ``drive[0]``.
+
+    ``hold="zoh"``: the drive is held between samples (a command from a DAC);
+    ``hold="foh"``: it is linear between samples (a sampled continuous voltage).
+    """
+    if hold not in HOLDS:
+        raise FitError(f"hold={hold!r}: expected one of {sorted(HOLDS)}")
+    d = np.asarray(drive, dtype=float)
+    b, a = HOLDS[hold](wn, zeta, fs_hz)
+    return d[0] + lfilter(b, a, d - d[0])

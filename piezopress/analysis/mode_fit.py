@@ -1,0 +1,250 @@
+"""Identifying the press's mode from step responses (thesis Section 6.4).
+
+A second-order mode (:mod:`piezopress.analysis.mode`) is fitted to one or several steps by
+output-error least squares, started from the ringing's peak spacing and logarithmic
+decrement. Pure numpy/scipy: no file I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.signal import find_peaks
+
+from piezopress.analysis.mode import HOLDS, mode_response
+from piezopress.errors import FitError
+
+__all__ = ["ModeFit", "identify_mode", "identify_mode_runs"]
+
+
+@dataclass(frozen=True)
+class ModeFit:
+    """A second-order mode fitted to one or several step responses (:func:`identify_mode`).
+
+    Model per run ``r``: ``y ≈ offset[r] + gain[r] * G[drive]``,
+    ``G = wn^2 / (s^2 + 2 zeta wn s + wn^2)`` (discretised exactly for ``hold``), at rest at
+    ``drive[0]``.
+
+    Attributes
+    ----------
+    wn : float
+        Natural frequency (rad/s), shared by all runs.
+    zeta : float
+        Damping ratio, shared.
+    gain, offset : tuple of float
+        Per run: output per unit of drive (e.g. N/V) and output at zero drive.
+    rms_residual : tuple of float
+        Per run: RMS of ``y - model`` (unit of ``y``).
+    residual_pct_of_step : tuple of float
+        Per run: ``100 * rms_residual / |gain * (drive_end - drive_start)|``.
+    initial_wn, initial_zeta : float
+        The guesses read off the ringing (peak spacing, logarithmic decrement).
+    hold : str
+        The drive's assumed behaviour between samples (``"foh"`` or ``"zoh"``).
+    nfev : int
+        Model evaluations used by the least-squares fit.
+    """
+
+    wn: float
+    zeta: float
+    gain: tuple[float, ...]
+    offset: tuple[float, ...]
+    rms_residual: tuple[float, ...]
+    residual_pct_of_step: tuple[float, ...]
+    initial_wn: float
+    initial_zeta: float
+    hold: str
+    nfev: int
+
+    @property
+    def freq_hz(self) -> float:
+        """Undamped natural frequency ``wn / 2 pi`` (Hz)."""
+        return self.wn / (2.0 * math.pi)
+
+    @property
+    def damped_period_s(self) -> float:
+        return 2.0 * math.pi / (self.wn * math.sqrt(1.0 - self.zeta**2))
+
+
+@dataclass(frozen=True)
+class _Run:
+    fs_hz: float
+    drive: np.ndarray
+    y: np.ndarray
+    step: float  # drive_end - drive_start
+    settle: int  # first sample after the drive has settled
+
+
+def _prepare_run(i: int, t_s, drive, y, step_time_s) -> _Run:
+    where = f"run {i}"
+    t = np.asarray(t_s, dtype=float)
+    d = np.asarray(drive, dtype=float)
+    yy = np.asarray(y, dtype=float)
+    if not (t.ndim == d.ndim == yy.ndim == 1) or not (t.size == d.size == yy.size):
+        raise FitError(f"{where}: t_s, drive and y must be 1-D of equal length, got shapes {t.shape}, {d.shape}, {yy.shape}")
+    if t.size < 32:
+        raise FitError(f"{where}: {t.size} samples; expected at least 32")
+    for label, v in (("t_s", t), ("drive", d), ("y", yy)):
+        if not np.all(np.isfinite(v)):
+            raise FitError(f"{where}: {label} holds NaN or inf at sample {int(np.flatnonzero(~np.isfinite(v))[0])}")
+    dt = np.diff(t)
+    mean_dt = float(np.mean(dt))
+    if not (mean_dt > 0) or np.max(np.abs(dt - mean_dt)) > 1e-3 * mean_dt:
+        raise FitError(f"{where}: t_s must be uniform and increasing (steps within 1e-3 of their mean {mean_dt:g} s)")
+    fs = 1.0 / mean_dt
+    n = t.size
+    i0 = 0
+    if step_time_s is not None:
+        if not (t[0] <= step_time_s < t[-1]):
+            raise FitError(f"{where}: step_time_s={step_time_s!r} outside the record [{t[0]:g}, {t[-1]:g}] s")
+        i0 = int(np.searchsorted(t, step_time_s))
+    d_start = float(np.mean(d[:i0])) if i0 > 0 else float(d[0])
+    tail = max(4, n // 10)
+    d_end = float(np.mean(d[-tail:]))
+    step = d_end - d_start
+    if not (abs(step) > 5.0 * float(np.std(d[-tail:])) and abs(step) > 1e-12 * max(1.0, abs(d_end))):
+        raise FitError(f"{where}: no step in drive (change {step:g} against tail noise {float(np.std(d[-tail:])):g}); expected one step")
+    away = np.flatnonzero(np.abs(d[i0:] - d_end) > 0.05 * abs(step))
+    settle = i0 + (int(away[-1]) + 1 if away.size else 0)
+    if n - settle < 16:
+        raise FitError(f"{where}: the drive settles {n - settle} samples before the end; expected a recorded ringing after it")
+    return _Run(fs, d, yy, step, settle)
+
+
+def _ringing_guess(run: _Run) -> tuple[float, float] | None:
+    """(wn, zeta) from the extrema of the ringing after the drive has settled, or None."""
+    y = run.y[run.settle:]
+    tail = max(8, y.size // 5)
+    e = y - float(np.mean(y[-tail:]))
+    noise = float(np.std(np.diff(y[-tail:]))) / math.sqrt(2.0)
+    thr = max(4.0 * noise, 0.05 * float(np.max(np.abs(e))))
+    hi, _ = find_peaks(e, prominence=thr)
+    lo, _ = find_peaks(-e, prominence=thr)
+    ext = sorted([(int(k), 1) for k in hi] + [(int(k), -1) for k in lo])
+    ext = [(k, s) for k, s in ext if abs(e[k]) > thr]
+    alt: list[tuple[int, int]] = []  # keep alternating maxima and minima
+    for k, s in ext:
+        if alt and alt[-1][1] == s:
+            if abs(e[k]) > abs(e[alt[-1][0]]):
+                alt[-1] = (k, s)
+        else:
+            alt.append((k, s))
+    if len(alt) < 2:
+        return None
+    idx = np.array([k for k, _ in alt], dtype=float)
+    half_period_s = float(np.median(np.diff(idx))) / run.fs_hz
+    wd = math.pi / half_period_s
+    amp = np.abs(e[idx.astype(int)])
+    sigma = -float(np.polyfit(idx / run.fs_hz, np.log(amp), 1)[0]) if amp.size >= 2 else 0.1 * wd
+    sigma = min(max(sigma, 1e-3 * wd), 3.0 * wd)
+    wn = math.hypot(wd, sigma)
+    return wn, min(max(sigma / wn, 1e-3), 0.9)
+
+
+def identify_mode(t_s, drive, y, *, step_time_s: float | None = None, hold: str = "foh") -> ModeFit:
+    """Fit ``y ≈ offset + gain * G[drive]``, ``G = wn^2/(s^2 + 2 zeta wn s + wn^2)``, to one step.
+
+    ``drive`` must be the drive *actually applied* (the amplifier's monitor channel when it
+    is recorded): the amplifier slews a commanded step at about 42 V/ms, half a damped
+    period for a 20 V step, and fitting against the ideal command biases ``wn`` and
+    ``zeta`` badly (a slower, better damped mode explains the softened ringing).
+
+    Output-error least squares (``scipy.optimize.least_squares``) over
+    ``(wn, zeta, gain, offset)`` on an exact discretisation of ``G``, started from the
+    ringing: the median spacing of alternating extrema gives ``wd``, the slope of their log
+    amplitudes (logarithmic decrement) ``zeta wn``; ``gain`` and ``offset`` start from a
+    linear least-squares fit at those.
+
+    Parameters
+    ----------
+    t_s, drive, y : array_like
+        Uniform time (s), applied drive and measured output (e.g. N), equal lengths.
+    step_time_s : float, optional
+        Time of the step (the mean drive before it is the start level); default: the
+        drive's first sample is the start level.
+    hold : {"foh", "zoh"}
+        How the drive behaves between its samples, so the discretisation is exact:
+        ``"foh"`` (default) linear, right for a sampled monitor of the amplifier's
+        continuous output (a slew-limited ramp); ``"zoh"`` held, right for a DAC command.
+        A held model of a sampled 42 V/ms ramp lags it by half a sample while it slews,
+        which shifts the ringing's phase and biases ``wn`` by about +2 % and ``zeta`` by
+        about -5 % (Eq. 6.2's mode at 20 kHz).
+
+    Raises
+    ------
+    FitError
+        Unequal lengths, NaN, non-uniform time, no step in ``drive``, no ringing.
+
+    Examples
+    --------
+    >>> fs = 20e3; t = np.arange(400) / fs; d = np.where(t >= 2e-3, 20.0, 0.0)
+    >>> y = 50 + 2 * mode_response(d, fs, 6.44e3, 0.115)
+    >>> fit = identify_mode(t, d, y, hold="zoh")
+    >>> round(fit.wn), round(fit.zeta, 3), round(fit.gain[0], 3)
+    (6440, 0.115, 2.0)
+    """
+    return identify_mode_runs([t_s], [drive], [y], step_times_s=None if step_time_s is None else [step_time_s], hold=hold)
+
+
+def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold: str = "foh") -> ModeFit:
+    """:func:`identify_mode` over several runs: one ``(wn, zeta)``, a gain and offset per run.
+
+    Meant for several low-amplitude steps (the press is most nearly linear there). The
+    initial ``(wn, zeta)`` is the median of the runs' ringing guesses; every sample of
+    every run weighs the same. ``step_times_s``: one value (or None) per run.
+    """
+    if hold not in HOLDS:
+        raise FitError(f"hold={hold!r}: expected one of {sorted(HOLDS)}")
+    t_s_list, drive_list, y_list = list(t_s_list), list(drive_list), list(y_list)
+    if not t_s_list or not (len(t_s_list) == len(drive_list) == len(y_list)):
+        raise FitError(
+            f"t_s_list, drive_list, y_list: expected the same number (>= 1) of runs, got {len(t_s_list)}, {len(drive_list)}, {len(y_list)}"
+        )
+    steps = [None] * len(t_s_list) if step_times_s is None else list(step_times_s)
+    if len(steps) != len(t_s_list):
+        raise FitError(f"step_times_s: expected {len(t_s_list)} values (one per run), got {len(steps)}")
+    runs = [_prepare_run(i, t, d, y, s) for i, (t, d, y, s) in enumerate(zip(t_s_list, drive_list, y_list, steps))]
+
+    guesses = [g for g in (_ringing_guess(r) for r in runs) if g is not None]
+    if not guesses:
+        raise FitError("no ringing found after the step in any run (fewer than two alternating extrema above the noise)")
+    wn0 = float(np.median([g[0] for g in guesses]))
+    zeta0 = float(np.median([g[1] for g in guesses]))
+    wn_max = 0.99 * math.pi * min(r.fs_hz for r in runs)  # below Nyquist
+    wn0 = min(wn0, 0.9 * wn_max)
+
+    n_runs = len(runs)
+
+    def unit_responses(wn, zeta):
+        return [mode_response(r.drive, r.fs_hz, wn, zeta, hold=hold) for r in runs]
+
+    x0 = [wn0, zeta0]
+    lin = []
+    for r, u in zip(runs, unit_responses(wn0, zeta0)):
+        coef, *_ = np.linalg.lstsq(np.column_stack([u, np.ones_like(u)]), r.y, rcond=None)
+        lin.append(coef)
+    x0 += [c[0] for c in lin] + [c[1] for c in lin]
+
+    def residuals(x):
+        us = unit_responses(x[0], x[1])
+        return np.concatenate([r.y - (x[2 + i + n_runs] + x[2 + i] * u) for i, (r, u) in enumerate(zip(runs, us))])
+
+    lower = [1e-6 * wn0, 1e-4] + [-np.inf] * (2 * n_runs)
+    upper = [wn_max, 0.95] + [np.inf] * (2 * n_runs)
+    x0 = np.clip(x0, np.array(lower) + 1e-12, np.array(upper) - 1e-12)
+    sol = least_squares(residuals, x0, bounds=(lower, upper), x_scale="jac", method="trf", xtol=1e-12, ftol=1e-12)
+    wn, zeta = float(sol.x[0]), float(sol.x[1])
+    gains = tuple(float(v) for v in sol.x[2:2 + n_runs])
+    offsets = tuple(float(v) for v in sol.x[2 + n_runs:])
+    res = residuals(sol.x)
+    rms, pct, start = [], [], 0
+    for r, g in zip(runs, gains):
+        part = res[start:start + r.y.size]
+        start += r.y.size
+        rms.append(float(np.sqrt(np.mean(part**2))))
+        size = abs(g * r.step)
+        pct.append(100.0 * rms[-1] / size if size > 0 else math.inf)
+    return ModeFit(wn, zeta, gains, offsets, tuple(rms), tuple(pct), wn0, zeta0, hold, int(sol.nfev))
