@@ -37,20 +37,40 @@ def simulate_cmd(run, bundle_path, out) -> None:
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle whose model is judged.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory: diagnosis.json, extended_bundle.json, residual plots.")
 @click.option("--cause", "causes", multiple=True, help="Only these causes (repeatable; default: the whole catalogue).")
+@click.option("--gain", "gain", is_flag=True, help="Also measure the gain on the press: validate the base and the extended bundle on "
+              "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).")
+@click.option("--gain-seeds", type=click.IntRange(1, 10), default=2, show_default=True,
+              help="With --gain: passes of the whole chain (the runs', and more with other noise seeds) for each row's noise.")
 @reports_errors
-def diagnose_cmd(runs, bundle_path, out_dir, causes) -> None:
+def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds) -> None:
     """Find what the model gets wrong, name the physical cause, extend the model, measure the gain.
 
     Every run is simulated with the bundle's model; the residuals are analysed against the
     sensor's noise floor, and each cause of the catalogue is fitted as an extension of the
     model on some runs or segments and judged on others it did not see. Findings are sorted
-    by held-out gain; residual structure no cause explains is listed as unexplained.
+    by held-out gain; residual structure no cause explains is listed as unexplained. A cause
+    the runs cannot test (each declares the runs it needs) is listed with what it needs and
+    what the runs offer, and next-plan.toml in the output directory is the experiment that
+    would test it. Several run directories may be given (the first runs and the next plan's).
 
     \b
     Example:
       piezopress fit runs/char --base --out build/base.json
       piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis
+      piezopress characterize --plan runs/diagnosis/next-plan.toml --out runs/more
+      piezopress diagnose runs/char runs/more --bundle build/base.json --out runs/diagnosis-2
+      piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis-3 --gain
     """
     result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None)
-    click.echo(diag.format_summary(result))
-    click.echo(f"\nWrote {out / 'diagnosis.json'}, {out / 'extended_bundle.json'} and {out / 'residuals.png'}")
+    plan = diag.next_plan_info(out)
+    click.echo(diag.format_summary(result, plan))
+    extra = f" and {plan['file']}" if plan and plan.get("file") else ""
+    click.echo(f"\nWrote {out / 'diagnosis.json'}, {out / 'extended_bundle.json'}, {out / 'residuals.png'}, "
+               f"{out / 'residual_traces.png'}{extra}")
+    if gain:
+        from pipelines import gain as gain_mod
+
+        _, csv = gain_mod.gain_for_runs(runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None)
+        click.echo("\nThe gain on the press (validation on the runs' virtual rig, base bundle against extended):\n")
+        click.echo(gain_mod.format_table(gain_mod.read_csv(csv), {f.cause: f.gain_pct for f in result.findings}))
+        click.echo(f"\nWrote {csv}")

@@ -208,3 +208,49 @@ def residual_rms_bars(runs: Sequence[str], before: Sequence[float], after: Seque
     ax.grid(True, axis="y", alpha=0.3, which="both")
     ax.legend(fontsize=8)
     return fig
+
+
+@dataclass(frozen=True)
+class ResidualRow:
+    """One row of :func:`residual_traces`: the runs of one kind, before and after, drawn
+    within ``+/-limit`` (the caller clips the curves there and says so in each panel's note)."""
+
+    title: str
+    left: Sequence[Curve]
+    right: Sequence[Curve]
+    limit: float
+    left_note: str = ""
+    right_note: str = ""
+
+
+def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title: str = "", right_title: str = "",
+                    xlabel: str = "time / run length", title: str = "Residuals") -> Figure:
+    """Measured minus modelled output, one row per run kind (its own scale), two columns
+    (e.g. the base model and the extended one); a row's note says what was clipped."""
+    n = max(len(rows), 1)
+    fig = _figure(1.2 + 2.0 * n)
+    axes = np.atleast_2d(fig.subplots(n, 2, squeeze=False))
+    if not rows:
+        _no_data(axes[0, 0], "no run")
+        _no_data(axes[0, 1], "no run")
+    for i, row in enumerate(rows):
+        ax_l, ax_r = axes[i]
+        for ax, curves, sub, note in ((ax_l, row.left, left_title, row.left_note), (ax_r, row.right, right_title, row.right_note)):
+            for j, c in enumerate(curves):
+                ax.plot(c.x, c.y, color=AFTER_COLOURS[j % len(AFTER_COLOURS)], lw=0.5, alpha=0.85,
+                        label=(c.label or None) if len(curves) <= 6 else None)
+            if len(curves) <= 6 and any(c.label for c in curves) and ax is ax_r:
+                ax.legend(fontsize=7, loc="upper right")
+            ax.axhline(0.0, color="0.3", lw=0.6)
+            ax.set_ylim(-1.05 * row.limit, 1.05 * row.limit)
+            ax.grid(True, alpha=0.3)
+            if i == 0 and sub:
+                ax.set_title(sub, fontsize=10)
+            if i == n - 1:
+                ax.set_xlabel(xlabel)
+            if note:
+                ax.text(0.01, 0.02, note, transform=ax.transAxes, fontsize=7, color="0.25", va="bottom",
+                        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
+        ax_l.set_ylabel(f"{row.title}\n({units.label(unit)})", fontsize=9)
+    fig.suptitle(title)
+    return fig

@@ -8,22 +8,27 @@ import numpy as np
 from scipy import signal
 
 
-def rate_limit(u: np.ndarray, v0: float, max_step: float) -> np.ndarray:
+def rate_limit(u: np.ndarray, v0: float, max_step: float | np.ndarray) -> np.ndarray:
     """``v[k] = v[k-1] + clip(u[k] - v[k-1], -max_step, max_step)`` from ``v[-1] = v0``.
 
-    A slew-rate limiter. Vectorised: where ``v`` tracks ``u`` nothing is computed; only
-    the samples after a change larger than ``max_step`` are stepped one by one until ``v``
-    has caught up.
+    A slew-rate limiter; ``max_step`` is one number or one per sample (a limit that varies
+    along the signal). Vectorised: where ``v`` tracks ``u`` nothing is computed; only the
+    samples after a change larger than ``max_step`` are stepped one by one until ``v`` has
+    caught up.
 
     Examples
     --------
     >>> rate_limit(np.array([0.0, 10.0, 10.0, 10.0]), 0.0, 4.0).tolist()
     [0.0, 4.0, 8.0, 10.0]
+    >>> rate_limit(np.array([0.0, 10.0, 10.0, 10.0]), 0.0, np.array([1.0, 1.0, 2.0, 9.0])).tolist()
+    [0.0, 1.0, 3.0, 10.0]
     """
-    v = np.array(u, dtype=np.float64, copy=True)
+    u = np.asarray(u, dtype=np.float64)
+    v = u.copy()
     if v.size == 0:
         return v
-    jumps = np.flatnonzero(np.abs(np.diff(u, prepend=v0)) > max_step)
+    step = np.broadcast_to(np.asarray(max_step, dtype=np.float64), v.shape)
+    jumps = np.flatnonzero(np.abs(np.diff(u, prepend=v0)) > step)
     done = 0  # samples before `done` are final
     for j in jumps:
         if j < done:
@@ -32,9 +37,9 @@ def rate_limit(u: np.ndarray, v0: float, max_step: float) -> np.ndarray:
         k = j
         while k < v.size:
             d = u[k] - p
-            if abs(d) <= max_step:
+            if abs(d) <= step[k]:
                 break
-            p += math.copysign(max_step, d)
+            p += math.copysign(step[k], d)
             v[k] = p
             k += 1
         done = k

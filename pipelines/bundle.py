@@ -15,7 +15,7 @@ from typing import Any, Iterable
 
 import piezopress
 from piezopress import runformat, units
-from piezopress.analysis.compensation import Compensator
+from piezopress.analysis.compensation import RATE_TAU_S, Compensator, RateDependence
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import Shaper
@@ -145,17 +145,33 @@ def assemble(sections: dict[str, dict[str, Any]], compensation: dict[str, Any]) 
             "compensation": compensation}
 
 
+def _rate(d: dict[str, Any] | None) -> RateDependence | None:
+    """The rate dependence a bundle's ``compensation.rate_dependence`` describes (diagnose writes it)."""
+    if not d:
+        return None
+    sat = d.get("saturation_v_per_s")
+    return RateDependence(widen_v_per_kv_s=float(d.get("widen_v_per_kv_s", 0.0)), loss_per_kv_s=float(d.get("loss_per_kv_s", 0.0)),
+                          saturation_v_per_s=float(sat) if sat else None, tau_s=float(d.get("tau_s", RATE_TAU_S)))
+
+
+def _shaper(s: dict[str, Any]) -> Shaper:
+    return Shaper(name=s["name"], times_s=tuple(s["times_s"]), amplitudes=tuple(s["amplitudes"]),
+                  wn=float(s["natural_freq_rad_s"]), zeta=float(s["damping"]), zv_power=s.get("zv_power"))
+
+
 def compensator(bundle: dict[str, Any], *, use_shaper: bool = True, use_creep: bool = True) -> Compensator:
     """The compensator a bundle describes."""
     try:
         hyst = PIModel.from_dict(bundle["hysteresis"]["model"])
         creep = CreepModel.from_dict(bundle["creep"]["model"]) if use_creep and "creep" in bundle else None
-        shaper = None
+        shaper = shaper2 = None
         if use_shaper and "shaper" in bundle:
-            s = bundle["shaper"]["shaper"]
-            shaper = Shaper(name=s["name"], times_s=tuple(s["times_s"]), amplitudes=tuple(s["amplitudes"]),
-                            wn=float(s["natural_freq_rad_s"]), zeta=float(s["damping"]), zv_power=s.get("zv_power"))
+            shaper = _shaper(bundle["shaper"]["shaper"])
+            # a second mode found by diagnose: its own shaper, after the first
+            shaper2 = _shaper(bundle["shaper"]["shaper2"]) if bundle["shaper"].get("shaper2") else None
         comp = bundle.get("compensation", {})
+        # without the shaper the mode's delay is not led; a pure input delay still is
+        lead = float(comp.get("lead_s", 0.0)) if use_shaper else float(comp.get("delay_lead_s", 0.0))
         return Compensator(
             hysteresis=hyst,
             creep=creep,
@@ -163,7 +179,10 @@ def compensator(bundle: dict[str, Any], *, use_shaper: bool = True, use_creep: b
             drive_min_v=float(comp.get("drive_min_v", 0.0)),
             drive_max_v=float(comp.get("drive_max_v", 150.0)),
             max_rate_per_s=comp.get(f"max_rate_{units.key(hyst.output_unit)}_per_s"),
-            lead_s=float(comp.get("lead_s", 0.0)) if use_shaper else 0.0,
+            lead_s=lead,
+            shaper2=shaper2,
+            rate=_rate(comp.get("rate_dependence")),
+            slew_v_per_s=comp.get("slew_v_per_s"),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise BundleError(f"the bundle is incomplete or inconsistent ({type(exc).__name__}: {exc})") from None

@@ -36,6 +36,7 @@ import pandas as pd
 
 from piezopress import plotting, runformat, thesis, units
 from piezopress.analysis import creep as creep_mod
+from piezopress.analysis import diagnosis as dg
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import metrics
 from piezopress.errors import OutputExistsError, PiezopressError
@@ -622,6 +623,28 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
 # --------------------------------------------------------------------------- building
 
 
+def _gain_blocks(csv_path: Path, missing: list[str]) -> list[Block]:
+    """The gain on the press (``compensated_gain.csv``, from ``diagnose --gain`` or the
+    bench): compensated performance with the base bundle against the extended one."""
+    if not csv_path.is_file():
+        return []
+    from pipelines import gain
+
+    try:
+        df = gain.read_csv(csv_path)
+    except (pd.errors.ParserError, ValueError, KeyError) as exc:
+        missing.append(f"{csv_path}: unreadable ({exc}); the compensated-gain table is missing.")
+        return []
+    blocks: list[Block] = [Heading("The gain on the press: compensated performance, base bundle against extended", 3),
+                           Para("Each row validated on the virtual rig with the effect on (lower is better): the base bundle, the "
+                                "extended one, the base pipeline without the effect (clean), and the row's noise (its range over "
+                                "repeated passes with other noise seeds). * marks the rows the extension is for.")]
+    for cause, g in df.groupby("cause", sort=False):
+        blocks.append(Table(gain.HEADER, tuple(gain.table_lines(g)), ("l", "l", "l", "r", "r", "r", "r", "r", "l")))
+        blocks.append(Para(f"{cause or 'The runs rig'}: extensions applied {g['applied'].iloc[0] or 'none'}; verdict: {g['why'].iloc[0]}."))
+    return blocks
+
+
 def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
     """The diagnosis section: its summary, the findings, what is unexplained, the residuals."""
     path = Path(path)
@@ -645,17 +668,38 @@ def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
                                 "segments not used to fit the extension.")]
     findings = d.get("findings", [])
     if findings:
+        # whether the compensator applies an extension: the cause catalogue says (one source of truth)
+        def compensator(cause: str) -> str:
+            c = dg.CAUSES.get(cause)
+            return "?" if c is None else "applied" if c.in_compensator else "recorded only"
+
         rows = tuple((f["cause"], f"{f[f'baseline_rms_{k}']:.3g}", f"{f[f'extended_rms_{k}']:.3g}", f"{f['gain_pct']:.0f}",
-                      ", ".join(f"{k_} = {v:.4g}" for k_, v in f["parameters"].items()), f["evidence"]) for f in findings)
-        blocks.append(Table(("cause", f"held-out RMS base ({un})", f"extended ({un})", "gain (%)", "parameters", "evidence"), rows,
-                            ("l", "r", "r", "r", "l", "l")))
+                      ", ".join(f"{k_} = {v:.4g}" for k_, v in f["parameters"].items()), compensator(f["cause"]), f["evidence"])
+                     for f in findings)
+        blocks.append(Table(("cause", f"held-out RMS base ({un})", f"extended ({un})", "gain (%)", "parameters", "compensator", "evidence"),
+                            rows, ("l", "r", "r", "r", "l", "l", "l")))
+    if d.get("tested"):
+        blocks.append(Para("Tested: " + "; ".join(
+            f"{t['cause']} ({t['result']}" + (f", held-out gain {t['gain_pct']:.0f} %" if "gain_pct" in t else "") + ")" for t in d["tested"]) + "."))
+    if d.get("not_tested"):
+        blocks.append(Bullets(tuple(f"Not tested: {t['cause']}. Needs {t['needs']}; have {t['have']}." for t in d["not_tested"])))
+    plan = d.get("next_plan") or {}
+    if plan.get("file"):
+        blocks.append(Para(f"Next experiment: {Path(plan['file']).name} ({len(plan.get('protocols', []))} protocols, "
+                           f"{plan.get('duration_s', math.nan):.0f} s) makes testable {', '.join(plan.get('serves', []))}."))
     if d.get("unexplained"):
         blocks.append(Bullets(tuple(f"Unexplained: {u['run']}, {u[f'rms_{k}']:.3g} {un} RMS ({u['ratio']:.1f} x the noise floor), largest at "
                                     f"{u['where_s']:.4g} s, dominant frequency {u['dominant_freq_hz']:.4g} Hz" for u in d["unexplained"])))
+    blocks += _gain_blocks(path / "compensated_gain.csv", missing)
     png = path / "residuals.png"
     if png.is_file():
         blocks.append(FigureBlock("diagnosis_residuals", "Residuals before and after the diagnosis's extensions",
-                                  "Measured minus model for every run, on each run's own time axis.", png.read_bytes()))
+                                  "RMS residual of every run, base model and extended, against its noise floor.", png.read_bytes()))
+    png = path / "residual_traces.png"
+    if png.is_file():
+        blocks.append(FigureBlock("diagnosis_residual_traces", "Residual traces per run kind",
+                                  "Measured minus model for every run, on each run's own time axis; spikes clipped as each panel notes.",
+                                  png.read_bytes()))
     return blocks
 
 

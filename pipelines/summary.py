@@ -166,6 +166,14 @@ def validation_metrics(run: runformat.Run, shaper: bool = True) -> list[dict]:
             full = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=1e-9)
             row("tracking_absolute", max(abs(full.max_error_n), abs(full.min_error_n)), u,
                 f"max |error| outside the ramps, all stairs; {full.min_error_n:.2f} to {full.max_error_n:.2f} {u}, RMS {full.rms_error_n:.2f} {u}")
+        elif run.kind == "custom":  # a trajectory (random force): the RMS error over the whole run
+            err = y - ref
+            span = float(np.ptp(ref))
+            if span <= 0:
+                raise MetricError("the reference is constant: nothing to track")
+            e_rms = float(np.sqrt(np.mean(err**2)))
+            row("tracking_rms", 100.0 * e_rms / span, "%",
+                f"RMS error {e_rms:.2f} {u} over a {span:.0f} {u} range; max |error| {float(np.max(np.abs(err))):.2f} {u}", with_thesis=False)
         else:
             row("-", float("nan"), "", f"no validation metric for kind {run.kind!r}", with_thesis=False)
     except MetricError as exc:

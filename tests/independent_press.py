@@ -33,6 +33,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -87,6 +88,16 @@ def _first_order(x: np.ndarray, tau_s: float, fs_hz: float, x0: float) -> np.nda
     return signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x0)[0]
 
 
+def _first_order_sampled(x: np.ndarray, tau_s: float, fs_hz: float, x0: float) -> np.ndarray:
+    """``1 / (1 + tau s)`` of a continuous signal known at the sample instants (linear
+    between them), read at the same instants: no sample of delay, only the filter's lag."""
+    h = 1.0 / fs_hz
+    a = math.exp(-h / tau_s)
+    c = tau_s * (1.0 - a) / h
+    b, den = np.array([1.0 - c, c - a]), np.array([1.0, -a])
+    return signal.lfilter(b, den, x, zi=signal.lfilter_zi(b, den) * x0)[0]
+
+
 def _settled_lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:
     """``lfilter`` started at rest under the input's first value."""
     return signal.lfilter(b, a, x, zi=signal.lfilter_zi(b, a) * x[0])[0]
@@ -107,8 +118,22 @@ class IndependentPress:
         (``1 + rate_dependence * tanh(rate / rate_saturation_v_per_s)``, rate smoothed over ``rate_tau_s``).
     interference_n_per_a : drive-coupled interference, newtons per ampere of drive current, no threshold.
     second_mode_share : share of the response through a second mode at ``second_mode_hz``.
-    drift_n_per_min : in-run drift of the load cell's offset.
+    second_mode_damping : its damping ratio.
+    drift_n_per_min : in-run drift of the load cell's offset, its rate at the start of every run (a
+        warm-up: the rate decays over ``drift_tau_s``, so the drift is not a straight line).
     slew_v_per_ms : amplifier slew limit (None: none).
+    log_creep_per_decade : creep that keeps growing with log time: a broad, irregular spectrum
+        of Kelvin-Voigt elements, three per decade from 0.03 s to 30 000 s, with gains rising
+        slowly with their time constant (about this fraction of the force per decade).
+    s_curve : an S-shaped static map on top of the softening one: slope ``1 - s_curve`` at no
+        drive (a soft contact), ``1 + s_curve`` mid-range and ``1 - s_curve`` again at the top
+        (the stack's polarization saturating): more bends than one dead zone can follow.
+    antialias_hz : the load cell's anti-alias filter; stated in :meth:`describe` under
+        ``config.load_cell.lowpass_hz`` as a rig's configuration states it.
+
+    :data:`CLEAN` and :func:`clean_press` give the press the thesis's model describes (creep
+    that saturates within the 120 s hold, a mild softening); :data:`DETECTABLE` and
+    :func:`hidden_press` the same press with one effect on at a detectable magnitude.
     """
 
     name = "independent-test-press"
@@ -127,8 +152,13 @@ class IndependentPress:
         interference_n_per_a: float = 0.0,
         second_mode_share: float = 0.0,
         second_mode_hz: float = 3400.0,
+        second_mode_damping: float = 0.04,
         drift_n_per_min: float = 0.0,
+        drift_tau_s: float = 600.0,
         slew_v_per_ms: float | None = None,
+        log_creep_per_decade: float = 0.0,
+        s_curve: float = 0.0,
+        antialias_hz: float = 6000.0,
         mode_hz: float = 1030.0,
         mode_damping: float = 0.09,
         saturation: float = 0.28,
@@ -146,7 +176,11 @@ class IndependentPress:
         self.interference_n_per_a = float(interference_n_per_a)
         self.second_mode_share = float(second_mode_share)
         self.second_mode_hz = float(second_mode_hz)
+        self.second_mode_damping = float(second_mode_damping)
         self.drift_n_per_min = float(drift_n_per_min)
+        self.drift_tau_s = float(drift_tau_s)
+        self.log_creep_per_decade = float(log_creep_per_decade)
+        self.s_curve = float(s_curve)
         self.slew_v_per_ms = slew_v_per_ms
         self.mode_hz = float(mode_hz)
         self.mode_damping = float(mode_damping)
@@ -160,7 +194,7 @@ class IndependentPress:
         self.dac_bits, self.dac_range_v = 16, 10.0
         self.adc_bits, self.adc_range_v = 14, 10.0
         self.sensitivity_v_per_n = 0.012
-        self.antialias_hz = 6000.0
+        self.antialias_hz = float(antialias_hz)
         self.top_v = 150.0
         self.output_v = 0.0
         # stiffness: the first loading to the top drive gives full_force_n above the preload
@@ -177,7 +211,9 @@ class IndependentPress:
     def describe(self) -> dict[str, Any]:
         params = {k: v for k, v in vars(self).items() if k != "output_v"}
         params["elements"] = [asdict(e) for e in self.ELEMENTS]
-        return {"backend": self.name, "simulation": "tests/independent_press.py", "parameters": params}
+        # what a rig's configuration file states of its chain: the load cell's analog filter
+        config = {"load_cell": {"lowpass_hz": self.antialias_hz}}
+        return {"backend": self.name, "simulation": "tests/independent_press.py", "parameters": params, "config": config}
 
     def zero_output(self) -> None:
         self.output_v = 0.0
@@ -216,7 +252,13 @@ class IndependentPress:
                 prev += min(max(target - prev, -step), step)
                 out[i] = prev
             v = out
-        return _first_order(v, 1.0 / (2.0 * math.pi * self.amp_bandwidth_hz), fs, float(v[0]))
+        tau = 1.0 / (2.0 * math.pi * self.amp_bandwidth_hz)
+        at_instants = _first_order(v, tau, fs, float(v[0]))
+        # what the stack sees over each sample interval is the amplifier's mean over it (the
+        # held DAC value less what the 8 us lag still owes), not its value at the interval's
+        # start: passing samples on as held values would add a whole sample of delay per stage
+        owed = (at_instants - v) * (tau * fs) * (1.0 - math.exp(-1.0 / (fs * tau)))
+        return at_instants, v + owed
 
     def _hysteretic_loss(self, v: np.ndarray) -> np.ndarray:
         """Drive lost to hysteresis, ``sum_i weight_i z_i`` (V), from rest at ``v[0]``."""
@@ -237,14 +279,30 @@ class IndependentPress:
         """Force above the preload (before creep and modes) for a drive and its hysteretic loss."""
         x = v - loss
         k = self.saturation / (2.0 * self.top_v)  # slope 1 - saturation at the top drive
-        return self.stiffness_n * np.where(x > 0.0, x - k * x * x, x)
+        y = np.where(x > 0.0, x - k * x * x, x)
+        if self.s_curve:  # slope 1 - s cos(2 pi x / top): soft at both ends, steep mid-range
+            xc = np.clip(x, 0.0, self.top_v)
+            y = y - self.s_curve * self.top_v / (2.0 * math.pi) * np.sin(2.0 * math.pi * xc / self.top_v)
+        return self.stiffness_n * y
 
     def _creep(self, f: np.ndarray, fs: float) -> np.ndarray:
         """Kelvin-Voigt chain: each element adds ``g_i`` of the force after ``tau_i`` (from rest)."""
         out = f.copy()
-        for tau, g in zip(self.creep_taus_s, self.creep_gains):
+        for tau, g in self._creep_elements():
             out += g * _first_order(f, tau, fs, 0.0)
         return out
+
+    def _creep_elements(self) -> list[tuple[float, float]]:
+        elements = list(zip(self.creep_taus_s, self.creep_gains))
+        if self.log_creep_per_decade > 0.0:
+            # three per decade, irregularly placed (a fixed jitter), gains rising as tau^0.05
+            exps = np.arange(np.log10(0.03), np.log10(3e4) + 1e-9, 1.0 / 3.0)
+            exps = exps + 0.08 * np.sin(7.3 * np.arange(exps.size))
+            taus = 10.0**exps
+            gains = (taus / 10.0) ** 0.05
+            gains = gains / gains.mean() * self.log_creep_per_decade / 3.0
+            elements += list(zip(taus.tolist(), gains.tolist()))
+        return elements
 
     def _modes(self, f: np.ndarray, fs: float) -> np.ndarray:
         """Unit-gain mode(s) as a ZOH-discretised state space, started at rest under ``f[0]``."""
@@ -260,13 +318,13 @@ class IndependentPress:
         share2 = self.second_mode_share
         y = (1.0 - share2) * _settled_lfilter(*mode(self.mode_hz, self.mode_damping), f)
         if share2 > 0.0:
-            y += share2 * _settled_lfilter(*mode(self.second_mode_hz, 0.04), f)
+            y += share2 * _settled_lfilter(*mode(self.second_mode_hz, self.second_mode_damping), f)
         return y
 
     def simulate(self, command_v: np.ndarray, fs: float, preload_n: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        amp = self._amplifier(command_v, fs)
+        amp, held = self._amplifier(command_v, fs)
         t = np.arange(amp.size) / fs
-        v = amp if self.input_delay_s <= 0.0 else np.interp(t - self.input_delay_s, t, amp, left=amp[0])
+        v = held if self.input_delay_s <= 0.0 else np.interp(t - self.input_delay_s, t, held, left=held[0])
         loss = self._hysteretic_loss(v)
         if self.rate_dependence > 0.0:
             rate = _first_order(np.abs(np.diff(v, prepend=v[0])) * fs, self.rate_tau_s, fs, 0.0)
@@ -276,9 +334,77 @@ class IndependentPress:
         if self.interference_n_per_a:
             current_a = self.capacitance_uf * 1e-6 * np.diff(v, prepend=v[0]) * fs
             force = force - self.interference_n_per_a * _first_order(current_a, 2e-4, fs, 0.0)
-        reading = _first_order(force, 1.0 / (2.0 * math.pi * self.antialias_hz), fs, float(force[0]))
-        reading = reading + self.drift_n_per_min * t / 60.0 + self.noise_n * rng.standard_normal(amp.size)
+        reading = _first_order_sampled(force, 1.0 / (2.0 * math.pi * self.antialias_hz), fs, float(force[0]))
+        drift = self.drift_n_per_min / 60.0 * self.drift_tau_s * -np.expm1(-t / self.drift_tau_s)  # rate drift_n_per_min at t = 0
+        reading = reading + drift + self.noise_n * rng.standard_normal(amp.size)
         lsb = 2.0 * self.adc_range_v / 2**self.adc_bits
         volts = np.clip(np.round(self.sensitivity_v_per_n * reading / lsb), -(2 ** (self.adc_bits - 1)), 2 ** (self.adc_bits - 1) - 1) * lsb
         monitor = amp + 0.02 * rng.standard_normal(amp.size)
         return {"force_n": volts / self.sensitivity_v_per_n, "monitor_v": monitor}
+
+
+# ---------------------------------------------------------------------- clean press, hidden effects
+
+#: The press the thesis's model describes, in this module's forms: Bouc-Wen hysteresis with a
+#: mild softening, Kelvin-Voigt creep that has saturated long before the end of a 120 s hold,
+#: one mode near 1 kHz, the anti-alias filter, noise and converters.
+CLEAN: dict[str, Any] = {
+    "creep_taus_s": (0.5, 4.0, 20.0),
+    "creep_gains": (0.008, 0.012, 0.015),
+    "saturation": 0.12,
+}
+#: What changes from press to press when nothing is wrong: drawn for every clean or hidden press.
+NUISANCE: dict[str, tuple[float, float]] = {"mode_hz": (950.0, 1100.0), "mode_damping": (0.07, 0.11)}
+
+#: Magnitudes at which ``diagnose`` is meant to find each effect of the catalogue on this press
+#: (constructor keywords, each ``(low, high)``; a drift is drawn with a random sign). The
+#: effects are this module's forms, not the virtual rig's:
+#:
+#: - ``rate_dependent_hysteresis``: the Bouc-Wen loss scaled by ``1 + r tanh(rate / 4 kV/s)``
+#:   (a smoothed, saturating rate; the virtual rig widens play thresholds linearly with rate);
+#: - ``amplifier_slew_limit``: a rate limiter ahead of the amplifier's 20 kHz bandwidth;
+#: - ``drive_coupled_interference``: newtons per ampere of the signed drive current, no threshold
+#:   (the virtual rig: a dip above a threshold of the unsigned current's envelope);
+#: - ``logarithmic_creep``: a broad, irregular Kelvin-Voigt spectrum to 30 000 s on top of the
+#:   saturating creep;
+#: - ``second_resonance``: a second mode at 2.5-4.5 kHz with its own damping;
+#: - ``sensor_offset_drift``: a warm-up drift in every run (rate decaying over 10 min), with
+#:   no rest run in the plan (:data:`PLAN_WITHOUT_REST`);
+#: - ``input_delay``: a delay between the amplifier and the stack (the virtual rig delays the reading);
+#: - ``hysteresis_order``: an S-shaped static map (soft contact, steep middle, saturating top).
+DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
+    "rate_dependent_hysteresis": {"rate_dependence": (0.3, 1.0)},
+    "amplifier_slew_limit": {"slew_v_per_ms": (20.0, 60.0)},
+    "drive_coupled_interference": {"interference_n_per_a": (30.0, 100.0)},
+    "logarithmic_creep": {"log_creep_per_decade": (0.008, 0.02)},
+    "second_resonance": {"second_mode_share": (0.1, 0.3), "second_mode_hz": (2500.0, 4500.0), "second_mode_damping": (0.02, 0.06)},
+    "sensor_offset_drift": {"drift_n_per_min": (4.0, 10.0)},
+    "input_delay": {"input_delay_s": (1e-4, 6e-4)},
+    "hysteresis_order": {"s_curve": (0.2, 0.5)},
+}
+
+#: The default characterization plan without its rest run (``protocols/characterize.toml``
+#: less ``rest-120s``): a drift has to be found inside the other runs.
+PLAN_WITHOUT_REST = Path(__file__).resolve().parent / "plans" / "characterize-no-rest.toml"
+
+
+def _draw(rng: np.random.Generator, ranges: dict[str, tuple[float, float]]) -> dict[str, float]:
+    return {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in ranges.items()}
+
+
+def clean_press(rng: np.random.Generator, **changes: Any) -> IndependentPress:
+    """The clean press with its nuisances and noise seed drawn from ``rng`` (and ``changes`` applied)."""
+    return IndependentPress(**{**CLEAN, **_draw(rng, NUISANCE), "seed": int(rng.integers(0, 2**31)), **changes})
+
+
+def hidden_press(effect: str, rng: np.random.Generator) -> IndependentPress:
+    """The clean press with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`."""
+    draw = _draw(rng, DETECTABLE[effect])
+    if effect == "sensor_offset_drift":
+        draw["drift_n_per_min"] *= float(rng.choice([-1.0, 1.0]))
+    return clean_press(rng, **draw)
+
+
+def plan_for(effect: str) -> Path | None:
+    """The plan a hidden effect is characterized with (``None``: the default plan)."""
+    return PLAN_WITHOUT_REST if effect == "sensor_offset_drift" else None

@@ -177,6 +177,21 @@ def _check_custom(p: Mapping[str, Any], fs: float) -> list[str]:
     return []
 
 
+def _check_random(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = []
+    if not 0 < p["low_hz"] < p["high_hz"]:
+        problems.append(f"keys 'low_hz' = {p['low_hz']:g} and 'high_hz' = {p['high_hz']:g}: expected 0 < low_hz < high_hz")
+    elif fs < 20 * p["high_hz"]:
+        problems.append(f"key 'sample_rate_hz' = {fs:g} is too low for high_hz = {p['high_hz']:g}: expected at least {20 * p['high_hz']:g} Hz")
+    elif p["duration_s"] * p["low_hz"] < 1:
+        problems.append(f"key 'duration_s' = {p['duration_s']:g} is shorter than one period of low_hz = {p['low_hz']:g}")
+    if p["taper_s"] < 0:
+        problems.append(f"key 'taper_s' = {p['taper_s']:g} must not be negative")
+    if p["low_v"] > p["peak_v"]:
+        problems.append(f"key 'low_v' = {p['low_v']:g} is above peak_v = {p['peak_v']:g}")
+    return problems
+
+
 _STEP_KEYS = {
     "level_v": Key(_NUM, DRIVE_MAX, "drive during the hold (default: maximum drive)", "V"),
     "base_v": Key(_NUM, 0.0, "drive before and after the step", "V"),
@@ -238,6 +253,22 @@ KINDS: dict[str, KindSpec] = {
         lambda p, fs: waveforms.staircase(p["base_v"], p["step_v"], p["count"], p["dwell_s"], p["ramp_s"], p["pre_s"], fs),
         _check_staircase,
         "stairs reached by short ramps (tracking; Section 6.6)",
+    ),
+    "random": KindSpec(
+        "custom",
+        {
+            "low_hz": Key(_NUM, 0.2, "lowest frequency of the flat band", "Hz"),
+            "high_hz": Key(_NUM, 20.0, "highest frequency of the flat band", "Hz"),
+            "duration_s": Key(_NUM, REQUIRED, "length of the trajectory", "s"),
+            "low_v": Key(_NUM, 0.0, "lowest drive (also the start and the end)", "V"),
+            "peak_v": Key(_NUM, DRIVE_MAX, "highest drive (default: maximum drive)", "V"),
+            "seed": Key(int, 1, "seed of the random phases (same seed, same trajectory)"),
+            "taper_s": Key(_NUM, 0.5, "fade in from and out to low_v over this long", "s"),
+        },
+        lambda p, fs: waveforms.random_band(p["low_hz"], p["high_hz"], p["duration_s"], p["low_v"], p["peak_v"], p["seed"],
+                                            p["taper_s"], fs),
+        _check_random,
+        "a seeded random trajectory, flat spectrum low_hz to high_hz (tracking of a random force)",
     ),
     "custom": KindSpec(
         "custom",

@@ -81,3 +81,25 @@ def piecewise_linear(knots_t_s: np.ndarray, knots_v: np.ndarray, sample_rate_hz:
     t = time_axis(n, sample_rate_hz)
     # np.interp takes the right-most of coincident knots for points at or after them
     return np.interp(t, knots_t_s, knots_v)
+
+
+def random_band(low_hz: float, high_hz: float, duration_s: float, low_v: float, peak_v: float, seed: int,
+                taper_s: float, sample_rate_hz: float) -> np.ndarray:
+    """A seeded random trajectory with a flat spectrum from ``low_hz`` to ``high_hz``.
+
+    Random phases on a flat band, scaled to span ``low_v`` to ``peak_v``, faded in from and
+    out to ``low_v`` by raised-cosine tapers of ``taper_s`` (tracking of a random force:
+    the drive's own delay and rate show in the error at every instant, not only on steps).
+    """
+    n = n_samples(duration_s, sample_rate_hz) + 1
+    f = np.fft.rfftfreq(n, 1.0 / sample_rate_hz)
+    band = (f >= low_hz) & (f <= high_hz)
+    rng = np.random.default_rng(int(seed))
+    spec = np.where(band, np.exp(2j * np.pi * rng.uniform(size=f.size)), 0.0)
+    x = np.fft.irfft(spec, n)
+    x = x / max(float(np.max(np.abs(x))), 1e-300)
+    t = time_axis(n, sample_rate_hz)
+    m = min(max(taper_s, 1.0 / sample_rate_hz), t[-1] / 2.0)
+    w = np.minimum(1.0, np.minimum(t, t[-1] - t) / m)
+    w = 0.5 - 0.5 * np.cos(np.pi * w)
+    return low_v + (peak_v - low_v) * w * (0.5 + 0.5 * x)

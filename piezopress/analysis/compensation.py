@@ -1,32 +1,225 @@
 """Open-loop compensation: a reference force trajectory in, the actuator drive out.
 
-The thesis's order (Fig. 3.1)::
+The thesis's order (Fig. 3.1), with what the whole known reference allows::
 
     reference (the hysteresis model's output unit: N above the preload, or um)
       -> rate limit            keeps the drive inside the amplifier's linear range
-      -> input shaper          cancels the mode (centred: the whole reference is known)
+      -> input shaper(s)       cancel the mode(s) (centred: the whole reference is known)
+      -> what the drive range reaches of it (:func:`reachable`)
       -> creep compensator     F_h = F_c / (K_c + C(s))       (Eq. 3.38)
-      -> inverse hysteresis    x = H^-1[F_h]                  (Eq. 3.9)
+      -> inverse hysteresis    x = H^-1[F_h]                  (Eq. 3.9), at the drive's own rate
+      -> lead                  the drive advanced by the chain's delay
+      -> slew limit            the drive kept within the amplifier's slew
       -> drive (V), clipped to the actuator's safe range
 
 Unlike the thesis's real-time setup, the whole reference is known before the run, so the
-shaper is applied centred on its centroid (no average delay) and the drive is advanced by
-the linear model's remaining low-frequency delay (``lead_s``): at 50 Hz these delays are
-what made the thesis's compensated loops wide (Table 6.11).
+shaper is applied centred on its exact centroid (no average delay, a fraction of a sample
+kept) and the drive is advanced by the linear model's remaining low-frequency delay
+(``lead_s``, interpolated between samples): at 50 Hz these delays are what made the thesis's
+compensated loops wide (Table 6.11).
+
+Extensions that ``diagnose`` may add (each off by default; see ``pipelines/diagnose.py``):
+
+* ``shaper2``: a second shaper for a second mode, applied after the first (the two
+  convolved: every impulse of one on every impulse of the other).
+* ``rate``: rate-dependent hysteresis (:class:`RateDependence`), e.g. every play threshold
+  ``r + delta`` with ``delta = beta |dV/dt|`` of the drive itself. Since
+  ``H_{r + delta} = H_r o H_delta``, the inverse is the rate-independent one followed by the
+  inverse of a play of width ``delta``: ``x = z + delta sign(dz/dt)`` (the drive leads the
+  static inverse ``z`` by ``delta`` in its direction of motion); ``delta`` depends on the
+  rate of ``x``, so the drive is iterated to the rate model's fixed point
+  (:func:`rate_aware_inverse`).
+* ``lead_s`` includes a pure input delay: the drive is advanced by exactly that (linear
+  interpolation between samples).
+* ``slew_v_per_s``: the amplifier's slew limit. The drive is kept below
+  :data:`SLEW_MARGIN` of it by slowing the *reference* where the drive would be too fast
+  (so the shaper still shapes what the press receives); what remains too fast is slewed
+  symmetrically about the demanded drive instead of behind it (:func:`centred_rate_limit`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from piezopress import signals, units
+from piezopress import operators, signals, units
 from piezopress.analysis.creep import CreepModel
-from piezopress.analysis.hysteresis import PIModel
+from piezopress.analysis.hysteresis import PIModel, dead_zone_superposition
 from piezopress.analysis.shaper import Shaper
 from piezopress.errors import FitError
+
+#: The compensator slows a transition (a step become a ramp) until the drive's rate is below
+#: this share of the amplifier's slew limit ...
+SLEW_MARGIN = 0.85
+#: ... and keeps every drive below this share of it (a sweep that asks for more is slewed
+#: symmetrically about the demanded drive rather than behind it, as the amplifier would).
+SLEW_PROJECTION = 0.97
+#: Drive-rate envelope of the rate-dependent hysteresis (s): the diagnosis model's.
+RATE_TAU_S = 5e-4
+
+
+def advance(x: np.ndarray, lead_s: float, fs_hz: float) -> np.ndarray:
+    """``x(t + lead_s)`` by linear interpolation, held at ``x[-1]`` after the end (a lead of
+    a fraction of a sample is kept, not rounded away)."""
+    if lead_s <= 0:
+        return x
+    t = np.arange(x.size) / fs_hz
+    return np.interp(t + lead_s, t, x, right=x[-1])
+
+
+def centred_rate_limit(x: np.ndarray, max_step: float) -> np.ndarray:
+    """A drive within ``max_step`` per sample, erring about ``x`` symmetrically in time.
+
+    The mean of the causal rate limit (which lags ``x``) and the same limit run backwards
+    in time (which leads it): both are within the limit, so their mean is; where ``x`` is
+    within the limit all three agree.
+    """
+    fwd = signals.rate_limit(x, x[0], max_step)
+    bwd = signals.rate_limit(x[::-1], x[-1], max_step)[::-1]
+    return 0.5 * (fwd + bwd)
+
+
+def _direction(z: np.ndarray) -> np.ndarray:
+    """The sign of ``z``'s last move at every sample (+1 before the first move)."""
+    d = np.sign(np.diff(z, prepend=z[0]))
+    nz = np.flatnonzero(d)
+    if nz.size == 0:
+        return np.ones_like(z)
+    idx = np.zeros(z.size, dtype=np.int64)
+    idx[nz] = nz
+    np.maximum.accumulate(idx, out=idx)
+    out = d[idx]
+    out[: nz[0]] = d[nz[0]]
+    return out
+
+
+#: :func:`reachable` stops after this many passes (each settles at least one clipped stretch).
+REACHABLE_PASSES = 12
+
+
+def reachable(model: PIModel, creep: CreepModel | None, r: np.ndarray, fs_hz: float, lo_v: float, hi_v: float) -> np.ndarray:
+    """The reference ``r`` (above ``y0``, before the creep compensator) where the drive range
+    ``lo_v`` to ``hi_v`` reaches it, else what the clipped drive delivers.
+
+    Clipping the drive afterwards leaves the inverse's play operators, and the creep
+    compensator's state, where the unclipped drive would have taken them: after a clipped
+    stretch (the top of a 300 N loop) the drive is wrong until they meet the real ones again.
+    Each pass replaces the reference over the clipped stretches by what the model delivers for
+    the clipped drive (hysteresis, then creep) and compensates again, until the drive stays in
+    range. A stretch the reference holds on after (a 300 N creep hold the drive reaches only
+    as the press creeps) is left to the clip: the hold's figure is its drift from its level a
+    second after the step (thesis Eq. 5.2), which the clipped state keeps flat.
+    """
+    r = np.asarray(r, float)
+    r0 = r
+    done = np.zeros(r.size, bool)
+    for _ in range(REACHABLE_PASSES):
+        fh = creep.compensate(r, fs_hz)[0] if creep is not None else r
+        x, _ = model.inverse(model.y0 + fh)
+        out = ((x < lo_v) | (x > hi_v)) & ~done
+        # a stretch the reference holds on after (a creep hold at the range's edge: the press creeps
+        # up to it) is left as it was; where the reference moves on (over a loop's top) it is settled
+        for a, b in _segments(out):
+            tail = r0[b: b + (b - a) + 1]
+            if tail.size < 2 or np.ptp(tail) == 0:
+                out[a:b] = False
+                done[a:b] = True
+        if not out.any():
+            break
+        h = model.forward(np.clip(x, lo_v, hi_v))[0] - model.y0
+        r = np.where(out, creep.response(h, fs_hz)[0] if creep is not None else h, r)
+    return r
+
+
+@dataclass(frozen=True)
+class RateDependence:
+    """Rate-dependent hysteresis as ``diagnose`` models it (``rate_dependent_hysteresis``).
+
+    The stack feels the drive rate ``rho = env(|dx/dt|)`` smoothed over ``tau_s`` (and
+    saturating as ``sat tanh(rho / sat)`` when ``saturation_v_per_s`` is given). Either every
+    play threshold widens by ``widen_v_per_kv_s * rho / 1000`` V, or the weighted plays' lag
+    behind the drive grows by ``loss_per_kv_s * rho / 1000`` of itself (or both).
+    """
+
+    widen_v_per_kv_s: float = 0.0
+    loss_per_kv_s: float = 0.0
+    saturation_v_per_s: float | None = None
+    tau_s: float = RATE_TAU_S
+
+    @property
+    def active(self) -> bool:
+        return self.widen_v_per_kv_s > 0 or self.loss_per_kv_s > 0
+
+    def rate(self, x: np.ndarray, fs_hz: float) -> np.ndarray:
+        """The rate the stack feels (V/s) under the drive ``x``."""
+        rho = signals.rate_envelope(x, fs_hz, self.tau_s)
+        if self.saturation_v_per_s and math.isfinite(self.saturation_v_per_s):
+            rho = self.saturation_v_per_s * np.tanh(rho / self.saturation_v_per_s)
+        return rho
+
+    def forward(self, model: PIModel, x: np.ndarray, fs_hz: float) -> np.ndarray:
+        """The model's output (absolute, ``y0`` included) for the drive ``x``, at the drive's own rate."""
+        rho = self.rate(x, fs_hz)
+        u = np.asarray(x, float) - model.x0
+        widen = self.widen_v_per_kv_s * rho / 1000.0 if self.widen_v_per_kv_s > 0 else None
+        w = np.array(model.w)
+        p = operators.play(u, np.array(model.r), 0.0, widen=widen) @ w
+        if self.loss_per_kv_s > 0:
+            p = p + self.loss_per_kv_s * rho / 1000.0 * (p - w.sum() * u)
+        return model.y0 + dead_zone_superposition(p, np.array(model.d), np.array(model.s))
+
+
+#: The rate-aware inverse stops when the drive moves less than this (V) from one pass to the next ...
+RATE_INVERSE_TOL_V = 1e-4
+#: ... or after this many passes.
+RATE_INVERSE_PASSES = 40
+
+
+def rate_aware_inverse(model: PIModel, y_ref: np.ndarray, fs_hz: float, rate: RateDependence) -> tuple[np.ndarray, dict[str, Any]]:
+    """The drive ``x`` whose rate-dependent model output is ``y_ref``: ``(x, info)``.
+
+    With the rate-independent inverse ``z = H^-1[y_ref]`` and ``G(x) = H^-1[F_rate(x)]`` (the
+    rate-dependent forward model read back through the static inverse), ``x`` solves
+    ``G(x) = z`` by the fixed point ``x <- x + z - G(x)``. For widened thresholds
+    (``H_{r + delta} = H_r o H_delta``) ``G(x) = x - delta sign(dx/dt)`` away from reversals,
+    so the first guess ``x = z + delta(z) sign(dz/dt)`` is already close: the drive leads
+    the static inverse by ``delta`` in its direction of motion, ``delta`` taken at the
+    drive's own rate. ``info``: passes made and the largest remaining ``|z - G(x)|`` (V).
+
+    With widened thresholds the lead is then capped at the widening the static inverse's
+    *instantaneous* rate gives: where the motion stops (the end of a step's ramp) the lead
+    goes at once. A lead that outlasts the stack's own widening (the model's rate envelope
+    decaying slower than the stack's) pushes the plays on: an offset that stays until the
+    next reversal (an overshoot that never settles). A lead short of the stack's widening
+    costs only a lag, made up as the widening decays.
+    """
+    z, _ = model.inverse(y_ref)
+    if not rate.active:
+        return z, {"passes": 0, "residual_v": 0.0}
+    x = z.copy()
+    if rate.widen_v_per_kv_s > 0:
+        x = z + rate.widen_v_per_kv_s * rate.rate(z, fs_hz) / 1000.0 * _direction(z)
+    res = np.inf
+    passes = 0
+    for passes in range(1, RATE_INVERSE_PASSES + 1):
+        g, _ = model.inverse(rate.forward(model, x, fs_hz))
+        err = z - g
+        res = float(np.max(np.abs(err)))
+        if res <= RATE_INVERSE_TOL_V:
+            break
+        x = x + err
+    if rate.widen_v_per_kv_s > 0 and rate.loss_per_kv_s == 0:
+        # the lead never outlasts the motion: at most the widening at the static inverse's own
+        # instantaneous rate (see the docstring)
+        rho = np.abs(np.diff(z, prepend=z[0])) * fs_hz
+        if rate.saturation_v_per_s and math.isfinite(rate.saturation_v_per_s):
+            rho = rate.saturation_v_per_s * np.tanh(rho / rate.saturation_v_per_s)
+        d = _direction(z)
+        x = z + d * np.clip((x - z) * d, 0.0, rate.widen_v_per_kv_s * rho / 1000.0)
+    return x, {"passes": passes, "residual_v": res}
 
 
 @dataclass(frozen=True)
@@ -61,7 +254,15 @@ class Compensator:
         Largest reference rate passed on, in the output unit per second (a step becomes a
         ramp). Keeps the drive current below the amplifier's limit, where the press is linear.
     lead_s : float
-        Advance of the drive to cancel the linear model's remaining delay.
+        Advance of the drive to cancel the linear model's remaining delay (and a pure
+        input delay, when one was found).
+    shaper2 : Shaper or None
+        A second shaper, for a second mode (applied after ``shaper``).
+    rate : RateDependence or None
+        Rate-dependent hysteresis: the inverse at the drive's own rate (``None``: the
+        rate-independent inverse).
+    slew_v_per_s : float or None
+        The amplifier's slew limit (V/s): the drive is kept below :data:`SLEW_MARGIN` of it.
     """
 
     hysteresis: PIModel
@@ -72,6 +273,100 @@ class Compensator:
     max_rate_per_s: float | None = None
     lead_s: float = 0.0
     options: dict[str, Any] = field(default_factory=dict)
+    shaper2: Shaper | None = None
+    rate: RateDependence | None = None
+    slew_v_per_s: float | None = None
+
+    def _to_drive(self, r: np.ndarray, fs_hz: float, max_step: float | np.ndarray | None, k: str,
+                  stages: dict[str, np.ndarray], notes: list[str]) -> np.ndarray:
+        """Rate limit, shapers, creep compensator, inverse and lead: the drive before clipping."""
+        if max_step is not None:
+            r = signals.rate_limit(r, r[0], max_step)
+            stages[f"rate_limited_{k}"] = r
+        for name, sh in (("shaped", self.shaper), ("shaped2", self.shaper2)):
+            if sh is None:
+                continue
+            try:
+                # centred on the discrete shaper's exact centroid (a fraction of a sample kept)
+                offsets, amps = sh.discretize(fs_hz)
+                r = advance(sh.apply(r, fs_hz), float(np.dot(offsets, amps)) / fs_hz, fs_hz)
+                stages[f"{name}_{k}"] = r
+            except FitError:
+                # too slow to resolve the mode: the drive's steps are too small to ring it
+                note = f"shaper skipped: {fs_hz:g} Hz cannot resolve the {sh.wn / (2 * np.pi):.0f} Hz mode"
+                if note not in notes:
+                    notes.append(note)
+        # what the drive range cannot reach is asked for as the clipped drive delivers it, so the inverse's
+        # operators and the creep compensator follow the drive the press gets (the top of a loop at the range's edge)
+        r = reachable(self.hysteresis, self.creep, r, fs_hz, self.drive_min_v, self.drive_max_v)
+        stages[f"reachable_{k}"] = r
+        if self.creep is not None:
+            r, _ = self.creep.compensate(r, fs_hz)
+            stages[f"creep_compensated_{k}"] = r
+        if self.rate is not None and self.rate.active:
+            x, info = rate_aware_inverse(self.hysteresis, self.hysteresis.y0 + r, fs_hz, self.rate)
+            stages["rate_independent_inverse_v"] = self.hysteresis.inverse(self.hysteresis.y0 + r)[0]
+            if info["residual_v"] > 0.01:
+                note = f"rate-aware inverse: {info['residual_v']:.3g} V from the rate model's solution after {info['passes']} passes"
+                if note not in notes:
+                    notes.append(note)
+        else:
+            x, _ = self.hysteresis.inverse(self.hysteresis.y0 + r)
+        return advance(x, self.lead_s, fs_hz)
+
+    def _slew_feasible(self, r: np.ndarray, fs_hz: float, k: str, stages: dict[str, np.ndarray], notes: list[str]) -> np.ndarray:
+        """The drive with the reference slowed where the drive would outrun the slew limit.
+
+        Each pass measures how far the drive's rate exceeds ``SLEW_MARGIN * slew``, maps the
+        excess back to the reference's time (the lead, and the shapers' span either side)
+        and lowers the reference's rate limit there by that factor; a few passes settle.
+        What is still too fast (a reference that itself asks for more than the press can
+        do) is slewed symmetrically by :func:`centred_rate_limit`.
+        """
+        limit = SLEW_MARGIN * float(self.slew_v_per_s) / fs_hz  # V per sample
+        base = np.full(r.size, self.max_rate_per_s / fs_hz if self.max_rate_per_s else np.inf)
+        step = base.copy()
+        span = sum(int(sh.discretize(fs_hz)[0][-1]) if fs_hz > 2 * sh.wn / (2 * np.pi) else 0
+                   for sh in (self.shaper, self.shaper2) if sh is not None) + 1
+        n_lead = int(np.ceil(self.lead_s * fs_hz))
+        x = self._to_drive(r, fs_hz, None if np.all(np.isinf(step)) else step, k, stages, notes)
+        for _ in range(int(self.options.get("slew_passes", 8))):
+            rate = np.abs(np.diff(x, prepend=x[0]))
+            over = rate / limit
+            if np.max(over) <= 1.0 + 1e-9:
+                break
+            factor = np.where(over > 1.0, 1.0 / np.maximum(over, 1e-300), 1.0)
+            # drive sample i comes from reference samples i + n_lead - span .. i + n_lead + span
+            factor = np.concatenate([np.ones(n_lead), factor])[: r.size] if n_lead else factor
+            factor = -_max_filter(-factor, 2 * span + 1)
+            # only a transition the rate limit shapes (a step become a ramp) is slowed: a
+            # trajectory that asks for its own rate (a sweep) would only lag behind itself.
+            # A transition is slowed as a whole, from the jump that starts it to the
+            # reference's next change (its ramp lengthens into the hold that follows).
+            limited = stages.get(f"rate_limited_{k}", r)
+            at_limit = np.abs(np.diff(limited, prepend=limited[0])) >= 0.97 * step
+            changes = np.flatnonzero(np.diff(r) != 0) + 1  # samples where the reference itself moves
+            slowed = False
+            for a, b in _segments(at_limit):
+                f = float(np.min(factor[a:b]))
+                if f >= 1.0:
+                    continue
+                nxt = changes[changes > a]
+                end = int(nxt[0]) if nxt.size else r.size
+                end = max(end, b)
+                step[a:end] = np.minimum(step[a:end], 0.98 * f * step[a])
+                slowed = True
+            if not slowed:
+                break
+            stages.clear()
+            stages[f"reference_{k}"] = r
+            x = self._to_drive(r, fs_hz, step, k, stages, notes)
+        hard = SLEW_PROJECTION * float(self.slew_v_per_s) / fs_hz
+        if np.max(np.abs(np.diff(x))) > hard * (1 + 1e-9):
+            x = centred_rate_limit(x, hard)
+            notes.append("the reference asks for more than the slew limit allows: the rest is slewed symmetrically")
+        stages["slew_limited_v"] = x
+        return x
 
     def drive(self, reference: np.ndarray, fs_hz: float) -> CompensationResult:
         """The drive for ``reference`` (in the model's output unit: force above the preload,
@@ -85,24 +380,11 @@ class Compensator:
             raise ValueError(f"reference of shape {r.shape} with non-finite values or fewer than 2 samples; expected a finite 1-D trajectory")
         k = units.key(self.hysteresis.output_unit)
         stages: dict[str, np.ndarray] = {f"reference_{k}": r}
-        if self.max_rate_per_s:
-            r = signals.rate_limit(r, r[0], self.max_rate_per_s / fs_hz)
-            stages[f"rate_limited_{k}"] = r
-        notes = []
-        if self.shaper is not None:
-            try:
-                r = self.shaper.apply_centered(r, fs_hz)
-                stages[f"shaped_{k}"] = r
-            except FitError:
-                # too slow to resolve the mode: the drive's steps are too small to ring it
-                notes.append(f"shaper skipped: {fs_hz:g} Hz cannot resolve the {self.shaper.wn / (2 * np.pi):.0f} Hz mode")
-        if self.creep is not None:
-            r, _ = self.creep.compensate(r, fs_hz)
-            stages[f"creep_compensated_{k}"] = r
-        x, _ = self.hysteresis.inverse(self.hysteresis.y0 + r)
-        n_lead = int(round(self.lead_s * fs_hz))
-        if n_lead > 0:
-            x = np.concatenate([x[n_lead:], np.full(n_lead, x[-1])])
+        notes: list[str] = []
+        if self.slew_v_per_s:
+            x = self._slew_feasible(r, fs_hz, k, stages, notes)
+        else:
+            x = self._to_drive(r, fs_hz, self.max_rate_per_s / fs_hz if self.max_rate_per_s else None, k, stages, notes)
         stages["unclipped_v"] = x
         lo, hi = float(x.min()), float(x.max())
         clipped = int(np.count_nonzero((x < self.drive_min_v) | (x > self.drive_max_v)))
@@ -113,3 +395,18 @@ class Compensator:
                 f"{self.drive_min_v:g} to {self.drive_max_v:g} V (requested {lo:.1f} to {hi:.1f} V); clipped"
             )
         return CompensationResult(np.clip(x, self.drive_min_v, self.drive_max_v), stages, clipped, lo, hi, tuple(warnings), tuple(notes))
+
+
+def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of every run of True in ``mask``."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def _max_filter(x: np.ndarray, width: int) -> np.ndarray:
+    """Running maximum over a centred window of ``width`` samples."""
+    if width <= 1:
+        return x
+    from scipy.ndimage import maximum_filter1d
+
+    return maximum_filter1d(x, size=width, mode="nearest")

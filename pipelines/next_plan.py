@@ -1,0 +1,314 @@
+"""The next experiment: a plan that makes testable the causes a diagnosis could not test.
+
+``diagnose`` lists the causes whose needs the runs do not meet (``not_tested``, each with
+what it needs and what the runs offer). This module turns them into ``next-plan.toml``, a
+plan in the ``protocols/`` format for the rig the runs came from (the rig configuration in
+the runs' metadata; the default rig ``rigs/thesis-press.toml`` for imported runs, which
+the file says), its limits respected: the drive stays within the runs' own drive range and
+the rig's, sample rates within the rig's maximum. Each protocol group is added only if it
+makes a cause testable that the runs and the groups chosen so far do not (a greedy cover,
+cheapest group first), and carries a comment naming the causes it serves. The file is
+checked with the project's plan loader before it is written.
+
+Whether a group serves a cause is decided by the cause's own needs
+(:func:`piezopress.analysis.diagnosis.testability`), on the runs the plan would record
+(each protocol's drive as a run) beside the runs already there.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from piezopress import runformat
+from piezopress.acquisition.daq_config import parse_daq_rig
+from piezopress.acquisition.plan import DriveLimits, Plan, parse_plan
+from piezopress.acquisition.rig_config import load_rig, parse_rig
+from piezopress.analysis import diagnosis as dg
+from piezopress.errors import PiezopressError
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_RIG = REPO_ROOT / "rigs" / "thesis-press.toml"
+PLAN_FILE = "next-plan.toml"
+
+#: A step sampled this fast resolves the thesis press's ~1 kHz mode and a second one above it.
+STEP_RATE_HZ = 20_000.0
+#: Rest and creep holds (s): the default plan's (long enough for drift and for log-time creep).
+REST_S = 120.0
+CREEP_HOLD_S = 120.0
+
+
+@dataclass(frozen=True)
+class RigInfo:
+    """The rig a plan is for: its limits, how it is named, and where that came from."""
+
+    limits: DriveLimits
+    name: str
+    rig_file: str | None  # the rig file to pass to characterize --rig, when known
+    from_runs: bool  # False: the runs hold no rig configuration; the default rig is assumed
+
+
+def rig_of_runs(runs: Sequence[runformat.Run]) -> RigInfo:
+    """The rig the runs were measured on, from the first run whose metadata holds its
+    configuration; else the default rig (imported runs)."""
+    for run in runs:
+        rig = run.meta.get("rig")
+        if not isinstance(rig, dict) or not isinstance(rig.get("config"), dict):
+            continue
+        source = str(rig.get("source") or "<runs>")
+        try:
+            cfg = parse_daq_rig(rig["config"], source) if rig.get("backend") == "nidaq" else parse_rig(rig["config"], source)
+        except PiezopressError:
+            continue
+        name = getattr(getattr(cfg, "rig", None), "name", "") or rig.get("backend", "rig")
+        rig_file = source if source.endswith(".toml") and Path(source).is_file() else None
+        return RigInfo(cfg.limits, str(name), rig_file, True)
+    cfg = load_rig(DEFAULT_RIG)
+    return RigInfo(cfg.limits, cfg.rig.name, str(DEFAULT_RIG), False)
+
+
+@dataclass
+class Group:
+    """Protocols that go together (the steps of several sizes, say) and what they are for."""
+
+    id: str
+    what: str
+    protocols: list[dict[str, Any]] = field(default_factory=list)
+    serves: list[str] = field(default_factory=list)
+    enables_model: tuple[str, ...] = ()  # parts of the base model a refit with these runs gives ("mode", "creep")
+
+    @property
+    def samples(self) -> int:
+        return sum(_samples(p) for p in self.protocols)
+
+
+def _samples(p: dict[str, Any]) -> int:
+    """How many samples a protocol records (its cost)."""
+    fs = float(p["sample_rate_hz"])
+    if p["kind"] in ("step", "creep"):
+        return int(fs * (p.get("pre_s", 0.01) + p["hold_s"] + p.get("post_s", 0.0)))
+    if p["kind"] in ("triangle", "sine"):
+        return int(fs * p["cycles"] / p["freq_hz"])
+    return int(fs * p["points"][-1][0])
+
+
+def _groups(lo: float, hi: float, rest: float, fs_max: float) -> list[Group]:
+    """Every group the plan may use, cheapest first; a group the rig cannot sample is left out."""
+    out: list[Group] = []
+    span = hi - lo
+    if fs_max >= 20 * 0.1:
+        out.append(Group("rest", "zero drive held (the sensor's offset and its drift on their own)",
+                         [{"name": "rest", "kind": "custom", "points": [[0.0, rest], [REST_S, rest]], "sample_rate_hz": min(100.0, fs_max)}]))
+    fs_step = min(STEP_RATE_HZ, fs_max)
+    if fs_step >= 5000.0 and hi > rest:
+        levels = sorted({float(f"{rest + (hi - rest) * f:.3g}") for f in (2 / 15, 1 / 3, 2 / 3, 1.0)})  # 20, 50, 100, 150 V of 150
+        out.append(Group("steps", f"steps of {', '.join(f'{v:g}' for v in levels)} V sampled at {fs_step / 1e3:g} kHz "
+                                  "(the small one identifies the mode; large ones show the slew and a second mode)",
+                         [{"name": f"step-{v:g}v", "kind": "step", "base_v": rest, "level_v": v, "pre_s": 0.01, "hold_s": 0.1, "post_s": 0.05,
+                           "sample_rate_hz": fs_step} for v in levels], enables_model=("mode",)))
+    for f, cycles, fs in ((10.0, 10, 20_000.0), (50.0, 20, 50_000.0)):
+        fs = min(fs, fs_max)
+        if fs >= 200 * f and span > 0:
+            out.append(Group(f"triangle-{f:g}hz", f"triangles {lo:g} -> {hi:g} V at {f:g} Hz (the loop at a fast drive rate)",
+                             [{"name": f"triangle-{f:g}hz", "kind": "triangle", "freq_hz": f, "cycles": cycles, "low_v": lo, "peak_v": hi,
+                               "sample_rate_hz": fs}]))
+    if hi > rest and fs_max >= 100.0:
+        out.append(Group("creep", f"{hi:g} V held {CREEP_HOLD_S:g} s (creep over two decades of time)",
+                         [{"name": f"creep-{hi:g}v", "kind": "creep", "base_v": rest, "level_v": hi, "pre_s": 1.0, "hold_s": CREEP_HOLD_S, "post_s": 0.0,
+                           "sample_rate_hz": min(1000.0, fs_max)}], enables_model=("creep",)))
+    if span > 0 and fs_max >= 500.0:
+        out.append(Group("triangle-0.1hz", f"slow triangles {lo:g} -> {hi:g} V at 0.1 Hz (the quasi-static loop)",
+                         [{"name": "triangle-0.1hz", "kind": "triangle", "freq_hz": 0.1, "cycles": 3, "low_v": lo, "peak_v": hi,
+                           "sample_rate_hz": 500.0}]))
+    return sorted(out, key=lambda g: g.samples)
+
+
+def _as_runs(protocols: Sequence[dict[str, Any]], limits: DriveLimits) -> list[dg.RunData]:
+    """The runs a list of protocols would record, as the diagnosis's needs see them (the drive;
+    the output is not known yet)."""
+    plan = parse_plan({"plan": {"name": "probe"}, "protocol": list(protocols)}, limits)
+    out = []
+    for p in plan.protocols:
+        t, x = p.waveform()
+        out.append(dg.RunData(p.name, p.run_kind, t, x, np.zeros_like(x), p.sample_rate_hz, meta={"protocol": p.as_dict()},
+                              key=f"next-plan:{p.name}"))
+    return out
+
+
+@dataclass(frozen=True)
+class NextPlan:
+    """The plan chosen: its groups, the causes it serves, those no group on this rig can serve."""
+
+    groups: list[Group]
+    serves: list[str]
+    unservable: list[str]
+    refit_for: list[str]  # causes that need the base model refitted with the new runs (a mode, a creep model)
+    rig: RigInfo
+
+
+def choose(ctx: dg.Context, not_tested: Sequence[str], rig: RigInfo, drive: tuple[float, float]) -> NextPlan:
+    """The smallest cover (greedy, cheapest group first) of the untested causes."""
+    lo, hi = max(drive[0], rig.limits.drive_min_v), min(drive[1], rig.limits.drive_max_v)
+    if not hi > lo:
+        lo, hi = rig.limits.drive_min_v, rig.limits.drive_max_v
+    rest = 0.0 if lo <= 0.0 <= hi else lo
+    lib = _groups(lo, hi, rest, rig.limits.max_sample_rate_hz)
+    taken = {r.name for r in ctx.runs}
+    for g in lib:  # a protocol never takes the name of a run already there
+        for p in g.protocols:
+            while p["name"] in taken:
+                p["name"] += "-next"
+    floor = float(np.median(list(ctx.floor.values()))) if ctx.floor else 0.0
+    chosen: list[Group] = []
+    serves, unservable, refit_for = [], [], []
+
+    fake_runs: dict[str, dg.RunData] = {}
+    shared_cache = dict(ctx.cache)
+    top = max([float(np.max(r.x)) for r in ctx.runs] + [hi])
+
+    def runs_of(groups: list[Group]) -> list[dg.RunData]:
+        todo = [p for g in groups for p in g.protocols if p["name"] not in fake_runs]
+        if todo:
+            fake_runs.update({r.name: r for r in _as_runs(todo, rig.limits)})
+        return [fake_runs[p["name"]] for g in groups for p in g.protocols]
+
+    def refit_would_fit(r: dg.RunData) -> bool:
+        """A run ``fit --base`` would fit on, so no longer independent after a refit: a creep
+        run, a low-amplitude step (the shaper's), a slow sweep (the hysteresis's)."""
+        slow = r.kind in dg.SWEEP_KINDS and (r.freq_hz or 0.0) <= 0.5
+        return r.kind == "creep" or slow or (r.kind == "step" and float(np.max(r.x)) - rest <= 0.25 * (top - rest))
+
+    def testable(cid: str, groups: list[Group]) -> tuple[bool, bool]:
+        """(testable with these groups, and only after a refit of the base model with them);
+        the runs a refit would fit on are not counted as independent."""
+        fake = runs_of(groups)
+        parts = {m for g in groups for m in g.enables_model}
+        fitted = ctx.fitted_runs | {r.key for r in fake if refit_would_fit(r)}
+        c = dg.Context(ctx.runs + fake, ctx.model, frozenset(fitted), {**ctx.floor, **{r.name: floor for r in fake}}, shared_cache)
+        for need in dg.CAUSES[cid].needs:
+            missing = [m for m in need.model if not dg.MODEL_PARTS[m][1](ctx.model)]
+            if any(m not in parts for m in missing):
+                continue
+            if len(need.select(c)) >= need.count:
+                return True, bool(missing)
+        return False, False
+
+    for cid in not_tested:
+        ok, refit = testable(cid, chosen)
+        if not ok:
+            for g in lib:
+                if g in chosen:
+                    continue
+                ok, refit = testable(cid, chosen + [g])
+                if ok:
+                    chosen.append(g)
+                    break
+        if not ok:
+            unservable.append(cid)
+            continue
+        serves.append(cid)
+        if refit:
+            refit_for.append(cid)
+        for g in chosen:  # name the groups this cause relies on: those without which it is not testable
+            if cid not in g.serves and not testable(cid, [h for h in chosen if h is not g])[0]:
+                g.serves.append(cid)
+    for g in chosen:
+        if not g.serves:  # taken for a cause another group now serves as well: still say what it adds
+            g.serves = [c for c in serves if testable(c, [g])[0]]
+    return NextPlan(chosen, serves, unservable, refit_for, rig)
+
+
+def plan_text(plan: NextPlan, checks: dict[str, dg.Testability], run_paths: Sequence[str], preload_n: float) -> str:
+    """``next-plan.toml``: comments saying what it is for and how to run it, then the plan."""
+    rig = plan.rig
+    lim = rig.limits
+    dirs = " ".join(run_paths) or "runs/"
+    lines = ["# Next experiment, written by `piezopress diagnose`: the smallest set of protocols found that makes testable",
+             "# the causes these runs could not test.",
+             f"# Runs diagnosed: {dirs}",
+             "#"]
+    for cid in plan.serves:
+        t = checks[cid]
+        lines += [f"#   {cid}: needs {t.needs}", f"#     have: {t.have}"]
+    for cid in plan.unservable:
+        lines.append(f"#   {cid}: needs {checks[cid].needs}; no protocol on this rig provides it")
+    lines.append("#")
+    if rig.from_runs:
+        lines.append(f"# Rig: {rig.name} (the configuration recorded in the runs{', file ' + rig.rig_file if rig.rig_file else ''}):")
+    else:
+        lines += ["# Rig: the runs hold no rig configuration (imported), so this plan assumes the default rig",
+                  f"# {DEFAULT_RIG.relative_to(REPO_ROOT)} ({rig.name}); check its limits against your press before running it:"]
+    lines += [f"# drive {lim.drive_min_v:g} to {lim.drive_max_v:g} V, sampling up to {lim.max_sample_rate_hz / 1e3:g} kHz "
+              "(the protocols keep to the runs' own drive range within it).",
+              "#",
+              "# Then:",
+              f"#   piezopress characterize --plan {PLAN_FILE}{' --rig ' + rig.rig_file if rig.rig_file else ''} --out more/"]
+    if plan.refit_for:
+        lines += [f"#   piezopress fit {dirs} more/ --base --out base-2.json      # {', '.join(plan.refit_for)} need the base model refitted with these runs",
+                  f"#   piezopress diagnose {dirs} more/ --bundle base-2.json --out diagnosis-2/"]
+    else:
+        lines.append(f"#   piezopress diagnose {dirs} more/ --bundle BUNDLE --out diagnosis-2/      # the bundle diagnosed here")
+    lines += ["", "[plan]", 'name = "next-experiment"',
+              f'description = "Makes testable: {", ".join(plan.serves)}"', f"preload_n = {preload_n:g}", ""]
+    for g in plan.groups:
+        lines.append(f"# --- serves {', '.join(g.serves)}: {g.what}")
+        for p in g.protocols:
+            lines.append("[[protocol]]")
+            for k, v in p.items():
+                lines.append(f"{k} = {_toml(v)}")
+            lines.append("")
+    return "\n".join(lines)
+
+
+def _toml(v: Any) -> str:
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(float(v))
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    raise TypeError(f"no TOML for {v!r}")
+
+
+def write_plan(out_dir: Path, text: str, limits: DriveLimits) -> tuple[Path, Plan]:
+    """Check the plan with the project's loader, then write it (never a plan the loader refuses)."""
+    doc = tomllib.loads(text)
+    path = Path(out_dir) / PLAN_FILE
+    plan = parse_plan(doc, limits, source=str(path))  # raises PlanError naming every problem
+    tmp = path.with_name(f".{PLAN_FILE}.partial")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path, plan
+
+
+def next_plan(runs: Sequence[runformat.Run], ctx: dg.Context, result: dg.Diagnosis, out_dir: Path,
+              run_paths: Sequence[str]) -> dict[str, Any] | None:
+    """Write ``next-plan.toml`` for the causes ``result`` could not test; its description for
+    ``diagnosis.json`` (None when every cause was tested: no plan is needed)."""
+    if not result.not_tested:
+        return None
+    rig = rig_of_runs(runs)
+    xs = [r.x for r in ctx.runs if r.x.size]
+    drive = (float(min(np.min(x) for x in xs)), float(max(np.max(x) for x in xs))) if xs else (rig.limits.drive_min_v, rig.limits.drive_max_v)
+    checks = {t.cause: t for t in result.not_tested}
+    plan = choose(ctx, list(checks), rig, drive)
+    info: dict[str, Any] = {"serves": plan.serves, "unservable": plan.unservable, "refit_for": plan.refit_for,
+                            "rig": {"name": rig.name, "file": rig.rig_file, "from_runs": rig.from_runs}}
+    if not plan.groups:
+        info["file"] = None
+        return info
+    preloads = [float(r.meta["preload_n"]) for r in runs if isinstance(r.meta.get("preload_n"), (int, float))]
+    text = plan_text(plan, checks, run_paths, preloads[0] if preloads else 50.0)
+    path, checked = write_plan(out_dir, text, rig.limits)
+    info.update(file=str(path), protocols=[p.name for p in checked.protocols], duration_s=checked.duration_s,
+                groups=[{"protocols": [p["name"] for p in g.protocols], "serves": g.serves, "what": g.what} for g in plan.groups])
+    return info

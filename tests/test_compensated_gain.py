@@ -1,0 +1,288 @@
+"""The gain on the press: each compensator extension on its own (properties), and the
+compensated-gain table end to end (base bundle against extended, on the virtual rig with the
+effect on): the row the effect targets improves by >= 30 % and no row gets worse beyond its noise.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from piezopress.acquisition.plan import DriveLimits, load_plan
+from piezopress.analysis import compensation as C
+from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.hysteresis import PIModel
+from piezopress.analysis.mode import mode_response
+from piezopress.analysis.shaper import design_shaper
+from pipelines import gain as G
+
+#: A press-like PI model: 150 V gives about 300 N (the thesis's press), hysteresis a few %.
+MODEL = PIModel(r=(0.0, 4.0, 10.0, 20.0, 35.0), w=(1.6, 0.15, 0.12, 0.08, 0.05), d=(0.0,), s=(1.0,))
+WN, ZETA = 6440.0, 0.115
+
+
+def _step(level, fs=20_000.0, pre=0.005, hold=0.03):
+    n0, n1 = int(pre * fs), int(hold * fs)
+    return np.concatenate([np.zeros(n0), np.full(n1, float(level)), np.zeros(n0)])
+
+
+def _triangle(freq, peak, fs, cycles=3):
+    t = np.arange(int(cycles * fs / freq) + 1) / fs
+    return peak * (1 - np.abs(2 * ((t * freq) % 1.0) - 1))
+
+
+# --------------------------------------------------------------------------- slew limit
+
+
+@settings(max_examples=25, deadline=None)
+@given(level=st.floats(10.0, 280.0), slew=st.floats(5e3, 4e4), kind=st.sampled_from(["step", "triangle", "random"]))
+def test_the_slew_extension_never_asks_the_amplifier_for_more_than_its_slew(level, slew, kind):
+    fs = 20_000.0
+    if kind == "step":
+        ref = _step(level, fs)
+    elif kind == "triangle":
+        ref = _triangle(50.0, level, fs)
+    else:
+        rng = np.random.default_rng(int(level))
+        ref = np.clip(np.cumsum(rng.normal(0, level / 20, 2000)), 0, 300)
+    comp = C.Compensator(MODEL, shaper=design_shaper("zvd", WN, ZETA), max_rate_per_s=40_000.0, lead_s=3.6e-5, slew_v_per_s=slew,
+                         drive_min_v=-1e9, drive_max_v=1e9)
+    x = comp.drive(ref, fs).command_v
+    assert np.max(np.abs(np.diff(x))) * fs <= C.SLEW_PROJECTION * slew * (1 + 1e-9)
+
+
+def test_a_step_is_slowed_so_the_shaped_drive_stays_below_the_slew_margin():
+    # the transition is slowed (the shaper still shapes what the press gets), not slewed afterwards
+    fs, slew = 20_000.0, 12_500.0
+    comp = C.Compensator(MODEL, shaper=design_shaper("zvd", WN, ZETA), max_rate_per_s=40_000.0, slew_v_per_s=slew)
+    res = comp.drive(_step(200.0, fs), fs)
+    assert np.max(np.abs(np.diff(res.command_v))) * fs <= C.SLEW_MARGIN * slew * 1.02
+    assert not any("symmetrically" in n for n in res.notes)
+    # the press, a slew-limited amplifier into the mode, settles without ringing: the drive it gets is the shaped one
+    applied = C.signals.rate_limit(res.command_v, 0.0, slew / fs)
+    np.testing.assert_allclose(applied, res.command_v)
+    y = mode_response(MODEL.forward(applied)[0], fs, WN, ZETA)
+    hold = slice(int(0.012 * fs), int(0.035 * fs))
+    assert np.max(y[hold]) - 200.0 < 0.01 * 200.0
+
+
+def test_without_a_slew_limit_the_drive_is_unchanged():
+    fs = 20_000.0
+    ref = _triangle(10.0, 250.0, fs)
+    a = C.Compensator(MODEL, max_rate_per_s=40_000.0).drive(ref, fs).command_v
+    b = C.Compensator(MODEL, max_rate_per_s=40_000.0, slew_v_per_s=1e9).drive(ref, fs).command_v
+    np.testing.assert_allclose(a, b)
+
+
+def test_centred_rate_limit_errs_symmetrically_about_a_jump():
+    x = np.concatenate([np.zeros(50), np.full(50, 10.0)])
+    y = C.centred_rate_limit(x, 1.0)
+    assert np.max(np.abs(np.diff(y))) <= 1.0 + 1e-12
+    np.testing.assert_allclose(y + y[::-1], 10.0)  # antisymmetric about the jump: as early as it is late
+
+
+# --------------------------------------------------------------------------- input delay
+
+
+@settings(max_examples=25, deadline=None)
+@given(delay=st.floats(0.0, 1e-3), fs=st.sampled_from([2_000.0, 10_000.0, 50_000.0]))
+def test_the_delay_lead_shifts_the_drive_by_exactly_the_delay(delay, fs):
+    ref = _triangle(5.0, 250.0, fs, cycles=2)
+    plain = C.Compensator(MODEL, drive_min_v=-1e9, drive_max_v=1e9).drive(ref, fs).command_v
+    led = C.Compensator(MODEL, lead_s=delay, drive_min_v=-1e9, drive_max_v=1e9).drive(ref, fs).command_v
+    t = np.arange(ref.size) / fs
+    np.testing.assert_allclose(led, np.interp(t + delay, t, plain, right=plain[-1]), atol=1e-9)
+    n = int(round(delay * fs))
+    if math.isclose(delay * fs, n, abs_tol=1e-9) and n:  # a whole number of samples: exactly those samples earlier
+        np.testing.assert_allclose(led[:-n], plain[n:], atol=1e-9)
+
+
+def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead():
+    # the base lead 2 zeta / wn had absorbed the delay; the extended lead is the refitted mode's plus the delay, once
+    from pipelines import diagnose as D
+
+    bundle = {"hysteresis": {"model": MODEL.to_dict()}, "compensation": {"lead_s": 2 * 0.5 / 3000.0},
+              "shaper": {"mode": {"natural_freq_rad_s": 3000.0, "damping": 0.5},
+                         "shaper": {"name": "zvd", **{k: v for k, v in _shaper_dict(3000.0, 0.5).items()}}}}
+    model = dg.Model(MODEL, wn=WN, zeta=ZETA, delay_s=3e-4)
+    finding = dg.Finding("input_delay", "", 1.0, 0.1, 90.0, {"delay_s": 3e-4}, [], [], 100.0, 0.1, model)
+    ext = D.extend_bundle(bundle, [finding], model)
+    assert ext["compensation"]["lead_s"] == pytest.approx(2 * ZETA / WN + 3e-4)
+    assert ext["shaper"]["mode"]["natural_freq_rad_s"] == pytest.approx(WN)
+    assert ext["shaper"]["shaper"]["natural_freq_rad_s"] == pytest.approx(WN)
+
+
+def _shaper_dict(wn, zeta):
+    sh = design_shaper("zvd", wn, zeta)
+    return {"times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes), "natural_freq_rad_s": sh.wn, "damping": sh.zeta,
+            "zv_power": sh.zv_power}
+
+
+# --------------------------------------------------------------------------- rate-dependent hysteresis
+
+
+@pytest.mark.parametrize("form", [dict(widen_v_per_kv_s=0.15), dict(widen_v_per_kv_s=0.15, saturation_v_per_s=20_000.0),
+                                  dict(loss_per_kv_s=0.05)])
+@pytest.mark.parametrize("freq", [5.0, 50.0])
+def test_the_rate_aware_inverse_played_through_the_same_rate_model_gives_back_the_reference(form, freq):
+    fs = 50_000.0
+    rate = C.RateDependence(tau_s=5e-4, **form)
+    ref = _triangle(freq, 250.0, fs)
+    x, info = C.rate_aware_inverse(MODEL, ref, fs, rate)
+    model = dg.Model(MODEL, rate_v_per_kv_s=rate.widen_v_per_kv_s, rate_loss_per_kv_s=rate.loss_per_kv_s,
+                     rate_saturation_v_per_s=rate.saturation_v_per_s, rate_tau_s=rate.tau_s)
+    run = dg.RunData("r", "triangle", np.arange(ref.size) / fs, x, np.zeros_like(x), fs)
+    err = model.static(run) - ref  # the diagnosis's own forward model, at the drive's own rate
+    z, _ = MODEL.inverse(ref)
+    err_static = model.static(dg.RunData("r", "triangle", run.t_s, z, np.zeros_like(z), fs)) - ref
+    assert np.sqrt(np.mean(err**2)) <= 0.1 * np.sqrt(np.mean(err_static**2)) + 0.02
+    assert np.sqrt(np.mean(err**2)) <= 0.002 * 250.0
+
+
+def test_the_rate_aware_lead_ends_with_the_motion():
+    # a lead that outlasted the motion would push the stack's plays on once its own widening
+    # decayed: after a step's ramp the drive is back on the static inverse at once
+    fs = 20_000.0
+    rate = C.RateDependence(widen_v_per_kv_s=0.15, tau_s=2e-3)
+    ref = C.signals.rate_limit(_step(100.0, fs), 0.0, 40_000.0 / fs)
+    x, _ = C.rate_aware_inverse(MODEL, ref, fs, rate)
+    z, _ = MODEL.inverse(ref)
+    still = np.abs(np.diff(z, prepend=z[0])) == 0
+    np.testing.assert_allclose(x[still], z[still])
+    assert np.all(((x - z) * np.sign(np.diff(z, prepend=z[0])))[~still] >= -1e-12)  # a lead in the direction of motion, never a lag
+    assert np.max(np.abs(x - z)) > 0.5  # and a lead there is, while the ramp moves
+
+
+# --------------------------------------------------------------------------- second mode
+
+
+def test_the_second_shaper_removes_the_second_modes_ringing():
+    fs, wn2, z2, share = 50_000.0, 14_000.0, 0.05, 0.25
+    linear = PIModel(r=(0.0,), w=(1.0,), d=(0.0,), s=(1.0,))
+    ref = _step(100.0, fs, hold=0.02)
+
+    def ringing(comp):
+        x = comp.drive(ref, fs).command_v
+        y = (1 - share) * mode_response(x, fs, WN, ZETA) + share * mode_response(x, fs, wn2, z2)
+        hold = slice(int(0.01 * fs), int(0.024 * fs))
+        return float(np.max(np.abs(y[hold] - 100.0)))
+
+    one = C.Compensator(linear, shaper=design_shaper("zv", WN, ZETA), drive_min_v=-1e9, drive_max_v=1e9)
+    two = C.Compensator(linear, shaper=design_shaper("zv", WN, ZETA), shaper2=design_shaper("zvd", wn2, z2),
+                        drive_min_v=-1e9, drive_max_v=1e9)
+    assert ringing(one) > 0.5  # half a percent of the step rings through the second mode ...
+    assert ringing(two) < 0.01 * ringing(one)  # ... and the second shaper takes it away
+
+
+# --------------------------------------------------------------------------- the table
+
+
+def _sample(base, ext):
+    return G.Sample(base, ext, ("amplifier_slew_limit",), ("amplifier_slew_limit",))
+
+
+def test_the_verdict_asks_30_percent_where_the_effect_costs_that_much_and_nothing_worse():
+    clean = {"overshoot": 0.3, "hysteresis_50hz": 0.4, "hysteresis_5hz": 0.4}
+    base = [{"overshoot": 3.0, "hysteresis_50hz": 20.0, "hysteresis_5hz": 0.40}, {"overshoot": 3.1, "hysteresis_50hz": 21.0, "hysteresis_5hz": 0.41}]
+    good = [{"overshoot": 0.5, "hysteresis_50hz": 2.0, "hysteresis_5hz": 0.40}, {"overshoot": 0.6, "hysteresis_50hz": 2.2, "hysteresis_5hz": 0.41}]
+    res = G.combine([_sample(b, e) for b, e in zip(base, good)], clean, "amplifier_slew_limit")
+    assert res.verdict()[0] is True
+    assert res.row("overshoot").targeted and res.row("overshoot").hurt and not res.row("hysteresis_5hz").targeted
+    assert res.row("hysteresis_5hz").noise == pytest.approx(0.01)
+    worse = [dict(g, hysteresis_5hz=0.6) for g in good]
+    assert G.combine([_sample(b, e) for b, e in zip(base, worse)], clean, "amplifier_slew_limit").verdict()[0] is False
+    short = [dict(g, hysteresis_50hz=18.0) for g in good]
+    assert G.combine([_sample(b, e) for b, e in zip(base, short)], clean, "amplifier_slew_limit").verdict()[0] is False
+    # an effect that costs its rows nothing has nothing to gain
+    assert G.combine([_sample(c, c) for c in (clean, clean)], clean, "amplifier_slew_limit").verdict()[0] is None
+
+
+def test_the_csv_round_trips_and_formats(tmp_path):
+    res = G.combine([_sample({"overshoot": 3.0}, {"overshoot": 0.5})], {"overshoot": 0.3}, "amplifier_slew_limit")
+    df = G.read_csv(G.write_csv([res], tmp_path / G.GAIN_CSV))
+    assert list(df["row"]) == ["overshoot"] and df["base"].iloc[0] == 3.0
+    text = G.format_table(df, {"amplifier_slew_limit": 97.0})
+    assert "prediction gain (held-out RMS) 97 %" in text and "verdict: met" in text
+
+
+def test_the_random_force_plan_is_a_band_limited_trajectory_between_its_bounds():
+    plan = load_plan(G.TRACKING_PLAN, DriveLimits(drive_max_v=800.0, max_force_n=800.0), unit="N")
+    (p,) = plan.protocols
+    t, ref = p.waveform()
+    assert p.run_kind == "custom" and ref[0] == pytest.approx(20.0) and ref[-1] == pytest.approx(20.0)
+    assert ref.min() >= 20.0 - 1e-9 and ref.max() <= 280.0 + 1e-9 and np.ptp(ref) > 200.0
+    f = np.fft.rfftfreq(ref.size, 1 / p.sample_rate_hz)
+    power = np.abs(np.fft.rfft(ref - ref.mean())) ** 2
+    assert power[f > 25.0].sum() < 0.01 * power.sum()
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+def test_the_slew_extension_gains_on_the_press(tmp_path):
+    # one pass, the slew limit alone tried: overshoot and the 50 Hz loop recover; the other rows stay
+    cfg = G.effect_rig("amplifier_slew_limit", seed=3)
+    res = G.compensated_gain(cfg, tmp_path / "g", cause="amplifier_slew_limit", seeds=1, causes=["amplifier_slew_limit"])
+    assert res.applied == ("amplifier_slew_limit",)
+    for row in ("overshoot", "hysteresis_50hz"):
+        r = res.row(row)
+        assert r.hurt and r.change_pct >= G.MIN_TARGET_GAIN_PCT, r
+    for r in res.rows:
+        assert r.extended <= r.base + 0.02 * max(r.base, 1.0), r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cause", ["amplifier_slew_limit", "input_delay"])
+def test_acceptance_the_targeted_row_improves_30_percent_and_no_row_gets_worse_beyond_its_noise(tmp_path, cause):
+    res = G.compensated_gain(G.effect_rig(cause, seed=0), tmp_path / "g", cause=cause, seeds=2)
+    G.write_csv([res], tmp_path / G.GAIN_CSV)
+    print(G.format_table(G.read_csv(tmp_path / G.GAIN_CSV)))
+    assert cause in res.applied
+    due = [r for r in res.rows if r.targeted and r.hurt and r.damage >= 0.3 * r.base]
+    assert due, "the effect must cost its rows something at the gain magnitude"
+    for r in due:
+        assert r.change_pct >= G.MIN_TARGET_GAIN_PCT, r
+    table_6_13 = ("static_hysteresis", "creep", "overshoot")
+    for r in res.rows:
+        if r.row in table_6_13 or r.targeted:
+            assert not r.worse, r
+
+
+def test_the_report_shows_the_table_when_the_diagnosis_directory_holds_it(tmp_path):
+    import json
+
+    from pipelines import report
+
+    (tmp_path / "diagnosis.json").write_text(json.dumps({"summary": "amplifier_slew_limit (held-out gain 97 %)", "output_unit": "N",
+                                                         "residual_rms_n": 1.0, "noise_floor_n": 0.1, "findings": []}))
+    missing: list[str] = []
+    assert not any(isinstance(b, report.Table) and b.header == G.HEADER for b in report._diagnosis_blocks(tmp_path, missing))
+    res = G.combine([_sample({"overshoot": 3.0, "hysteresis_50hz": 20.0}, {"overshoot": 0.5, "hysteresis_50hz": 2.0})],
+                    {"overshoot": 0.3, "hysteresis_50hz": 0.4}, "amplifier_slew_limit")
+    G.write_csv([res], tmp_path / G.GAIN_CSV)
+    blocks = report._diagnosis_blocks(tmp_path, missing)
+    tables = [b for b in blocks if isinstance(b, report.Table) and b.header == G.HEADER]
+    assert len(tables) == 1 and [r[1] for r in tables[0].rows] == ["step overshoot (worst step)*", "hysteresis, 50 Hz*"]
+    md = report.render_markdown(blocks)
+    assert "The gain on the press" in md and "verdict: met" in md and not missing
+
+
+@pytest.mark.slow
+def test_cli_diagnose_gain_writes_the_table_the_report_reads(tmp_path):
+    from click.testing import CliRunner
+
+    from piezocli.main import cli
+    from piezopress.acquisition.virtual_rig import VirtualRig
+    from pipelines import characterize as char
+
+    char.characterize(tmp_path / "char", backend=VirtualRig(G.effect_rig("amplifier_slew_limit", seed=5)))
+    runner = CliRunner()
+    assert runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
+    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"),
+                              "--cause", "amplifier_slew_limit", "--gain", "--gain-seeds", "1"])
+    assert res.exit_code == 0, res.output
+    assert "The gain on the press" in res.output and "verdict: met" in res.output
+    df = G.read_csv(tmp_path / "d" / G.GAIN_CSV)
+    assert set(df["cause"]) == {"amplifier_slew_limit"} and df["targeted"].any()

@@ -1,0 +1,388 @@
+"""diagnose says what it tested, what it could not test and why, and which experiment would test it.
+
+- Every cause declares what it needs (run kinds, drive frequency, sample rate, duration,
+  channels, parts of the base model); a cause the runs cannot test is listed in
+  ``not_tested`` with ``needs`` and ``have``, and "no cause explains" is said only of the
+  causes that were tried.
+- The next experiment: ``next-plan.toml``, checked by the plan loader, for the runs' rig.
+  The loop test hides an effect the first plan (slow triangles only) cannot reveal, runs the
+  suggested plan on the same virtual rig, and diagnoses both directories: the effect is named.
+- Runs that share a name never crash the diagnosis (predictions are keyed by file).
+- One source of truth for what the compensator applies: the catalogue's ``in_compensator``,
+  read by the extended bundle, ``diagnosis.json`` and the report.
+- The residual traces figure has one row per run kind.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from piezocli.main import cli
+from piezopress.acquisition.plan import load_plan
+from piezopress.acquisition.rig_config import RigConfig, hidden_effect, load_rig
+from piezopress.acquisition.virtual_rig import VirtualRig
+from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.hysteresis import PIModel
+from pipelines import characterize as char
+from pipelines import diagnose as D
+from pipelines import next_plan as NP
+from pipelines import report as R
+
+SEED = 20261121
+ROOT = Path(__file__).resolve().parents[1]
+
+#: The first plan: slow triangles only (no fast sweep, no step, no creep, no rest).
+SLOW_PLAN = """
+[plan]
+name = "slow-triangles-only"
+preload_n = 50.0
+
+[[protocol]]
+name = "triangle-0.1hz"
+kind = "triangle"
+freq_hz = 0.1
+cycles = 3
+sample_rate_hz = 500.0
+
+[[protocol]]
+name = "triangle-increasing-0.1hz"
+kind = "triangle"
+freq_hz = 0.1
+peaks_v = [30.0, 60.0, 90.0, 120.0, 150.0]
+sample_rate_hz = 500.0
+"""
+
+
+def invoke(*args):
+    res = CliRunner().invoke(cli, [str(a) for a in args])
+    assert res.exit_code == 0, res.output
+    return res.output
+
+
+def rig_toml(cfg: RigConfig) -> str:
+    """A rig file holding ``cfg`` (every value a scalar)."""
+    def value(v):
+        return ("true" if v else "false") if isinstance(v, bool) else f'"{v}"' if isinstance(v, str) else repr(v)
+
+    return "\n".join(f"[{sec}]\n" + "\n".join(f"{k} = {value(v)}" for k, v in keys.items()) + "\n" for sec, keys in cfg.as_dict().items())
+
+
+def pi_run(name: str, n: int, fs: float = 1000.0, freq: float = 0.5, kind: str = "sine", seed: int = 0) -> dg.RunData:
+    model = PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0)
+    t = np.arange(n) / fs
+    x = 75.0 * (1 - np.cos(2 * np.pi * freq * t))
+    y = model.forward(x)[0] + np.random.default_rng(seed).normal(0, 0.05, n)
+    return dg.RunData(name, kind, t, x, y, fs)
+
+
+# --------------------------------------------------------------------------- needs
+
+
+def test_every_cause_declares_its_needs_and_says_what_is_missing():
+    model = dg.Model(PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0))
+    run = pi_run("slow", 8000, fs=200.0, freq=1.0)
+    ctx = dg.Context([run], model, frozenset({"slow"}), {"slow": dg.noise_floor(run.y)})
+    for cause in dg.CAUSES.values():
+        assert cause.needs, f"{cause.id} declares no needs"
+        t = dg.testability(cause, ctx)
+        assert t.needs
+        assert t.testable or t.have
+    rate = dg.testability(dg.CAUSES["rate_dependent_hysteresis"], ctx)
+    assert not rate.testable
+    assert "at >= 5 Hz" in rate.needs and "not used by the base fit" in rate.needs
+    assert "one sine at ~1 Hz (frequency not recorded), 200 Hz sampling" in rate.have and "used by the base fit" in rate.have
+    mode2 = dg.testability(dg.CAUSES["second_resonance"], ctx)
+    assert not mode2.testable and "sampled at >= 5 kHz" in mode2.needs and "no mode in the bundle" in mode2.have
+    # a delay is tried on any sweep whose drive rate makes a lag of a few samples visible
+    assert dg.testability(dg.CAUSES["input_delay"], ctx).testable
+
+
+def test_a_cause_declared_untestable_has_nothing_to_fit():
+    """The needs are the gate: a cause whose needs the runs do not meet is not tried. So its
+    detector must have nothing to work on there either (when a detector learns to use other
+    runs, its needs in CAUSES must say so, or what it could find is hidden)."""
+    pi = PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0)
+    t = np.arange(3000) / 20_000.0
+    steps = [dg.RunData(f"step-{v}v", "step", t, np.where(t > 0.01, float(v), 0.0), np.zeros_like(t), 20_000.0) for v in (20, 150)]
+    steps = [dataclasses.replace(r, y=dg.Model(pi, wn=6440.0, zeta=0.1).predict(r)) for r in steps]
+    cases = [
+        (dg.Model(pi), [pi_run("slow", 8000, fs=200.0, freq=1.0)], {"slow"}),  # one imported sine, fitted
+        (dg.Model(pi), [pi_run("tri", 5000, fs=500.0, freq=0.1, kind="triangle")], {"tri"}),  # slow triangles only
+        (dg.Model(pi, wn=6440.0, zeta=0.1), steps, {"step-20v"}),  # steps only
+    ]
+    for model, runs, fitted in cases:
+        ctx = dg.Context(runs, model, frozenset(fitted), {r.name: max(dg.noise_floor(r.y), 1e-3) for r in runs})
+        for cause in dg.CAUSES.values():
+            if not dg.testability(cause, ctx).testable:
+                assert cause.run(ctx) is None, f"{cause.id} found something to fit on runs its needs exclude ({[r.name for r in runs]})"
+
+
+def test_untested_causes_are_listed_and_no_cause_explains_is_said_only_of_those_tried():
+    # a residual nothing in the catalogue explains (a 37 Hz tone), on a slow sweep the base was fitted on
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    t = np.arange(4000) / 1000.0
+    x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
+    y = model.predict(dg.RunData("r", "sine", t, x, x, 1000.0)) + 3.0 * np.sin(2 * np.pi * 37 * t) + np.random.default_rng(0).normal(0, 0.1, t.size)
+    result = dg.diagnose(model, [dg.RunData("slow", "sine", t, x, y, 1000.0)], ["slow"])
+    doc = result.as_dict()
+    tried = [t["cause"] for t in doc["tested"]]
+    untested = [t["cause"] for t in doc["not_tested"]]
+    assert set(tried) | set(untested) == set(dg.CAUSES) and not set(tried) & set(untested)
+    assert "input_delay" in tried and "hysteresis_order" in tried
+    assert all(t["needs"] and t["have"] for t in doc["not_tested"])
+    assert "No cause in the catalogue" not in result.summary
+    assert result.summary.startswith(f"None of the {len(tried)} causes tried (")
+    assert "not tested" in result.summary and all(c in result.summary for c in untested)
+    text = D.format_summary(result)
+    assert "Not tested" in text and "needs" in text and "have:" in text
+
+
+def test_a_poor_base_fit_is_said_and_every_cause_still_tested():
+    good = dg.Model(PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0))
+    poor = dg.Model(PIModel((0.0,), (1.2,), (0.0,), (2.0,), y0=45.0))
+    run = pi_run("slow", 8000, fs=200.0, freq=1.0)
+    assert "base fit is poor" not in dg.diagnose(good, [run], ["slow"]).summary
+    result = dg.diagnose(poor, [run], ["slow"])
+    assert result.base_fit["poor"] and result.base_fit["ratio"] > dg.POOR_FIT_RATIO
+    assert "the base fit is poor" in result.summary
+    assert {t["cause"] for t in result.tested} == {"input_delay", "hysteresis_order"}  # what the runs allow, tried all the same
+
+
+def test_a_delay_is_found_on_a_slow_sine_the_base_was_fitted_on():
+    # the Aye-Ang situation: one 1 Hz sine at 200 Hz, the base fitted on it, a lag of 3 samples
+    true = PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0)
+    fs, n = 200.0, 8000
+    t = np.arange(n) / fs
+    x = 75.0 * (1 - np.cos(2 * np.pi * 1.0 * t))
+    y = true.forward(np.interp(t - 3 / fs, t, x, left=x[0]))[0] + np.random.default_rng(1).normal(0, 0.05, n)
+    run = dg.RunData("sine", "sine", t, x, y, fs)
+    from piezopress.analysis import hysteresis as H
+
+    fitted = H.fit_hysteresis(H.prepare([("sine", x, y)]), [H.Candidate(4, 1.0, 1)]).final_model  # the lag widens this loop
+    result = dg.diagnose(dg.Model(fitted), [run], ["sine"])
+    assert result.findings and result.findings[0].cause == "input_delay", result.summary
+    assert result.findings[0].parameters["delay_s"] == pytest.approx(3 / fs, abs=0.6 / fs)
+    assert result.findings[0].heldout == ["sine"] and result.findings[0].parameters["operators_refitted"] == 1.0
+
+
+# --------------------------------------------------------------------------- the next experiment
+
+
+@pytest.mark.parametrize("effect", ["rate_dependent_hysteresis", "second_resonance"])
+def test_the_next_plan_reveals_an_effect_the_first_plan_could_not(tmp_path, effect):
+    """The loop as a technician runs it, on the CLI: characterize a slow-only plan, fit, diagnose
+    (the effect is not tested; next-plan.toml names it), characterize the next plan on the same
+    rig, refit, diagnose both directories: the hidden effect is named."""
+    rng = np.random.default_rng([SEED, list(dg.CAUSES).index(effect)])
+    cfg = hidden_effect(effect, rng)
+    (tmp_path / "rig.toml").write_text(rig_toml(cfg))
+    (tmp_path / "first.toml").write_text(SLOW_PLAN)
+    runs, more = tmp_path / "runs", tmp_path / "more"
+    invoke("characterize", "--plan", tmp_path / "first.toml", "--rig", tmp_path / "rig.toml", "--out", runs)
+    invoke("fit", runs, "--base", "--out", tmp_path / "base.json")
+    out = invoke("diagnose", runs, "--bundle", tmp_path / "base.json", "--out", tmp_path / "d1")
+    doc = json.loads((tmp_path / "d1" / "diagnosis.json").read_text())
+    assert effect in [t["cause"] for t in doc["not_tested"]] and not doc["findings"]
+    assert "Not tested" in out and "Next experiment:" in out and "next-plan.toml" in out
+    plan_file = tmp_path / "d1" / "next-plan.toml"
+    plan = load_plan(plan_file, load_rig(tmp_path / "rig.toml").limits)  # the rig's limits respected
+    assert effect in doc["next_plan"]["serves"] and doc["next_plan"]["rig"]["from_runs"]
+    text = plan_file.read_text()
+    assert any(effect in line for line in text.splitlines() if line.startswith("# --- serves"))  # a comment names what each group serves
+    assert f"--rig {tmp_path / 'rig.toml'}" in text
+    assert all(p.name not in ("triangle-0.1hz", "triangle-increasing-0.1hz") for p in plan.protocols)
+
+    invoke("characterize", "--plan", plan_file, "--rig", tmp_path / "rig.toml", "--out", more)
+    invoke("fit", runs, more, "--base", "--out", tmp_path / "base-2.json")
+    out = invoke("diagnose", runs, more, "--bundle", tmp_path / "base-2.json", "--out", tmp_path / "d2")
+    doc = json.loads((tmp_path / "d2" / "diagnosis.json").read_text())
+    assert doc["findings"] and doc["findings"][0]["cause"] == effect, doc["summary"]
+    assert effect not in [t["cause"] for t in doc["not_tested"]]
+    assert effect in out
+
+
+def test_no_plan_when_every_cause_was_tested_and_imported_runs_assume_the_default_rig(tmp_path):
+    runs = [pi_run("slow", 4000, fs=200.0, freq=1.0)]
+    model = dg.Model(PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0))
+    ctx = dg.Context(runs, model, frozenset({"slow"}), {"slow": dg.noise_floor(runs[0].y)})
+    result = dg.diagnose(model, runs, ["slow"])
+    assert NP.next_plan([], ctx, dataclasses.replace(result, not_tested=[]), tmp_path, ["runs/"]) is None
+    info = NP.next_plan([], ctx, result, tmp_path, ["runs/"])
+    assert info["file"] and not info["rig"]["from_runs"]
+    text = (tmp_path / "next-plan.toml").read_text()
+    assert "the runs hold no rig configuration (imported)" in text and "rigs/thesis-press.toml" in text
+    plan = load_plan(tmp_path / "next-plan.toml", load_rig(NP.DEFAULT_RIG).limits)
+    assert max(float(np.max(p.waveform()[1])) for p in plan.protocols) <= 150.0 + 1e-9  # the runs' own drive range
+    assert set(info["serves"]) | set(info["unservable"]) == {t.cause for t in result.not_tested}
+
+
+# --------------------------------------------------------------------------- duplicate names
+
+
+def test_runs_that_share_a_name_never_crash(tmp_path):
+    """Two segments imported from one file get the same default name (its stem): 2200 and
+    1800 rows, as Test_Vi_Do_Di.dat's two compensated segments."""
+    model = PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0)
+    fs = 200.0
+    t = np.arange(6000) / fs
+    x = 75.0 * (1 - np.cos(2 * np.pi * 1.0 * t))
+    y = model.forward(x)[0] + np.random.default_rng(0).normal(0, 0.05, t.size)
+    src = tmp_path / "segments.csv"
+    src.write_text("\n".join(f"{a:.6f},{b:.6f}" for a, b in zip(x, y)) + "\n")
+    for rows, out in (("0:2200", "a.parquet"), ("3000:4800", "b.parquet")):
+        invoke("import", src, "--out", tmp_path / out, "--no-header", "--kind", "sine", "--col", "command_v=1", "--col", "displacement_um=2",
+               "--sample-rate", fs, "--rows", rows)
+    invoke("fit", tmp_path / "a.parquet", "--base", "--out", tmp_path / "base.json")
+    out = invoke("diagnose", tmp_path / "a.parquet", tmp_path / "b.parquet", "--bundle", tmp_path / "base.json", "--out", tmp_path / "d")
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    names = [r["run"] for r in doc["runs_before"]]
+    assert len(names) == 2 and len(set(names)) == 2 and all(n.startswith("segments") for n in names), names
+    assert "segments [" in out
+    # the base was fitted on a.parquet only: b.parquet, same name, is independent
+    result, _ = D.diagnose([tmp_path / "a.parquet", tmp_path / "b.parquet"], tmp_path / "base.json", tmp_path / "d2")
+    runs = D.diagnosis_runs(D.collect_runs([tmp_path / "a.parquet", tmp_path / "b.parquet"]))
+    ctx = dg.Context(runs, D.base_model(D.read_document(tmp_path / "base.json", "bundle")),
+                     frozenset(D.fitted_run_keys(D.read_document(tmp_path / "base.json", "bundle"))), {})
+    assert [ctx.is_fitted(r) for r in runs] == [True, False]
+    assert [ctx.pred(r).size for r in runs] == [2200, 1800]
+
+
+def test_the_prediction_cache_is_keyed_by_identity_not_name():
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    a, b = pi_run("same", 2200), pi_run("same", 1800, seed=1)
+    result = dg.diagnose(model, [a, b])  # used to fail: operands could not be broadcast (2200,) (1800,)
+    assert [s.run for s in result.before] == ["same", "same#2"]
+
+
+# --------------------------------------------------------------------------- one source of truth
+
+
+def _finding(cause: str, model: dg.Model, params: dict[str, float]) -> dg.Finding:
+    return dg.Finding(cause, "test", 1.0, 0.5, 50.0, params, ["r"], ["r"], 10.0, 0.1, model)
+
+
+PARAMS = {
+    "rate_dependent_hysteresis": {"rate_v_per_kv_s": 0.1},
+    "amplifier_slew_limit": {"slew_rate_v_per_s": 4e4},
+    "drive_coupled_interference": {"gain_n_per_v_per_s": 1e-3, "threshold_v_per_s": 1e4, "tau_s": 1e-3},
+    "logarithmic_creep": {"per_decade": 0.01, "static_gain": 1.0},
+    "second_resonance": {"share": 0.2, "natural_freq_rad_s": 18000.0, "damping": 0.05},
+    "sensor_offset_drift": {"drift_n_per_s": 0.01},
+    "input_delay": {"delay_s": 3e-4},
+    "hysteresis_order": {"n_play": 4, "n_dead_zone": 2},
+}
+
+
+def test_the_catalogue_is_the_one_source_of_what_the_compensator_applies(tmp_path):
+    """extend_bundle changes the compensator for exactly the causes the catalogue marks
+    ``in_compensator``; diagnosis.json and the report say the same."""
+    assert set(PARAMS) == set(dg.CAUSES)
+    bundle = json.loads((ROOT / "sample_runs" / "base-bundle.json").read_text())
+    base = D.base_model(bundle)
+    richer = PIModel(tuple(base.hysteresis.r) + (base.hysteresis.r[-1] + 10.0,), tuple(base.hysteresis.w) + (0.01,), base.hysteresis.d, base.hysteresis.s,
+                     x0=base.hysteresis.x0, y0=base.hysteresis.y0, input_unit=base.hysteresis.input_unit, output_unit=base.hysteresis.output_unit)
+    bookkeeping = {"extensions", "extensions_applied_by_compensator", "extensions_recorded_only"}
+    for cid, params in PARAMS.items():
+        model = dataclasses.replace(base, hysteresis=richer) if cid == "hysteresis_order" else base
+        ext = D.extend_bundle(bundle, [_finding(cid, model, params)])
+        changed = {k for k in set(ext) | set(bundle) if k not in bookkeeping and ext.get(k) != bundle.get(k)}
+        assert bool(changed) == dg.CAUSES[cid].in_compensator, (
+            f"{cid}: the catalogue says in_compensator={dg.CAUSES[cid].in_compensator} but extend_bundle changes {sorted(changed) or 'nothing'}; "
+            "flip the flag in piezopress/analysis/diagnosis.py CAUSES (the one place)")
+        assert ext["extensions_applied_by_compensator"] == ([cid] if dg.CAUSES[cid].in_compensator else [])
+        assert ext["extensions_recorded_only"] == ([] if dg.CAUSES[cid].in_compensator else [cid])
+
+
+def test_diagnosis_json_and_the_report_read_the_catalogue(tmp_path):
+    cfg = RigConfig.only("input_delay", delay_s=3e-4)
+    char.characterize(tmp_path / "char", backend=VirtualRig(cfg))
+    invoke("fit", tmp_path / "char", "--base", "--out", tmp_path / "base.json")
+    result, out = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "d")
+    doc = json.loads((out / "diagnosis.json").read_text())
+    ext = json.loads((out / "extended_bundle.json").read_text())
+    assert {c: v["in_compensator"] for c, v in doc["causes"].items()} == {c.id: c.in_compensator for c in dg.CAUSES.values()}
+    assert all(doc["causes"][c]["needs"] for c in dg.CAUSES)
+    named = [f["cause"] for f in doc["findings"]]
+    assert "input_delay" in named
+    assert ext["extensions_applied_by_compensator"] == sorted(c for c in named if dg.CAUSES[c].in_compensator)
+    assert ext["extensions_recorded_only"] == sorted(c for c in named if not dg.CAUSES[c].in_compensator)
+    assert not doc["not_tested"] and doc["next_plan"] is None and not (out / "next-plan.toml").exists()  # the default plan tests all
+    blocks = R._diagnosis_blocks(out, [])
+    table = next(b for b in blocks if isinstance(b, R.Table))
+    col = table.header.index("compensator")
+    for row in table.rows:
+        assert row[col] == ("applied" if dg.CAUSES[row[0]].in_compensator else "recorded only")
+    assert any(isinstance(b, R.FigureBlock) and b.name == "diagnosis_residual_traces" for b in blocks)
+
+
+# --------------------------------------------------------------------------- the residual traces figure
+
+
+def test_residual_traces_have_one_row_per_run_kind_and_say_what_is_clipped():
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    sweep = pi_run("sweep", 2000)
+    t = np.arange(2000) / 1000.0
+    x = np.where(t > 0.5, 100.0, 0.0)
+    y = model.predict(dg.RunData("s", "step", t, x, x, 1000.0)) + np.random.default_rng(0).normal(0, 0.05, t.size)
+    y[1000] += 500.0  # a spike
+    step = dg.RunData("step", "step", t, x, y, 1000.0)
+    result = dg.diagnose(model, [sweep, step])
+    fig = D.residual_figure([sweep, step], model, result)
+    axes = fig.get_axes()
+    assert len(axes) == 4  # 2 kinds x (base, extended)
+    assert "sine" in axes[0].get_ylabel() and "step" in axes[2].get_ylabel()
+    notes = [t_.get_text() for ax in axes for t_ in ax.texts]
+    assert any("samples beyond" in n and "clipped" in n for n in notes)
+    assert axes[2].get_ylim()[1] < 100.0  # the spike does not set the scale
+
+
+# --------------------------------------------------------------------------- honest on real data
+
+
+DATASETS = ROOT.parent / "shared" / "datasets"
+SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
+AYE = DATASETS / "aye-ang-2018" / "Model_Vi_Do.dat"
+IMPORTS = {  # the README's commands; SmartHysteresis cut to its first 6 s (the rest at 0 V and three cycles) to keep it fast
+    "smart": [SMART, "--no-header", "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4",
+              "--sample-rate", "5000", "--rows", "0:30000"],
+    "aye": [AYE, "--no-header", "--delimiter", "tab", "--kind", "sine", "--col", "command_v=1", "--col", "displacement_um=5",
+            "--lag", "displacement_um=1", "--sample-rate", "200"],
+}
+
+
+@pytest.mark.skipif(not (SMART.is_file() and AYE.is_file()), reason=f"shared data sets not found in {DATASETS}")
+@pytest.mark.parametrize("name", list(IMPORTS))
+def test_on_the_shared_data_sets_diagnose_says_what_it_tested_what_not_why_and_the_next_plan(tmp_path, name):
+    src, *opts = IMPORTS[name]
+    run = tmp_path / f"{name}.parquet"
+    invoke("import", src, "--out", run, *opts)
+    invoke("fit", run, "--base", "--out", tmp_path / "base.json")
+    out = invoke("diagnose", run, "--bundle", tmp_path / "base.json", "--out", tmp_path / "d")
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    floor = doc["noise_floor_um"]
+    assert np.isfinite(floor) and floor > 0 and doc["output_unit"] == "um"
+    assert f"noise floor of {floor:.3g} µm" in doc["summary"] or f"noise floor ({floor:.3g} µm)" in doc["summary"]
+    assert f"sensor noise floor {floor:.3g} µm RMS" in out
+    # tested and not tested, each untested cause with what it needs and what the runs offer
+    tested = {t["cause"] for t in doc["tested"]}
+    untested = {t["cause"] for t in doc["not_tested"]}
+    assert tested and untested and tested | untested == set(dg.CAUSES) and not tested & untested
+    assert "input_delay" in tested  # a 1 Hz sine whose drive rate makes a lag of a few samples visible
+    for t in doc["not_tested"]:
+        assert t["needs"] and t["have"] and "used by the base fit" in t["have"]
+        assert t["cause"] in doc["summary"]
+    assert "No cause in the catalogue" not in doc["summary"]
+    assert "Not tested" in out and "needs" in out and "have:" in out
+    # the next experiment, checked by the plan loader against the default rig the file names
+    plan_file = tmp_path / "d" / "next-plan.toml"
+    assert doc["next_plan"]["file"] == str(plan_file) and not doc["next_plan"]["rig"]["from_runs"]
+    plan = load_plan(plan_file, load_rig(NP.DEFAULT_RIG).limits)
+    assert set(doc["next_plan"]["serves"]) == untested and len(plan.protocols) >= 3
+    assert "the runs hold no rig configuration (imported)" in plan_file.read_text()
+    assert f"Next experiment: {plan_file}" in out
