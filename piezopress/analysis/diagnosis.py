@@ -570,7 +570,7 @@ def cause_input_delay(ctx: Context) -> Finding | None:
         ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [5e-3]), wide=True)
         d = float(ext.delay_s)
     ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike"
-    return _judge(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
+    return _judge_dynamics(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
 
 
 def _monitor_slew(runs: list[RunData]) -> float | None:
@@ -648,7 +648,7 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
         parts.append(f"moves {-gs * 1e3:+.3g} {units.label(u)} per kV/s of the signed drive rate (the current's sign)")
     ev = (f"while the drive current flows the reading {' and '.join(parts)}, at the sensor: "
           f"it does not ring with the mode, an artefact of the reading, not {units.quantity(u)}")
-    return _judge(ctx, "drive_coupled_interference", ev, fit, held, ext,
+    return _judge_dynamics(ctx, "drive_coupled_interference", ev, fit, held, ext,
                   {f"gain_{units.key(u)}_per_v_per_s": g, "threshold_v_per_s": e0, "tau_s": tau,
                    f"signed_gain_{units.key(u)}_per_v_per_s": gs}, base)
 
@@ -717,7 +717,7 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     else:
         how = f"the loop's width grows {100 * ext.rate_loss_per_kv_s:.3g} % per kV/s"
     ev = f"the loops widen with the drive rate beyond the model's dynamics, {form}: {how} (rate smoothed over {ext.rate_tau_s * 1e3:.3g} ms)"
-    return _judge(ctx, "rate_dependent_hysteresis", ev, fit, held, ext,
+    return _judge_dynamics(ctx, "rate_dependent_hysteresis", ev, fit, held, ext,
                   {"rate_v_per_kv_s": ext.rate_v_per_kv_s, "rate_loss_per_kv_s": ext.rate_loss_per_kv_s,
                    "rate_saturation_v_per_s": sat or math.inf, "rate_tau_s": ext.rate_tau_s}, base)
 
@@ -812,7 +812,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # every long run: a creep grows with the drive, in the sweeps as in the hold, where a drift does not
     b, floor = _slow_judge(ctx, base)
     e, _ = _slow_judge(ctx, ext)
-    names = sorted(r.name for r, _ in _long_runs(ctx))
+    names = sorted(r.name for r, _ in _long_runs(ctx, steady=True))
     # a drift judged against is not part of the finding
     return Finding("logarithmic_creep", ev, b, e, 100.0 * (b - e) / b if b > 0 else 0.0, {"per_decade": gamma, "static_gain": kc1},
                    names, names, float(np.ptp(run.y)), floor,
@@ -820,14 +820,19 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
 
 
 def _level_free(segments: list[Segment], model: Model) -> float:
-    """RMS of the residual on step segments with each run's static levels taken out (a least-
-    squares offset and a gain on the drive, and the level after the step's fall): what is left
-    is the response's dynamics. The levels are the hysteresis and creep models' business; a
-    cause of the dynamics (a second mode) is judged on what it can change."""
+    """RMS of the residual with each segment's static levels taken out: on a step run a least-
+    squares offset, a gain on the drive and the level after the step's fall; on a sweep an
+    offset. What is left is the response's dynamics. The levels are the hysteresis and creep
+    models' business (a base model fitted elsewhere may be off by a constant on a fast sweep);
+    a cause of the dynamics is judged on what it can change, not on a constant it happens to
+    take up (a current envelope is constant on a triangle)."""
     out = []
     for r, sl in segments:
         e = (r.y - model.predict(r))[sl]
         x = r.x[sl]
+        if r.kind != "step":
+            out.append(e - e.mean())
+            continue
         top = float(np.max(np.abs(x))) or 1.0
         after = np.zeros_like(x)
         peak = int(np.argmax(np.abs(x)))
@@ -842,8 +847,8 @@ def _level_free(segments: list[Segment], model: Model) -> float:
 
 def _judge_dynamics(ctx: Context, cause: str, evidence: str, fit: list[Segment], held: list[Segment], extended: Model,
                     params: dict[str, float], baseline: Model) -> Finding:
-    """:func:`_judge` on step runs, with each run's static levels taken out of both models'
-    residuals (:func:`_level_free`)."""
+    """:func:`_judge` with each held-out segment's static levels taken out of both models'
+    residuals (:func:`_level_free`): for the causes of the fast dynamics."""
     b = _level_free(held, baseline)
     e = _level_free(held, extended)
     runs = [r for r, _ in fit + held]
@@ -924,6 +929,10 @@ def _slow_residual(run: RunData, v: np.ndarray, window_s: float, step_s: float =
 #: A drift may settle over this time constant (a warm-up) rather than go on steadily; it is
 #: also the form of the drift a log creep is judged against when the runs evidence one.
 DRIFT_WARMUP_TAU_S = 300.0
+#: A drift that would move the reading by more than this share of its range over the longest
+#: run is not a sensor's slow drift (the documented ones move a 300 N reading by about 1 N a
+#: minute): such a fit leans on terms that cancel each other.
+DRIFT_MAX_OF_RANGE = 0.2
 #: Time constants of the slow creep element a drift is judged against (creep that the base
 #: model's creep got wrong, in proportion to the drive, is not drift).
 DRIFT_CREEP_TAUS_S = (10.0, 30.0, 100.0, 300.0, 1000.0)
@@ -947,11 +956,12 @@ class _DriftFit:
         return 100.0 * (self.baseline - self.extended) / self.baseline if self.baseline > 0 else 0.0
 
 
-def _long_runs(ctx: Context) -> list[tuple[RunData, float]]:
-    """Runs long enough to show a trend, each with its averaging window (a drive cycle, or 5 s),
-    whose drive repeats (a rest, a hold, a sweep of one amplitude): averaged over a cycle, the
-    base model's loop misfit is then the same in every cycle, and a trend stands out. (On a
-    sweep whose amplitude changes from cycle to cycle the averaged misfit changes with it.)"""
+def _long_runs(ctx: Context, steady: bool = False) -> list[tuple[RunData, float]]:
+    """Runs long enough to show a trend, each with its averaging window (a drive cycle, or 5 s);
+    with ``steady`` only those whose drive repeats (a rest, a hold, a sweep of one amplitude):
+    averaged over a cycle, the base model's loop misfit is then the same in every cycle, and a
+    trend stands out (on a sweep whose amplitude changes from cycle to cycle the averaged misfit
+    changes with it)."""
     out = []
     for r in ctx.runs:
         f = r.freq_hz
@@ -962,16 +972,16 @@ def _long_runs(ctx: Context) -> list[tuple[RunData, float]]:
         _, swing = _slow_residual(r, np.abs(r.x - np.mean(r.x)), window)
         late = r.t_s[-1] > 2.0 * window  # the hold's step and the first cycle aside
         keep = slice(1, None) if late else slice(None)
-        if np.ptp(level[keep]) + np.ptp(swing[keep]) <= 0.1 * max(float(np.ptp(r.x)), 1e-9):
+        if not steady or np.ptp(level[keep]) + np.ptp(swing[keep]) <= 0.1 * max(float(np.ptp(r.x)), 1e-9):
             out.append((r, window))
     return out
 
 
 def _slow_judge(ctx: Context, model: Model) -> tuple[float, float]:
-    """Held-out RMS of ``model``'s cycle-averaged residual on the long runs (each with an offset
-    fitted on its first 60 %, judged on the rest), and the noise floor of such averages."""
+    """Held-out RMS of ``model``'s cycle-averaged residual on the steady long runs (each with an
+    offset fitted on its first 60 %, judged on the rest), and the noise floor of such averages."""
     held, floors = [], []
-    for r, window in _long_runs(ctx):
+    for r, window in _long_runs(ctx, steady=True):
         t, res = _slow_residual(r, r.y - model.predict(r), window)
         fit_m = t <= 0.6 * r.t_s[-1]
         if fit_m.sum() < 2 or (~fit_m).sum() < 2:
@@ -1033,6 +1043,10 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     d = _drift_fit(ctx)
     if d is None:
         return None
+    span = max(float(np.ptp(r.y)) for r in d.runs)
+    longest = max(float(r.t_s[-1] - r.t_s[0]) for r in d.runs)
+    if abs(d.drift_per_s) * longest > DRIFT_MAX_OF_RANGE * span:
+        return None  # a trend of that size is the model's misfit (collinear terms), not a sensor's slow drift
     creep = ctx.model.creep or creep_mod.CreepModel("kv", 1.0, (), ())
     creep = creep_mod.CreepModel("kv", creep.static_gain, tuple(creep.taus_s) + (d.creep_tau_s,), tuple(creep.gains) + (d.creep_gain,))
     steady = math.isinf(d.drift_tau_s)
