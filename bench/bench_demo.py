@@ -19,7 +19,7 @@ from click.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from piezocli.main import cli  # noqa: E402
+from piezopress.piezocli.main import cli  # noqa: E402
 
 
 def main() -> None:

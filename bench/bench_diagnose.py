@@ -51,10 +51,10 @@ def _second_press(effect: str, seed: int):
 def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
     from piezopress.acquisition.rig_config import RigConfig, hidden_effect
     from piezopress.acquisition.virtual_rig import VirtualRig
-    from pipelines import bundle as B
-    from pipelines import characterize as char
-    from pipelines import diagnose as D
-    from pipelines import fit as F
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
 
     rig, effect, seed = args
     plan = None
@@ -123,7 +123,7 @@ def main() -> None:
 
 
 def gain_one(args: tuple[str, int]):
-    from pipelines import gain as G
+    from piezopress.pipelines import gain as G
 
     cause, seeds = args
     with tempfile.TemporaryDirectory() as tmp:
@@ -133,11 +133,11 @@ def gain_one(args: tuple[str, int]):
 def gain_main(a) -> None:
     """The gain on the press: for every cause whose extension enters the compensator (the
     catalogue's ``in_compensator``), the virtual rig with that effect on at its gain
-    magnitude (``pipelines.gain.GAIN_MAGNITUDES``), the whole chain ``--gain-seeds`` times;
+    magnitude (``piezopress.pipelines.gain.GAIN_MAGNITUDES``), the whole chain ``--gain-seeds`` times;
     the table per cause (base bundle against extended on every validation row, with the
     row's noise and the effect-free level) beside the finding's prediction gain."""
     from piezopress.analysis.diagnosis import CAUSES
-    from pipelines import gain as G
+    from piezopress.pipelines import gain as G
 
     causes = [c for c in (a.effects or list(CAUSES)) if c in CAUSES and CAUSES[c].in_compensator]
     start = time.perf_counter()

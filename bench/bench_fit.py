@@ -60,7 +60,7 @@ def before_module():
 def records() -> dict[str, tuple[np.ndarray, np.ndarray]]:
     out = {}
     if DATASETS.is_dir():
-        from pipelines.importing import import_table
+        from piezopress.pipelines.importing import import_table
 
         run = import_table(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv", header=False, kind="sine", sample_rate_hz=5000,
                            columns={"t_s": 2, "displacement_um": 3, "command_v": 4})

@@ -46,7 +46,7 @@ import piezopress  # noqa: E402,F401  (thread settings before numpy work)
 from piezopress import operators  # noqa: E402
 from piezopress.analysis import hysteresis as H  # noqa: E402
 from piezopress.analysis.identify import fit_sweeps  # noqa: E402
-from pipelines.importing import import_table  # noqa: E402
+from piezopress.pipelines.importing import import_table  # noqa: E402
 
 DATASETS = ROOT.parent / "shared" / "datasets"
 #: Acceptance bounds of issue 10: (RMS %, max %) per row; None: no bound.

@@ -28,7 +28,7 @@ from piezopress.acquisition import rig_physics  # noqa: E402
 from piezopress.acquisition.plan import load_plan  # noqa: E402
 from piezopress.acquisition.rig_config import load_rig  # noqa: E402
 from piezopress.acquisition.virtual_rig import VirtualRig  # noqa: E402
-from pipelines import characterize  # noqa: E402
+from piezopress.pipelines import characterize  # noqa: E402
 
 
 def best_of(fn, repeat=3):

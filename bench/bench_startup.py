@@ -17,10 +17,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_S = 0.5
 
-EAGER = ("import importlib; from piezocli.main import COMMANDS, cli\n"
+EAGER = ("import importlib; from piezopress.piezocli.main import COMMANDS, cli\n"
          "for m in sorted(set(m for m, _ in COMMANDS.values())): importlib.import_module('piezocli.' + m)\n"
          "cli.main(ARGS, standalone_mode=False)")
-LAZY = "from piezocli.main import cli; cli.main(ARGS, standalone_mode=False)"
+LAZY = "from piezopress.piezocli.main import cli; cli.main(ARGS, standalone_mode=False)"
 
 
 def best_of(code: str, n: int = 5) -> float:

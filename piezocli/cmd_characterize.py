@@ -7,9 +7,9 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
-from pipelines import characterize as char
-from pipelines import summary
+from piezopress.piezocli.main import cli, reports_errors
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import summary
 
 
 def _duration(seconds: float) -> str:

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
-from pipelines import characterize as char
-from pipelines import check_rig
+from piezopress.piezocli.main import cli, reports_errors
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import check_rig
 
 
 @cli.command("check-rig")

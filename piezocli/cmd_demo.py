@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
+from piezopress.piezocli.main import cli, reports_errors
 from piezopress.errors import OutputExistsError
 
 

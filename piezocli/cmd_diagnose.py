@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
+from piezopress.piezocli.main import cli, reports_errors
 from piezopress import units
-from pipelines import diagnose as diag
+from piezopress.pipelines import diagnose as diag
 
 
 @cli.command("simulate")
@@ -68,7 +68,7 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds) -> None:
     click.echo(f"\nWrote {out / 'diagnosis.json'}, {out / 'extended_bundle.json'}, {out / 'residuals.png'}, "
                f"{out / 'residual_traces.png'}{extra}")
     if gain:
-        from pipelines import gain as gain_mod
+        from piezopress.pipelines import gain as gain_mod
 
         _, csv = gain_mod.gain_for_runs(runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None)
         click.echo("\nThe gain on the press (validation on the runs' virtual rig, base bundle against extended):\n")

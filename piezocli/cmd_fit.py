@@ -6,11 +6,11 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
+from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
 from piezopress import units
-from pipelines import bundle as bundle_mod
-from pipelines import characterize as char
-from pipelines import fit as fit_mod
+from piezopress.pipelines import bundle as bundle_mod
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import fit as fit_mod
 
 _runs_arg = click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 _names_opt = click.option("--run", "names", multiple=True, help="Use only the run(s) of this name (repeatable).")
@@ -256,7 +256,7 @@ def compensate_cmd(bundle_path, ref_path, out, no_shaper) -> None:
     Example:
       piezopress compensate --bundle build/bundle.json --reference ramp.csv --out drive.csv
     """
-    from pipelines import compensate as comp_mod
+    from piezopress.pipelines import compensate as comp_mod
 
     result = comp_mod.compensate_file(bundle_path, ref_path, out, use_shaper=not no_shaper)
     for w in result.warnings:

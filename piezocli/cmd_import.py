@@ -1,4 +1,4 @@
-"""``piezopress import``: a CSV/TSV measurement -> a Parquet run (see :mod:`pipelines.importing`)."""
+"""``piezopress import``: a CSV/TSV measurement -> a Parquet run (see :mod:`piezopress.pipelines.importing`)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
+from piezopress.piezocli.main import cli, reports_errors
 from piezopress.errors import ImportFormatError
-from pipelines.importing import import_file
+from piezopress.pipelines.importing import import_file
 
 # The two shared data sets, imported with one command each (also in docs/import.md; the
 # tests run exactly these commands).

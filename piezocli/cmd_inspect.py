@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, emit_json, json_option, reports_errors
+from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress.errors import PiezopressError
 from piezopress.runformat import REQUIRED_METADATA, Run, read_run
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from piezocli.main import cli, reports_errors
-from pipelines import report as rep
+from piezopress.piezocli.main import cli, reports_errors
+from piezopress.pipelines import report as rep
 
 
 @cli.command("report")

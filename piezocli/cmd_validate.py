@@ -6,11 +6,11 @@ from pathlib import Path
 
 import click
 
-from piezocli.cmd_characterize import _print_progress
-from piezocli.main import cli, emit_json, json_option, reports_errors
-from pipelines import characterize as char
-from pipelines import summary
-from pipelines import validate as val
+from piezopress.piezocli.cmd_characterize import _print_progress
+from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import summary
+from piezopress.pipelines import validate as val
 
 
 @cli.command("validate")

@@ -113,7 +113,7 @@ class LazyGroup(click.Group):
         if name not in self.commands and name in COMMANDS:
             import importlib
 
-            importlib.import_module(f"piezocli.{COMMANDS[name][0]}")  # its decorators add the command to this group
+            importlib.import_module(f"piezopress.piezocli.{COMMANDS[name][0]}")  # its decorators add the command to this group
         return self.commands.get(name)
 
     def format_commands(self, ctx, formatter):

@@ -2,13 +2,19 @@
 
 Architecture (imports go one way only, top to bottom)::
 
-    piezocli/      command line (click): parses, calls pipelines, prints
-    pipelines/     stages that read and write files: characterize, import, ...
+    piezocli/      command line (click): parses, calls pipelines, prints    (piezopress.piezocli)
+    pipelines/     stages that read and write files: characterize, import, ...  (piezopress.pipelines)
     piezopress/acquisition/   protocols (plans, waveforms) and backends (virtual rig, DAQ)
     piezopress/analysis/      models, fits, metrics, diagnosis: pure math on numpy arrays
     piezopress/runformat.py   the Parquet run format (schema version 1)
 
 ``analysis`` never imports ``acquisition`` and neither imports ``pipelines`` or ``piezocli``.
+
+Installed (``pip install .``), the folders ``piezocli/`` and ``pipelines/`` are the subpackages
+``piezopress.piezocli`` and ``piezopress.pipelines`` (pyproject.toml maps them), and nothing
+else is installed at the top level. In a checkout they stay top-level folders beside this
+package: the package's search path then also holds the checkout's root, so the same import
+names work in both.
 """
 
 import os as _os
@@ -19,5 +25,11 @@ import os as _os
 # this variable when it loads, so set it (unless the user has) before numpy is imported.
 if hasattr(_os, "sched_getaffinity"):
     _os.environ.setdefault("OPENBLAS_NUM_THREADS", str(len(_os.sched_getaffinity(0))))
+
+_here = _os.path.dirname(_os.path.abspath(__file__))
+_root = _os.path.dirname(_here)
+if not _os.path.isdir(_os.path.join(_here, "pipelines")) and all(
+        _os.path.exists(_os.path.join(_root, *p)) for p in (("pyproject.toml",), ("pipelines", "__init__.py"), ("piezocli", "__init__.py"))):
+    __path__.append(_root)  # a checkout: piezopress.pipelines is <root>/pipelines
 
 __version__ = "0.1.0"

@@ -1,6 +1,6 @@
 """Figures of the report: each function takes prepared curves and returns a Figure.
 
-Nothing here computes a metric or normalises data: the caller (``pipelines.report``) hands
+Nothing here computes a metric or normalises data: the caller (``piezopress.pipelines.report``) hands
 over the arrays to draw, already scaled. Figures are drawn on the non-interactive Agg
 canvas (no pyplot, no global backend switch, no window) and are only written where the
 caller asks (:func:`to_png`).

@@ -20,7 +20,7 @@ from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import Shaper
 from piezopress.errors import OutputExistsError, PiezopressError
-from pipelines.characterize import run_files, utc_now, write_json_atomic
+from piezopress.pipelines.characterize import run_files, utc_now, write_json_atomic
 
 BUNDLE_VERSION = 1
 SECTIONS = ("hysteresis", "creep", "shaper")

@@ -21,6 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 import piezopress
+from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.backend import Backend, Measurement
 from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
@@ -31,9 +32,8 @@ from piezopress.errors import BackendError, ConfigError, OutputExistsError, Piez
 
 MANIFEST = "manifest.json"
 MANIFEST_VERSION = 1
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_PLAN = REPO_ROOT / "protocols" / "characterize.toml"
-DEFAULT_RIG = REPO_ROOT / "rigs" / "thesis-press.toml"
+DEFAULT_PLAN = shipped("protocols", "characterize.toml")
+DEFAULT_RIG = shipped("rigs", "thesis-press.toml")
 BACKENDS = ("virtual", "nidaq")
 
 

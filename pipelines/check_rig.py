@@ -19,7 +19,7 @@ from piezopress.acquisition import waveforms
 from piezopress.acquisition.backend import Backend
 from piezopress.analysis.rigcheck import RigCheck, rig_check
 from piezopress.errors import BackendError, PiezopressError
-from pipelines.characterize import make_backend
+from piezopress.pipelines.characterize import make_backend
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ from piezopress import units
 from piezopress.analysis.compensation import CompensationResult
 from piezopress.errors import ImportFormatError, OutputExistsError
 from piezopress.runformat import UNIFORM_RTOL
-from pipelines.bundle import compensator, read_document
+from piezopress.pipelines.bundle import compensator, read_document
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:

@@ -16,9 +16,9 @@ from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import design_shaper
 from piezopress.errors import FitError
 from piezopress import plotting
-from pipelines.bundle import collect_runs, read_document, write_document
-from pipelines import next_plan
-from pipelines.characterize import new_output_dir, write_json_atomic
+from piezopress.pipelines.bundle import collect_runs, read_document, write_document
+from piezopress.pipelines import next_plan
+from piezopress.pipelines.characterize import new_output_dir, write_json_atomic
 
 
 def base_model(bundle: dict[str, Any]) -> dg.Model:

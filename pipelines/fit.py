@@ -20,7 +20,7 @@ from piezopress.analysis import hysteresis as H
 from piezopress.analysis import mode_fit
 from piezopress.analysis import shaper as shaper_mod
 from piezopress.errors import CompensatorUnstableError, FitError
-from pipelines.bundle import BundleError, collect_runs, inputs_digest, section
+from piezopress.pipelines.bundle import BundleError, collect_runs, inputs_digest, section
 
 #: Hysteresis is fitted on quasi-static sweeps: up to this drive frequency.
 STATIC_MAX_FREQ_HZ = 0.5

@@ -47,11 +47,11 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.rig_config import RigConfig, _effect_values, parse_rig
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-TRACKING_PLAN = REPO_ROOT / "protocols" / "tracking.toml"
+TRACKING_PLAN = shipped("protocols", "tracking.toml")
 GAIN_CSV = "compensated_gain.csv"
 
 #: A targeted row the effect hurts must improve by at least this much (percent of the base).
@@ -147,8 +147,8 @@ def _row_id(run: runformat.Run, metric: str) -> str | None:
 def row_values(run_dirs: Iterable[str | Path]) -> dict[str, float]:
     """The table's rows from validation directories: the worst (largest) value of every row's
     runs; creep by its magnitude."""
-    from pipelines.characterize import run_files
-    from pipelines.summary import validation_metrics
+    from piezopress.pipelines.characterize import run_files
+    from piezopress.pipelines.summary import validation_metrics
 
     out: dict[str, float] = {}
     for d in run_dirs:
@@ -169,7 +169,7 @@ def validate_rows(bundle_path: str | Path, cfg: RigConfig, out_dir: str | Path) 
     """Validate a bundle on the virtual rig ``cfg`` (validation and tracking plans, into
     ``out_dir/validation`` and ``out_dir/tracking``) and return the rows."""
     from piezopress.acquisition.virtual_rig import VirtualRig
-    from pipelines.validate import validate
+    from piezopress.pipelines.validate import validate
 
     out_dir = Path(out_dir)
     validate(out_dir / "validation", bundle_path, backend=VirtualRig(cfg))
@@ -179,8 +179,8 @@ def validate_rows(bundle_path: str | Path, cfg: RigConfig, out_dir: str | Path) 
 
 def fit_base(char_dir: str | Path, out_path: str | Path, cfg: RigConfig | None = None) -> Path:
     """``piezopress fit <char_dir> --base --out <out_path>`` (drive range from ``cfg``)."""
-    from pipelines import bundle as B
-    from pipelines import fit as F
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import fit as F
 
     res = F.fit_all([char_dir], base=True)
     act = (cfg or RigConfig()).actuator
@@ -192,7 +192,7 @@ def fit_base(char_dir: str | Path, out_path: str | Path, cfg: RigConfig | None =
 def base_pipeline_rows(cfg: RigConfig, work: str | Path, plan_path: str | Path | None = None) -> dict[str, float]:
     """characterize -> fit --base -> validate on the rig ``cfg``: the base bundle's rows."""
     from piezopress.acquisition.virtual_rig import VirtualRig
-    from pipelines import characterize as char
+    from piezopress.pipelines import characterize as char
 
     work = Path(work)
     char.characterize(work / "char", plan_path=plan_path or char.DEFAULT_PLAN, backend=VirtualRig(cfg))
@@ -213,7 +213,7 @@ class Sample:
 
 def sample(base_path: str | Path, ext_path: str | Path, cfg: RigConfig, work: str | Path) -> Sample:
     """Both bundles validated on the rig ``cfg`` (into ``work/base`` and ``work/extended``)."""
-    from pipelines.bundle import read_document
+    from piezopress.pipelines.bundle import read_document
 
     work = Path(work)
     applied, findings = extension_causes(read_document(ext_path, "bundle"))
@@ -224,8 +224,8 @@ def chain_sample(cfg: RigConfig, work: str | Path, *, plan_path: str | Path | No
                  causes: Sequence[str] | None = None) -> Sample:
     """characterize -> fit --base -> diagnose -> validate both bundles, on the rig ``cfg``."""
     from piezopress.acquisition.virtual_rig import VirtualRig
-    from pipelines import characterize as char
-    from pipelines import diagnose as D
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
 
     work = Path(work)
     char.characterize(work / "char", plan_path=plan_path or char.DEFAULT_PLAN, backend=VirtualRig(cfg))
@@ -256,8 +256,8 @@ def resolution(cfg: RigConfig) -> dict[str, float]:
     (relative from its lowest counted stair, and absolute). A change smaller than that is a
     sample landing one level up or down, whatever the seeds say."""
     from piezopress.acquisition.plan import load_plan
-    from pipelines.summary import TRACKING_MIN_REFERENCE_N
-    from pipelines.validate import DEFAULT_VALIDATION_PLAN
+    from piezopress.pipelines.summary import TRACKING_MIN_REFERENCE_N
+    from piezopress.pipelines.validate import DEFAULT_VALIDATION_PLAN
 
     lsb = force_lsb_n(cfg)
     lim = cfg.limits
@@ -414,7 +414,7 @@ def compensated_gain(cfg: RigConfig, work: str | Path, *, cause: str | None = No
     and the next ones): characterize, fit --base, diagnose, validate both bundles; and the
     base pipeline once on the rig without its effects (the ``clean`` column). ``work`` must
     not exist (or be empty); everything is written there."""
-    from pipelines import characterize as char
+    from piezopress.pipelines import characterize as char
 
     work = char.new_output_dir(work)
     samples = [chain_sample(with_seed(cfg, cfg.rig.seed + i), work / f"seed-{i}", plan_path=plan_path, causes=causes)
@@ -452,8 +452,8 @@ def gain_for_runs(paths: Sequence[str | Path], base_path: str | Path, ext_path: 
 def rig_of_runs(paths: Sequence[str | Path]) -> tuple[RigConfig, Path | None]:
     """The virtual rig the runs were recorded on (from their metadata), and their plan file if it still exists."""
     from piezopress.errors import PiezopressError
-    from pipelines.bundle import collect_runs
-    from pipelines.characterize import read_manifest
+    from piezopress.pipelines.bundle import collect_runs
+    from piezopress.pipelines.characterize import read_manifest
 
     runs = collect_runs(paths)
     rigs = [r.meta.get("rig", {}) for r in runs]

@@ -25,6 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.daq_config import parse_daq_rig
 from piezopress.acquisition.plan import DriveLimits, Plan, parse_plan
@@ -32,8 +33,7 @@ from piezopress.acquisition.rig_config import load_rig, parse_rig
 from piezopress.analysis import diagnosis as dg
 from piezopress.errors import PiezopressError
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_RIG = REPO_ROOT / "rigs" / "thesis-press.toml"
+DEFAULT_RIG = shipped("rigs", "thesis-press.toml")
 PLAN_FILE = "next-plan.toml"
 
 #: A step sampled this fast resolves the thesis press's ~1 kHz mode and a second one above it.
@@ -242,7 +242,7 @@ def plan_text(plan: NextPlan, checks: dict[str, dg.Testability], run_paths: Sequ
         lines.append(f"# Rig: {rig.name} (the configuration recorded in the runs{', file ' + rig.rig_file if rig.rig_file else ''}):")
     else:
         lines += ["# Rig: the runs hold no rig configuration (imported), so this plan assumes the default rig",
-                  f"# {DEFAULT_RIG.relative_to(REPO_ROOT)} ({rig.name}); check its limits against your press before running it:"]
+                  f"# rigs/{DEFAULT_RIG.name} ({rig.name}); check its limits against your press before running it:"]
     lines += [f"# drive {lim.drive_min_v:g} to {lim.drive_max_v:g} V, sampling up to {lim.max_sample_rate_hz / 1e3:g} kHz "
               "(the protocols keep to the runs' own drive range within it).",
               "#",

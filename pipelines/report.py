@@ -2,7 +2,7 @@
 
 ``build_report`` reads what it is given (a characterization directory, a validation
 directory, a bundle; each optional), takes every figure from the tables of
-:mod:`pipelines.summary` (nothing is measured differently here), prepares the curves of the
+:mod:`piezopress.pipelines.summary` (nothing is measured differently here), prepares the curves of the
 figures and lays out the document; ``write_report`` writes it into a new directory:
 
 - ``metrics.csv``: long format, one row per figure (``table,test,metric,unit,value,thesis,
@@ -40,9 +40,9 @@ from piezopress.analysis import diagnosis as dg
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import metrics
 from piezopress.errors import OutputExistsError, PiezopressError
-from pipelines import summary
-from pipelines.bundle import read_document
-from pipelines.characterize import MANIFEST, read_manifest, run_files
+from piezopress.pipelines import summary
+from piezopress.pipelines.bundle import read_document
+from piezopress.pipelines.characterize import MANIFEST, read_manifest, run_files
 
 COLUMNS = ["table", "test", "metric", "unit", "value", "thesis", "thesis_source"]
 #: The quasi-static triangles of Table 6.13 (and the hysteresis loops) are those at this frequency (Hz).
@@ -148,7 +148,7 @@ class ReportResult:
 
 @dataclass
 class _Source:
-    """One run directory: its table (from pipelines.summary) and its runs by name."""
+    """One run directory: its table (from piezopress.pipelines.summary) and its runs by name."""
 
     path: Path
     table: pd.DataFrame
@@ -509,7 +509,7 @@ def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missi
         res = r.output - pred
         raw.append(plotting.Curve(r.t_s, res, f"{r.name} (RMS {_rms(res):.2f} {unit})"))
         if cm is not None:
-            # the fit saw the sweeps with the creep compensator applied (pipelines.fit): the same here
+            # the fit saw the sweeps with the creep compensator applied (piezopress.pipelines.fit): the same here
             _, rest = H.rest_offset(r.command_v, r.output)
             no_creep = rest + cm.compensate(r.output - rest, r.sample_rate_hz)[0] - pred
             other.append(plotting.Curve(r.t_s, no_creep, f"{r.name} (RMS {_rms(no_creep):.2f} {unit})"))
@@ -628,7 +628,7 @@ def _gain_blocks(csv_path: Path, missing: list[str]) -> list[Block]:
     bench): compensated performance with the base bundle against the extended one."""
     if not csv_path.is_file():
         return []
-    from pipelines import gain
+    from piezopress.pipelines import gain
 
     try:
         df = gain.read_csv(csv_path)

@@ -12,13 +12,13 @@ from pathlib import Path
 from typing import Callable
 
 
+from piezopress.resources import shipped
 from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
-from pipelines.bundle import BundleError, compensator, read_document
-from pipelines.characterize import (
+from piezopress.pipelines.bundle import BundleError, compensator, read_document
+from piezopress.pipelines.characterize import (
     DEFAULT_RIG,
-    REPO_ROOT,
     CharacterizeResult,
     Drive,
     ProgressEvent,
@@ -26,7 +26,7 @@ from pipelines.characterize import (
     make_backend,
 )
 
-DEFAULT_VALIDATION_PLAN = REPO_ROOT / "protocols" / "validate.toml"
+DEFAULT_VALIDATION_PLAN = shipped("protocols", "validate.toml")
 
 
 def validate(

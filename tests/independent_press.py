@@ -6,8 +6,8 @@ built from other physics, in other forms, so that a test on it asks whether the 
 works on a press it did not make. It must never import the virtual rig's physics or its
 configuration (``rig_physics``, ``virtual_rig``, ``rig_config``); ``tests/test_independent_press.py``
 checks that with :mod:`ast`. It implements the :class:`piezopress.acquisition.backend.Backend`
-protocol only, so ``pipelines.characterize.characterize(..., backend=press)`` and
-``pipelines.validate.validate(..., backend=press)`` run the default plans through it.
+protocol only, so ``piezopress.pipelines.characterize.characterize(..., backend=press)`` and
+``piezopress.pipelines.validate.validate(..., backend=press)`` run the default plans through it.
 
 The signal chain, per run, on the run's own sample grid::
 

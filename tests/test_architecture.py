@@ -5,16 +5,16 @@ from pathlib import Path
 
 import pytest
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
 # package (path prefix) -> module prefixes it must never import
 FORBIDDEN = {
-    "piezopress/analysis": ("piezopress.acquisition", "pipelines", "piezocli"),
-    "piezopress/acquisition": ("piezopress.analysis", "pipelines", "piezocli"),
-    "piezopress": ("pipelines", "piezocli"),
-    "pipelines": ("piezocli",),
+    "piezopress/analysis": ("piezopress.acquisition", "piezopress.pipelines", "piezopress.piezocli"),
+    "piezopress/acquisition": ("piezopress.analysis", "piezopress.pipelines", "piezopress.piezocli"),
+    "piezopress": ("piezopress.pipelines", "piezopress.piezocli"),
+    "pipelines": ("piezopress.piezocli",),
     "piezocli": ("numpy", "scipy", "cvxpy", "control"),  # the CLI parses and prints; no math
 }
 
@@ -56,13 +56,13 @@ def test_every_command_has_help_with_an_example():
 def test_the_command_table_lists_exactly_the_commands_the_modules_define():
     import importlib
 
-    from piezocli.main import COMMANDS
+    from piezopress.piezocli.main import COMMANDS
 
     for module in {m for m, _ in COMMANDS.values()}:
-        importlib.import_module(f"piezocli.{module}")
+        importlib.import_module(f"piezopress.piezocli.{module}")
     assert set(cli.commands) == set(COMMANDS)  # every defined command is listed, and no listed one is missing
     for name, (module, short) in COMMANDS.items():
-        assert cli.commands[name].callback.__module__ == f"piezocli.{module}", name
+        assert cli.commands[name].callback.__module__ == f"piezopress.piezocli.{module}", name
         assert short.endswith(".") and len(short) <= 80, name
 
 
@@ -72,7 +72,7 @@ def test_start_up_imports_no_heavy_library(args):
     import subprocess
     import sys
 
-    code = ("import sys; from piezocli.main import cli\n"
+    code = ("import sys; from piezopress.piezocli.main import cli\n"
             "try:\n    cli.main(%r, standalone_mode=False)\nexcept SystemExit:\n    pass\n"
             "print(sorted(m for m in ('numpy', 'scipy', 'pandas', 'matplotlib', 'cvxpy', 'pyarrow') if m in sys.modules))") % (args,)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
 from piezopress.acquisition.virtual_rig import VirtualRig
-from pipelines import characterize as char
+from piezopress.pipelines import characterize as char
 
 SMALL_PLAN = """
 [plan]
@@ -154,7 +154,7 @@ def test_cli_prints_progress_and_table(tmp_path, plan):
 def test_the_backend_comes_from_the_rig_file_unless_overridden(tmp_path):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     rig = Path(__file__).resolve().parents[1] / "rigs" / "nidaq-example.toml"
     res = CliRunner().invoke(cli, ["characterize", "--rig", str(rig), "--out", str(tmp_path / "runs")])
@@ -166,7 +166,7 @@ def test_the_backend_comes_from_the_rig_file_unless_overridden(tmp_path):
 
 
 def test_progress_gives_the_plan_total_up_front_and_the_backend_fractions(tmp_path):
-    from pipelines import characterize as char
+    from piezopress.pipelines import characterize as char
 
     events = []
     plan = tmp_path / "plan.toml"

@@ -16,7 +16,7 @@ from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.mode import mode_response
 from piezopress.analysis.shaper import design_shaper
-from pipelines import gain as G
+from piezopress.pipelines import gain as G
 
 #: A press-like PI model: 150 V gives about 300 N (the thesis's press), hysteresis a few %.
 MODEL = PIModel(r=(0.0, 4.0, 10.0, 20.0, 35.0), w=(1.6, 0.15, 0.12, 0.08, 0.05), d=(0.0,), s=(1.0,))
@@ -101,7 +101,7 @@ def test_the_delay_lead_shifts_the_drive_by_exactly_the_delay(delay, fs):
 
 def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead():
     # the base lead 2 zeta / wn had absorbed the delay; the extended lead is the refitted mode's plus the delay, once
-    from pipelines import diagnose as D
+    from piezopress.pipelines import diagnose as D
 
     bundle = {"hysteresis": {"model": MODEL.to_dict()}, "compensation": {"lead_s": 2 * 0.5 / 3000.0},
               "shaper": {"mode": {"natural_freq_rad_s": 3000.0, "damping": 0.5},
@@ -253,7 +253,7 @@ def test_acceptance_the_targeted_row_improves_30_percent_and_no_row_gets_worse_b
 def test_the_report_shows_the_table_when_the_diagnosis_directory_holds_it(tmp_path):
     import json
 
-    from pipelines import report
+    from piezopress.pipelines import report
 
     (tmp_path / "diagnosis.json").write_text(json.dumps({"summary": "amplifier_slew_limit (held-out gain 97 %)", "output_unit": "N",
                                                          "residual_rms_n": 1.0, "noise_floor_n": 0.1, "findings": []}))
@@ -273,9 +273,9 @@ def test_the_report_shows_the_table_when_the_diagnosis_directory_holds_it(tmp_pa
 def test_cli_diagnose_gain_writes_the_table_the_report_reads(tmp_path):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
     from piezopress.acquisition.virtual_rig import VirtualRig
-    from pipelines import characterize as char
+    from piezopress.pipelines import characterize as char
 
     char.characterize(tmp_path / "char", backend=VirtualRig(G.effect_rig("amplifier_slew_limit", seed=5)))
     runner = CliRunner()

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
 from piezopress.analysis import hysteresis as H
-from pipelines import summary
+from piezopress.pipelines import summary
 
 ROOT = Path(__file__).resolve().parents[1]
 DATASETS = ROOT.parent / "shared" / "datasets"

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 

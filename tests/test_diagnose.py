@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress.acquisition.rig_config import EFFECTS, RigConfig, hidden_effect
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.analysis import diagnosis as dg
-from pipelines import bundle as B
-from pipelines import characterize as char
-from pipelines import diagnose as D
-from pipelines import fit as F
+from piezopress.pipelines import bundle as B
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import diagnose as D
+from piezopress.pipelines import fit as F
 
 #: The held-out gain a test demands of the named cause (the finding threshold is 20 %).
 MIN_TEST_GAIN_PCT = 20.0

@@ -23,16 +23,16 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress.acquisition.plan import load_plan
 from piezopress.acquisition.rig_config import RigConfig, hidden_effect, load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.hysteresis import PIModel
-from pipelines import characterize as char
-from pipelines import diagnose as D
-from pipelines import next_plan as NP
-from pipelines import report as R
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import diagnose as D
+from piezopress.pipelines import next_plan as NP
+from piezopress.pipelines import report as R
 
 SEED = 20261121
 ROOT = Path(__file__).resolve().parents[1]

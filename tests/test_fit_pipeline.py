@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress.analysis.compensation import Compensator
 from piezopress.analysis.hysteresis import PIModel
-from pipelines import characterize as char
+from piezopress.pipelines import characterize as char
 
 PLAN = """
 [plan]
@@ -149,8 +149,8 @@ def test_if_changed_skips_unchanged_inputs_and_refits_changed_ones(runs, tmp_pat
 def test_fit_refuses_an_existing_output_before_fitting(tmp_path, monkeypatch):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
-    from pipelines import fit as fit_mod
+    from piezopress.piezocli.main import cli
+    from piezopress.pipelines import fit as fit_mod
 
     (tmp_path / "bundle.json").write_text("{}")
     monkeypatch.setattr(fit_mod, "fit_all", lambda *a, **k: pytest.fail("fitted although the output exists"))
@@ -160,7 +160,7 @@ def test_fit_refuses_an_existing_output_before_fitting(tmp_path, monkeypatch):
 
 
 def test_fit_reads_the_drive_range_of_a_hardware_rig_file_without_its_driver():
-    from pipelines import characterize as char
+    from piezopress.pipelines import characterize as char
 
     lim = char.rig_limits(Path(__file__).resolve().parents[1] / "rigs" / "nidaq-example.toml")
     assert lim.drive_min_v < lim.drive_max_v and lim.max_sample_rate_hz > 0

@@ -256,7 +256,7 @@ def test_fit_hysteresis_skips_the_start_on_request_and_prints_both_errors_in_the
 
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     _sweep_run(tmp_path / "sweep.parquet")
     res = CliRunner().invoke(cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--rows", "600:2000", "--out", str(tmp_path / "h.json")])
@@ -283,7 +283,7 @@ def test_fit_hysteresis_skips_the_start_on_request_and_prints_both_errors_in_the
 def test_bad_fitted_rows_are_refused_naming_the_value(tmp_path, args, message):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     _sweep_run(tmp_path / "sweep.parquet")
     res = CliRunner().invoke(cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), *args, "--out", str(tmp_path / "h.json")])

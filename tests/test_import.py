@@ -1,4 +1,4 @@
-"""``piezopress import`` / ``inspect`` and :mod:`pipelines.importing`.
+"""``piezopress import`` / ``inspect`` and :mod:`piezopress.pipelines.importing`.
 
 The two shared data sets are imported with exactly the commands documented in
 docs/import.md (and in ``piezopress import --help``); everything else runs on small
@@ -17,10 +17,10 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress.errors import ImportFormatError
 from piezopress.runformat import read_run
-from pipelines.importing import import_table
+from piezopress.pipelines.importing import import_table
 
 ROOT = Path(__file__).resolve().parents[1]
 DATASETS = ROOT.parent / "shared" / "datasets"

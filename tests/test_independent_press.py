@@ -15,11 +15,11 @@ import pytest
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.analysis import metrics
-from pipelines import bundle as bundle_mod
-from pipelines import characterize as char
-from pipelines import fit as fit_mod
-from pipelines import summary
-from pipelines import validate as val_mod
+from piezopress.pipelines import bundle as bundle_mod
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import fit as fit_mod
+from piezopress.pipelines import summary
+from piezopress.pipelines import validate as val_mod
 
 from independent_press import IndependentPress
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
 from piezopress.acquisition import daq_config
 from piezopress.acquisition.daq_config import DaqRigConfig, load_daq_rig, parse_daq_rig
@@ -33,8 +33,8 @@ from piezopress.acquisition.nidaq import (
 )
 from piezopress.analysis.rigcheck import rig_check
 from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError
-from pipelines import characterize as char
-from pipelines import check_rig
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import check_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "rigs" / "nidaq-example.toml"

@@ -90,7 +90,7 @@ def test_invalid_toml_is_one_problem(tmp_path):
 def test_rig_keys_lists_every_key_including_those_with_one_bound():
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     res = CliRunner().invoke(cli, ["rig-keys"])
     assert res.exit_code == 0, res.output
@@ -104,7 +104,7 @@ def test_rig_keys_lists_every_key_including_those_with_one_bound():
 def test_a_rig_value_outside_its_range_is_one_line_naming_it(tmp_path, text, message):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     (tmp_path / "rig.toml").write_text(text)
     res = CliRunner().invoke(cli, ["check-rig", "--rig", str(tmp_path / "rig.toml")])
@@ -114,7 +114,7 @@ def test_a_rig_value_outside_its_range_is_one_line_naming_it(tmp_path, text, mes
 def test_protocols_copy_writes_the_shipped_plans_and_never_overwrites(tmp_path):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     root = Path(__file__).resolve().parents[1]
     res = CliRunner().invoke(cli, ["protocols", "--copy", str(tmp_path / "plans")])
@@ -131,7 +131,7 @@ def test_protocols_copy_writes_the_shipped_plans_and_never_overwrites(tmp_path):
 def test_rig_keys_template_writes_an_editable_rig_file(tmp_path, backend, source):
     from click.testing import CliRunner
 
-    from piezocli.main import cli
+    from piezopress.piezocli.main import cli
 
     root = Path(__file__).resolve().parents[1]
     out = tmp_path / "my-press.toml"

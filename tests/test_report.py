@@ -14,11 +14,11 @@ import math
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
-from pipelines import characterize as char
-from pipelines import report as rep
-from pipelines import summary
-from pipelines import validate as val
+from piezopress.piezocli.main import cli
+from piezopress.pipelines import characterize as char
+from piezopress.pipelines import report as rep
+from piezopress.pipelines import summary
+from piezopress.pipelines import validate as val
 from piezopress import thesis
 
 CHAR_PLAN = """

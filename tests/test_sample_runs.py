@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from pipelines import report as R
+from piezopress.pipelines import report as R
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_runs"
 

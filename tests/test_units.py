@@ -19,15 +19,15 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from piezocli.main import cli
+from piezopress.piezocli.main import cli
 from piezopress import units
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.runformat import read_run
-from pipelines import bundle as B
-from pipelines import diagnose as D
-from pipelines import fit as F
-from pipelines import report as R
+from piezopress.pipelines import bundle as B
+from piezopress.pipelines import diagnose as D
+from piezopress.pipelines import fit as F
+from piezopress.pipelines import report as R
 
 DATASETS = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
 SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
@@ -195,7 +195,7 @@ def test_report_of_a_displacement_bundle_speaks_um(fitted):
 
 
 def test_validate_refuses_a_displacement_bundle(tmp_path):
-    from pipelines.validate import validate
+    from piezopress.pipelines.validate import validate
 
     h = {"model": PIModel((0.0,), (1.0,), (0.0,), (1.0,), output_unit="um").to_dict(), "runs": []}
     doc = B.assemble({"hysteresis": h}, F.compensation_settings({"hysteresis": h}))

@@ -1309,7 +1309,7 @@ class Cause:
     """A catalogue entry: stable id, the physics, the extension, its fit, and what it needs.
 
     ``in_compensator`` is the one place that says whether the compensator applies the
-    extension (``pipelines.diagnose.extend_bundle`` changes the compensator for exactly these;
+    extension (``piezopress.pipelines.diagnose.extend_bundle`` changes the compensator for exactly these;
     the extended bundle, ``diagnosis.json`` and the report all read it here). ``needs`` are
     the ways to test the cause (any one suffices): a cause whose needs the runs do not meet
     is not tried, and :func:`testability` says what it needs and what the runs offer.
