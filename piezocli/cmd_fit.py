@@ -9,6 +9,7 @@ import click
 from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
 from piezopress import units
 from piezopress.pipelines import bundle as bundle_mod
+from piezopress.pipelines import files as files_mod
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import fit as fit_mod
 
@@ -189,7 +190,7 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
       piezopress fit runs/smarthysteresis_150v_1hz.parquet --base --out build/smart-base.json
     """
     act = char.rig_limits(rig_path)  # the rig file checked, and its drive range, before any fitting
-    bundle_mod.check_output(out, replace=replace)
+    files_mod.check_output(out, replace=replace)
 
     def say(text: str) -> None:
         click.echo(text, err=as_json)

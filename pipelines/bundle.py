@@ -19,8 +19,8 @@ from piezopress.analysis.compensation import RATE_TAU_S, Compensator, RateDepend
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import Shaper
-from piezopress.errors import OutputExistsError, PiezopressError
-from piezopress.pipelines.characterize import run_files, utc_now, write_json_atomic
+from piezopress.errors import PiezopressError
+from piezopress.pipelines.files import check_output, run_files, utc_now, write_json_atomic
 
 BUNDLE_VERSION = 1
 SECTIONS = ("hysteresis", "creep", "shaper")
@@ -92,16 +92,6 @@ def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run], dige
     runs = list(runs)
     return {"section": kind, "bundle_version": BUNDLE_VERSION, "software_version": piezopress.__version__,
             "fitted_utc": utc_now(), "inputs_digest": digest or inputs_digest(kind, runs), "runs": provenance(runs), **body}
-
-
-def check_output(path: str | Path, *, replace: bool = False) -> None:
-    """Refuse, before any work, an output file that exists (without ``replace``) or a
-    directory in its place."""
-    path = Path(path)
-    if path.is_dir():
-        raise OutputExistsError(f"{path}: is a directory; expected a file name for the JSON document")
-    if path.exists() and not replace:
-        raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it, keeping the old one as .prev.json)")
 
 
 def write_document(doc: dict[str, Any], path: str | Path, *, replace: bool = False) -> Path | None:

@@ -9,10 +9,6 @@ complete. Existing data is never overwritten.
 
 from __future__ import annotations
 
-import datetime as _dt
-import json
-import os
-import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,53 +17,19 @@ from typing import Any, Callable
 import numpy as np
 
 import piezopress
-from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.backend import Backend, Measurement
 from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
 from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
-from piezopress.errors import BackendError, ConfigError, OutputExistsError, PiezopressError, PlanError
+from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError
+from piezopress.pipelines.files import MANIFEST, MANIFEST_VERSION, new_output_dir, software_versions, utc_now, write_json_atomic
+from piezopress.resources import shipped
 
-MANIFEST = "manifest.json"
-MANIFEST_VERSION = 1
 DEFAULT_PLAN = shipped("protocols", "characterize.toml")
 DEFAULT_RIG = shipped("rigs", "thesis-press.toml")
 BACKENDS = ("virtual", "nidaq")
-
-
-def utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def software_versions() -> dict[str, str]:
-    import numpy, pandas, pyarrow, scipy  # noqa: E401
-
-    return {
-        "piezopress": piezopress.__version__,
-        "python": platform.python_version(),
-        "numpy": numpy.__version__,
-        "scipy": scipy.__version__,
-        "pandas": pandas.__version__,
-        "pyarrow": pyarrow.__version__,
-    }
-
-
-def write_json_atomic(path: Path, obj: Any) -> None:
-    """Write JSON beside ``path`` and rename it into place (never a half-written file)."""
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_text(json.dumps(obj, indent=2, default=runformat._json_default) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-
-
-def new_output_dir(out_dir: str | Path) -> Path:
-    """Create ``out_dir``; refuse if it exists and holds anything (no data is ever overwritten)."""
-    out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory (runs are never overwritten)")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
 
 
 def rig_limits(rig_path: str | Path | None) -> DriveLimits:
@@ -347,20 +309,3 @@ def check_drives(plan: Plan, backend: Backend) -> None:
         raise PlanError(plan.source, problems)
 
 
-def read_manifest(run_dir: str | Path) -> dict[str, Any]:
-    """The manifest of a run directory, checked to be readable."""
-    path = Path(run_dir) / MANIFEST
-    if not path.is_file():
-        raise PiezopressError(f"{run_dir}: no {MANIFEST}; expected a directory written by `piezopress characterize`")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise PiezopressError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-
-
-def run_files(run_dir: str | Path) -> list[Path]:
-    """The complete runs of a directory: those its manifest lists, else every ``*.parquet``."""
-    run_dir = Path(run_dir)
-    if (run_dir / MANIFEST).is_file():
-        return [run_dir / r["file"] for r in read_manifest(run_dir)["runs"] if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE]
-    return sorted(run_dir.glob("*.parquet"))

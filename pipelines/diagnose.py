@@ -18,7 +18,7 @@ from piezopress.errors import FitError
 from piezopress import plotting
 from piezopress.pipelines.bundle import collect_runs, read_document, write_document
 from piezopress.pipelines import next_plan
-from piezopress.pipelines.characterize import new_output_dir, write_json_atomic
+from piezopress.pipelines.files import new_output_dir, write_json_atomic
 
 
 def base_model(bundle: dict[str, Any]) -> dg.Model:

@@ -47,6 +47,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from piezopress.pipelines.files import new_output_dir
 from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.rig_config import RigConfig, _effect_values, parse_rig
@@ -147,7 +148,7 @@ def _row_id(run: runformat.Run, metric: str) -> str | None:
 def row_values(run_dirs: Iterable[str | Path]) -> dict[str, float]:
     """The table's rows from validation directories: the worst (largest) value of every row's
     runs; creep by its magnitude."""
-    from piezopress.pipelines.characterize import run_files
+    from piezopress.pipelines.files import run_files
     from piezopress.pipelines.summary import validation_metrics
 
     out: dict[str, float] = {}
@@ -414,9 +415,7 @@ def compensated_gain(cfg: RigConfig, work: str | Path, *, cause: str | None = No
     and the next ones): characterize, fit --base, diagnose, validate both bundles; and the
     base pipeline once on the rig without its effects (the ``clean`` column). ``work`` must
     not exist (or be empty); everything is written there."""
-    from piezopress.pipelines import characterize as char
-
-    work = char.new_output_dir(work)
+    work = new_output_dir(work)
     samples = [chain_sample(with_seed(cfg, cfg.rig.seed + i), work / f"seed-{i}", plan_path=plan_path, causes=causes)
                for i in range(seeds)]
     clean = base_pipeline_rows(without_effects(cfg), work / "clean", plan_path) if cfg.effects_on() else None
@@ -453,7 +452,7 @@ def rig_of_runs(paths: Sequence[str | Path]) -> tuple[RigConfig, Path | None]:
     """The virtual rig the runs were recorded on (from their metadata), and their plan file if it still exists."""
     from piezopress.errors import PiezopressError
     from piezopress.pipelines.bundle import collect_runs
-    from piezopress.pipelines.characterize import read_manifest
+    from piezopress.pipelines.files import read_manifest
 
     runs = collect_runs(paths)
     rigs = [r.meta.get("rig", {}) for r in runs]

@@ -42,7 +42,7 @@ from piezopress.analysis import metrics
 from piezopress.errors import OutputExistsError, PiezopressError
 from piezopress.pipelines import summary
 from piezopress.pipelines.bundle import read_document
-from piezopress.pipelines.characterize import MANIFEST, read_manifest, run_files
+from piezopress.pipelines.files import MANIFEST, read_manifest, run_files
 
 COLUMNS = ["table", "test", "metric", "unit", "value", "thesis", "thesis_source"]
 #: The quasi-static triangles of Table 6.13 (and the hysteresis loops) are those at this frequency (Hz).

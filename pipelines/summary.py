@@ -16,7 +16,7 @@ import pandas as pd
 from piezopress import runformat, thesis, units
 from piezopress.analysis import metrics
 from piezopress.errors import MetricError
-from piezopress.pipelines.characterize import read_manifest, run_files
+from piezopress.pipelines.files import read_manifest, run_files
 
 COLUMNS = ["run", "kind", "metric", "value", "unit", "thesis", "thesis_source", "note"]
 

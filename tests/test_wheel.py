@@ -7,6 +7,7 @@ but the build backend.
 """
 
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -26,8 +27,12 @@ def _run(args, cwd, env=None):
 
 @pytest.mark.slow
 def test_the_wheel_installs_and_runs_outside_the_checkout(tmp_path):
+    # built from a copy of the tree, so the build leaves nothing (build/, *.egg-info) in the checkout
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", ".git", "out", "build", "report", "*.egg-info", "__pycache__",
+                                                            ".pytest_cache", ".hypothesis", "sample_runs"))
     dist = tmp_path / "dist"
-    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT], cwd=tmp_path)
+    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, src], cwd=tmp_path)
     (wheel,) = dist.glob("piezopress-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     # only the project's own name at the top level; the plans and rig files inside the package
