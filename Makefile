@@ -69,7 +69,7 @@ $(REPORT)/metrics.csv: $(REPORT_INPUTS) | $(STAMP)
 
 # After a deliberate change of a metric: record the new expected table (review the diff).
 expected-metrics: $(STAMP)
-	$(BIN)/python -c "from pipelines import report as R; R.expected_table(R.build_report('$(SAMPLES)/characterization', '$(SAMPLES)/validation', '$(SAMPLES)/bundle.json', '$(SAMPLES)/diagnosis')).to_csv('$(SAMPLES)/expected_metrics.csv', index=False, float_format='%.6g')"
+	$(BIN)/python -c "from piezopress.pipelines import report as R; R.expected_table(R.build_report('$(SAMPLES)/characterization', '$(SAMPLES)/validation', '$(SAMPLES)/bundle.json', '$(SAMPLES)/diagnosis')).to_csv('$(SAMPLES)/expected_metrics.csv', index=False, float_format='%.6g')"
 
 bench: $(STAMP)
 	@for f in bench/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
