@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +30,12 @@ import pandas as pd
 from piezopress.errors import OutputExistsError
 from piezopress.pipelines import summary
 from piezopress.pipelines.bundle import read_document
-from piezopress.pipelines.report_doc import (CSS, Block, Bullets, FigureBlock, Heading, Para, Table, _md_table, render_html,
-                                             render_markdown)
-from piezopress.pipelines.report_figures import (_creep_figure, _loops_figure, _residuals_figure, _steps_figure,
-                                                 _tracking_figure)
+from piezopress.pipelines import report_frequency
+from piezopress.pipelines.report_doc import (CSS, Block, Bullets, Contents, FigureBlock, Heading, Para, Table, _md_table,
+                                             render_html, render_markdown)
+from piezopress.pipelines.report_figures import (_creep_figure, _drive_figure, _frequency_loops_figure, _loops_figure,
+                                                 _residuals_figure, _steps_figure, _tracking_figure)
+from piezopress.pipelines.report_verdict import VerdictRow, Warning_, verdict_blocks
 from piezopress.pipelines.report_inputs import STATIC_FREQ_HZ, UNCONTROLLED_STEP_V, ReportError, _load_dir, _Source
 from piezopress.pipelines.report_model import _diagnosis_blocks, _model_quality
 from piezopress.pipelines.report_tables import (COLUMNS, CSV_FLOAT, TESTS_6_13, _basis, _char_table_id, _detail_table,
@@ -51,6 +53,8 @@ class Report:
     comparison: Table
     blocks: list[Block]
     missing: list[str]
+    verdict: list[VerdictRow] = field(default_factory=list)
+    warnings: list[Warning_] = field(default_factory=list)
 
     @property
     def figures(self) -> list[FigureBlock]:
@@ -115,8 +119,21 @@ def build_report(characterization: str | Path | None = None, validation: str | P
             missing.append(f"Table 6.13, {r.test.quantity}: no controlled value (no validation run gives it).")
     comparison = comparison_table(rows)
 
-    blocks: list[Block] = [Heading("piezopress report", 1), Bullets(tuple(_inputs_lines(char, val, bundle, bundle_doc)))]
+    verdict, vrows, warnings = verdict_blocks(rows, char, val, bundle, bundle_doc)
+    blocks: list[Block] = [Heading("piezopress report", 1), Contents(), *verdict,
+                           Heading("Inputs"), Bullets(tuple(_inputs_lines(char, val, bundle, bundle_doc)))]
     blocks += [Heading("Table 6.13: uncontrolled and controlled, beside the thesis"), comparison, Bullets(tuple(_basis(rows)))]
+
+    figures = [f for f in (_loops_figure(char, val, missing, bundle_doc), _frequency_loops_figure(val, missing),
+                           _creep_figure(char, val, missing), _steps_figure(char, val, missing), _tracking_figure(val, missing),
+                           _drive_figure(val, missing)) if f is not None]
+    if figures:
+        blocks += [Heading("Before and after: the figures"), *figures]
+    mode_fig, _ = report_frequency.mode_figure(bundle_doc, char, missing)
+    spectral = [f for f in (mode_fig, report_frequency.shaper_figure(bundle_doc, missing),
+                            report_frequency.creep_figure(bundle_doc, missing)) if f is not None]
+    if spectral:
+        blocks += [Heading("The frequency domain"), *spectral]
     if char is not None and len(char.table):
         blocks += [Heading("Characterization (uncontrolled; Tables 5.1-5.3)"), _detail_table(char.table, lambda r: _char_table_id(r.kind))]
     if val is not None and len(val.table):
@@ -124,15 +141,13 @@ def build_report(characterization: str | Path | None = None, validation: str | P
                    _detail_table(val.table, lambda r: _val_table_id(val.runs.get(r.run), r.kind, val.shaper))]
     if bundle_doc is not None:
         blocks += _model_quality(bundle_doc, Path(bundle), missing)
-
-    figures = [f for f in (_loops_figure(char, val, missing), _creep_figure(char, val, missing), _steps_figure(char, val, missing),
-                           _tracking_figure(val, missing), _residuals_figure(bundle_doc, char, missing)) if f is not None]
-    if figures:
-        blocks += [Heading("Figures"), *figures]
+        residuals = _residuals_figure(bundle_doc, char, missing)
+        if residuals is not None:
+            blocks.append(residuals)
     if diagnosis is not None:
         blocks += _diagnosis_blocks(diagnosis, missing)
     blocks += [Heading("Missing pieces"), Bullets(tuple(missing)) if missing else Para("Nothing missing.")]
-    return Report(metrics_table(char, val), comparison, blocks, missing)
+    return Report(metrics_table(char, val), comparison, blocks, missing, vrows, warnings)
 
 
 def _inputs_lines(char: _Source | None, val: _Source | None, bundle: str | Path | None, doc: dict[str, Any] | None) -> list[str]:

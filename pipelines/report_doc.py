@@ -22,6 +22,23 @@ class Heading:
     text: str
     level: int = 2
 
+    @property
+    def anchor(self) -> str:
+        return anchor(self.text)
+
+
+def anchor(text: str) -> str:
+    """The heading's anchor, as GitHub makes it (lower case; punctuation dropped; spaces to
+    hyphens), so the Markdown's links work on GitHub and the HTML page's alike."""
+    return re.sub(r"[^\w\- ]", "", text.strip().lower()).replace(" ", "-")
+
+
+@dataclass(frozen=True)
+class Contents:
+    """A table of contents: a link to every heading of ``level`` (rendered from the blocks)."""
+
+    level: int = 2
+
 
 @dataclass(frozen=True)
 class Para:
@@ -53,7 +70,11 @@ class FigureBlock:
         return f"{self.name}.png"
 
 
-Block = Heading | Para | Bullets | Table | FigureBlock
+Block = Heading | Para | Bullets | Table | FigureBlock | Contents
+
+
+def _contents(blocks: Sequence[Block], level: int) -> list[Heading]:
+    return [b for b in blocks if isinstance(b, Heading) and b.level == level]
 
 
 # --------------------------------------------------------------------------- rendering
@@ -76,9 +97,13 @@ def _md_table(t: Table) -> str:
 
 
 def render_markdown(blocks: Iterable[Block]) -> str:
+    blocks = list(blocks)
     parts = []
+    n_fig = 0
     for b in blocks:
-        if isinstance(b, Heading):
+        if isinstance(b, Contents):
+            parts.append("**Contents**\n\n" + "\n".join(f"- [{h.text}](#{h.anchor})" for h in _contents(blocks, b.level)))
+        elif isinstance(b, Heading):
             parts.append("#" * b.level + " " + b.text)
         elif isinstance(b, Para):
             parts.append(b.text)
@@ -87,7 +112,8 @@ def render_markdown(blocks: Iterable[Block]) -> str:
         elif isinstance(b, Table):
             parts.append(_md_table(b))
         elif isinstance(b, FigureBlock):
-            parts.append(f"**{b.title}** ([{b.file}]({b.file}))\n\n![{b.title}]({b.file})\n\n_{b.caption}_")
+            n_fig += 1
+            parts.append(f"**Figure {n_fig}. {b.title}** ([{b.file}]({b.file}))\n\n![{b.title}]({b.file})\n\n_{b.caption}_")
     return "\n\n".join(parts) + "\n"
 
 
@@ -109,11 +135,18 @@ code { background: #f3f3f3; padding: 0 3px; border-radius: 3px; font-size: 0.92e
 figure { margin: 1.2em 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
 figcaption { font-size: 13px; color: #555; }
+p, li, td, figcaption { overflow-wrap: anywhere; }
+nav.toc { background: #f7f7f7; border: 1px solid #ddd; padding: .4em 1em; display: inline-block; }
+nav.toc ul { margin: .3em 0; padding-left: 1.2em; }
 """
 
 
+_BOLD = re.compile(r"\*\*(.+?)\*\*")
+
+
 def _inline(text: str) -> str:
-    return _CODE.sub(lambda m: f"<code>{m.group(1)}</code>", html.escape(text, quote=False))
+    text = _CODE.sub(lambda m: f"<code>{m.group(1)}</code>", html.escape(text, quote=False))
+    return _BOLD.sub(lambda m: f"<b>{m.group(1)}</b>", text)
 
 
 def _html_table(t: Table) -> str:
@@ -125,11 +158,16 @@ def _html_table(t: Table) -> str:
 
 
 def render_html(blocks: Iterable[Block]) -> str:
+    blocks = list(blocks)
     parts = []
     title = "piezopress report"
+    n_fig = 0
     for b in blocks:
-        if isinstance(b, Heading):
-            parts.append(f"<h{b.level}>{_inline(b.text)}</h{b.level}>")
+        if isinstance(b, Contents):
+            parts.append('<nav class="toc"><b>Contents</b>\n<ul>\n' + "\n".join(
+                f'<li><a href="#{h.anchor}">{_inline(h.text)}</a></li>' for h in _contents(blocks, b.level)) + "\n</ul></nav>")
+        elif isinstance(b, Heading):
+            parts.append(f'<h{b.level} id="{b.anchor}">{_inline(b.text)}</h{b.level}>')
         elif isinstance(b, Para):
             parts.append(f"<p>{_inline(b.text)}</p>")
         elif isinstance(b, Bullets):
@@ -137,9 +175,10 @@ def render_html(blocks: Iterable[Block]) -> str:
         elif isinstance(b, Table):
             parts.append(_html_table(b))
         elif isinstance(b, FigureBlock):
+            n_fig += 1
             data = base64.b64encode(b.png).decode("ascii")
-            parts.append(f'<figure><img alt="{html.escape(b.title)}" src="data:image/png;base64,{data}">'
-                         f"<figcaption><b>{_inline(b.title)}.</b> {_inline(b.caption)}</figcaption></figure>")
+            parts.append(f'<figure id="figure-{b.name}"><img alt="{html.escape(b.title)}" src="data:image/png;base64,{data}">'
+                         f"<figcaption><b>Figure {n_fig}. {_inline(b.title)}.</b> {_inline(b.caption)}</figcaption></figure>")
     return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
             f"<title>{title}</title>\n<style>{CSS}</style>\n</head>\n<body>\n" + "\n".join(parts) + "\n</body>\n</html>\n")
