@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +35,7 @@ from piezopress.pipelines.report_doc import (CSS, Block, Bullets, Contents, Figu
                                              render_html, render_markdown)
 from piezopress.pipelines.report_figures import (_creep_figure, _drive_figure, _frequency_loops_figure, _loops_figure,
                                                  _residuals_figure, _steps_figure, _tracking_figure)
-from piezopress.pipelines.report_verdict import VerdictRow, Warning_, verdict_blocks
+from piezopress.pipelines.report_verdict import Verdict, verdict_blocks
 from piezopress.pipelines.report_inputs import STATIC_FREQ_HZ, UNCONTROLLED_STEP_V, ReportError, _load_dir, _Source
 from piezopress.pipelines.report_model import _diagnosis_blocks, _model_quality
 from piezopress.pipelines.report_tables import (COLUMNS, CSV_FLOAT, TESTS_6_13, _basis, _char_table_id, _detail_table,
@@ -53,8 +53,7 @@ class Report:
     comparison: Table
     blocks: list[Block]
     missing: list[str]
-    verdict: list[VerdictRow] = field(default_factory=list)
-    warnings: list[Warning_] = field(default_factory=list)
+    verdict: Verdict | None = None
 
     @property
     def figures(self) -> list[FigureBlock]:
@@ -119,8 +118,8 @@ def build_report(characterization: str | Path | None = None, validation: str | P
             missing.append(f"Table 6.13, {r.test.quantity}: no controlled value (no validation run gives it).")
     comparison = comparison_table(rows)
 
-    verdict, vrows, warnings = verdict_blocks(rows, char, val, bundle, bundle_doc)
-    blocks: list[Block] = [Heading("piezopress report", 1), Contents(), *verdict,
+    verdict_section, verdict = verdict_blocks(rows, char, val, bundle, bundle_doc)
+    blocks: list[Block] = [Heading("piezopress report", 1), Contents(), *verdict_section,
                            Heading("Inputs"), Bullets(tuple(_inputs_lines(char, val, bundle, bundle_doc)))]
     blocks += [Heading("Table 6.13: uncontrolled and controlled, beside the thesis"), comparison, Bullets(tuple(_basis(rows)))]
 
@@ -147,14 +146,19 @@ def build_report(characterization: str | Path | None = None, validation: str | P
     if diagnosis is not None:
         blocks += _diagnosis_blocks(diagnosis, missing)
     blocks += [Heading("Missing pieces"), Bullets(tuple(missing)) if missing else Para("Nothing missing.")]
-    return Report(metrics_table(char, val), comparison, blocks, missing, vrows, warnings)
+    return Report(metrics_table(char, val), comparison, blocks, missing, verdict)
 
 
 def _inputs_lines(char: _Source | None, val: _Source | None, bundle: str | Path | None, doc: dict[str, Any] | None) -> list[str]:
     lines = []
     lines.append(f"Characterization: `{char.path}` ({len(char.runs)} runs)" if char else "Characterization: not given")
     if val:
-        lines.append(f"Validation: `{val.path}` ({len(val.runs)} runs, {'with' if val.shaper else 'without'} the input shaper)")
+        skipped = sum(any(str(n).startswith("shaper skipped") for n in (r.meta.get("compensation") or {}).get("notes", []))
+                      for r in val.runs.values())
+        shaper = "with the input shaper" if val.shaper else "without the input shaper"
+        if val.shaper and skipped:
+            shaper += f" on {len(val.runs) - skipped} of them (skipped on {skipped}: their sample rate cannot resolve the mode)"
+        lines.append(f"Validation: `{val.path}` ({len(val.runs)} runs, {shaper})")
     else:
         lines.append("Validation: not given")
     if doc is not None:

@@ -133,7 +133,7 @@ td.r { text-align: right; white-space: nowrap; font-variant-numeric: tabular-num
 tr:nth-child(even) td { background: #fafafa; }
 code { background: #f3f3f3; padding: 0 3px; border-radius: 3px; font-size: 0.92em; }
 figure { margin: 1.2em 0; }
-figure img { max-width: 100%; height: auto; border: 1px solid #eee; }
+figure img { max-width: 100%; height: auto; border: 1px solid #eee; box-sizing: border-box; }
 figcaption { font-size: 13px; color: #555; }
 p, li, td, figcaption { overflow-wrap: anywhere; }
 nav.toc { background: #f7f7f7; border: 1px solid #ddd; padding: .4em 1em; display: inline-block; }

@@ -261,8 +261,22 @@ def warnings_table(warnings: Iterable[Warning_]) -> Table:
     return Table(("warning", "runs (count)", "runs", "detail"), rows, ("l", "r", "l", "l"))
 
 
+@dataclass(frozen=True)
+class Verdict:
+    """The verdict: its one-line summary, the provenance line, the rows and the warnings."""
+
+    summary: str
+    provenance: str
+    rows: tuple[VerdictRow, ...]
+    warnings: tuple[Warning_, ...]
+
+    def lines(self) -> list[str]:
+        """The verdict as a terminal prints it: summary, provenance, one line per warning."""
+        return [self.summary, self.provenance] + [f"  warning ({w.count} {w.unit}): {w.what}" for w in self.warnings]
+
+
 def verdict_blocks(rows: list[_Row613], char: _Source | None, val: _Source | None, bundle_path: str | Path | None,
-                   bundle: dict[str, Any] | None) -> tuple[list[Block], list[VerdictRow], list[Warning_]]:
+                   bundle: dict[str, Any] | None) -> tuple[list[Block], Verdict]:
     """The verdict section: the rows against the targets, the warnings, the provenance."""
     path = Path(bundle_path) if bundle_path is not None else None
     vrows = verdict_rows(rows)
@@ -276,10 +290,11 @@ def verdict_blocks(rows: list[_Row613], char: _Source | None, val: _Source | Non
     else:
         overall = f"PASS: all {len(vrows)} controlled figures within their targets"
     overall += f", with {len(warnings)} kind{'s' if len(warnings) != 1 else ''} of warning below." if warnings else ", no warning."
+    prov = provenance(char, val, path, bundle)
     blocks: list[Block] = [
         Heading("Verdict"),
         Para(f"**{overall}**"),
-        Para(provenance(char, val, path, bundle)),
+        Para(prov),
         verdict_table(vrows),
         Para(f"Targets: piezopress's own, each at most {TARGET_SHARE_OF_THESIS:g} x the thesis's worst controlled figure "
              "(Table 6.13; the staircase's largest |relative error|, Sec. 6.6); margin = target - figure, in percentage points. "
@@ -287,8 +302,8 @@ def verdict_blocks(rows: list[_Row613], char: _Source | None, val: _Source | Non
         Heading("Warnings that qualify the verdict", 3),
     ]
     blocks.append(warnings_table(warnings) if warnings else Para("None: no run records a warning, and no model is used beyond its data."))
-    return blocks, vrows, warnings
+    return blocks, Verdict(f"Verdict: {overall}", prov, tuple(vrows), tuple(warnings))
 
 
-__all__ = ["verdict_blocks", "TARGETS_PCT", "VerdictRow", "Warning_", "metadata_warnings", "extrapolation_warnings",
+__all__ = ["verdict_blocks", "Verdict", "TARGETS_PCT", "VerdictRow", "Warning_", "metadata_warnings", "extrapolation_warnings",
            "consistency_warnings", "provenance", "config_digest"]

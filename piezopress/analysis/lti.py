@@ -93,26 +93,32 @@ def bode(system, freq_hz) -> Bode:
 
 @dataclass(frozen=True)
 class MeasuredResponse(Bode):
-    """The response a record shows, in bands: ``coherent`` marks the bands where the drive
-    had energy enough (its spectrum within ``1/MIN_DRIVE_SHARE`` of its largest band)."""
+    """The response a record shows, point by point: ``coherent`` marks the points whose band
+    the drive excited enough (its energy per FFT bin at least ``MIN_DRIVE_SHARE`` of the
+    best-excited band's), ``gain`` the magnitude the response was divided by."""
 
     coherent: np.ndarray = None  # type: ignore[assignment]
     gain: float = math.nan
 
 
-#: A band is kept when the drive's energy in it is at least this share of its largest band's.
-MIN_DRIVE_SHARE = 1e-4
+#: A band is kept when the drive's energy density in it (per FFT bin) is at least this share of its largest band's.
+MIN_DRIVE_SHARE = 1e-3
+#: Half-width of the band each point of a measured response averages over (fraction of its frequency).
+BAND_REL_WIDTH = 0.02
 
 
-def measured_response(drive, output, fs_hz: float, freq_hz, *, gain: float | None = None) -> MeasuredResponse:
-    """The frequency response from a drive record to an output record, in bands.
+def measured_response(drive, output, fs_hz: float, freq_hz, *, gain: float | None = None,
+                      rel_width: float = BAND_REL_WIDTH) -> MeasuredResponse:
+    """The frequency response from a drive record to an output record, at ``freq_hz``.
 
     The records' differences (a step becomes an impulse, so a record that starts and ends
-    at rest holds the whole transient) are transformed and, in each band between the
-    midpoints of ``freq_hz`` (log-spaced), the H1 estimate ``sum(Y conj(U)) / sum(|U|^2)``
-    is taken: bands where the drive has no energy (the zeros of a step up and down) weigh
-    nothing instead of dividing noise by zero. ``gain`` normalises the magnitude (default:
-    the response's magnitude in the lowest band); the phase is relative to the drive.
+    at rest holds the whole transient) are transformed and, in a narrow band around each
+    frequency (``f (1 +/- rel_width)``, at least two FFT bins either side), the H1
+    estimate ``sum(Y conj(U)) / sum(|U|^2)`` is taken: bins where the drive has no energy
+    (the zeros of a step up and down) weigh nothing instead of dividing noise by zero.
+    ``gain`` normalises the magnitude (default: the response's magnitude at the lowest
+    frequency kept); the phase is relative to the drive. Sampled records: above a fifth of
+    the sample rate, what the drive holds beyond Nyquist folds back and biases the estimate.
     """
     u = np.asarray(drive, dtype=float)
     y = np.asarray(output, dtype=float)
@@ -128,14 +134,14 @@ def measured_response(drive, output, fs_hz: float, freq_hz, *, gain: float | Non
     n = 1 << int(math.ceil(math.log2(du.size * 2)))
     U, Y = np.fft.rfft(du, n), np.fft.rfft(dy, n)
     fb = np.fft.rfftfreq(n, 1.0 / fs)
-    edges = np.concatenate([[f[0] ** 1.5 / f[1] ** 0.5], np.sqrt(f[:-1] * f[1:]), [f[-1] ** 1.5 / f[-2] ** 0.5]])
+    half = np.maximum(rel_width * f, 2.0 * fs / n)
     h = np.full(f.size, np.nan + 0j)
     energy = np.zeros(f.size)
     for i in range(f.size):
-        m = (fb >= edges[i]) & (fb < edges[i + 1])
-        energy[i] = float(np.sum(np.abs(U[m]) ** 2))
+        m = (fb >= f[i] - half[i]) & (fb <= f[i] + half[i])
+        energy[i] = float(np.mean(np.abs(U[m]) ** 2)) if np.any(m) else 0.0
         if energy[i] > 0:
-            h[i] = np.sum(Y[m] * np.conj(U[m])) / energy[i]
+            h[i] = np.sum(Y[m] * np.conj(U[m])) / np.sum(np.abs(U[m]) ** 2)
     coherent = energy >= MIN_DRIVE_SHARE * energy.max() if energy.max() > 0 else np.zeros(f.size, bool)
     if not np.any(coherent):
         raise FitError("drive: no energy in any band of freq_hz; expected a record with a step or a sweep")
