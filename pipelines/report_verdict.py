@@ -31,17 +31,26 @@ from piezopress.pipelines.report_doc import Block, Heading, Para, Table
 from piezopress.pipelines.report_inputs import _freq, _Source
 from piezopress.pipelines.report_tables import _num, _Row613
 
-#: piezopress's targets: every controlled Table 6.13 figure at most this share of the
-#: thesis's worst controlled figure (the thesis's open-loop compensation is the baseline
-#: piezopress reproduces and then beats clearly; piezopress/thesis.py).
-TARGET_SHARE_OF_THESIS = 0.5
-#: Controlled targets (%), by Table 6.13 test: TARGET_SHARE_OF_THESIS x the thesis's worst.
+#: piezopress's targets for the controlled Table 6.13 figures (%): the acceptance of issue 4,
+#: which tests/test_compensation_acceptance.py asserts on the virtual rig (thesis beside each:
+#: static hysteresis 1.55 to 2.99 %, creep 0.63 to 0.96 %, overshoot 0 to 9.28 %, the
+#: staircase's relative error up to 12.08 %).
 TARGETS_PCT = {
-    "max_static_hysteresis": TARGET_SHARE_OF_THESIS * thesis.TABLE_6_13["max_static_hysteresis_pct"]["controlled"][1],
-    "creep": TARGET_SHARE_OF_THESIS * thesis.TABLE_6_13["creep_pct"]["controlled"][1],
-    "overshoot": TARGET_SHARE_OF_THESIS * thesis.TABLE_6_13["overshoot_pct"]["controlled"][1],
-    "tracking_error": TARGET_SHARE_OF_THESIS * max(abs(v) for v in thesis.TRACKING_RELATIVE_ERROR_PCT),
+    "max_static_hysteresis": 1.0,
+    "creep": 0.3,
+    "overshoot": 3.0,
+    "tracking_error": 3.0,
 }
+#: Runs with a target of their own: the 75 N triangle, where the load cell's 0.5 N
+#: quantization weighs most, may keep 1.5 % of static hysteresis (issue 4).
+RUN_TARGETS_PCT = {("max_static_hysteresis", "tri-75n-0.1hz"): 1.5}
+
+
+def target_pct(key: str, run: str) -> float:
+    """The target (%) of Table 6.13 figure ``key`` on run ``run``."""
+    return RUN_TARGETS_PCT.get((key, run), TARGETS_PCT[key])
+
+
 #: A reference above the hysteresis model's fitted output range by more than this share of
 #: the range uses the model beyond its data (extrapolated).
 EXTRAPOLATION_TOLERANCE = 0.01
@@ -83,8 +92,9 @@ def verdict_rows(rows: list[_Row613]) -> list[VerdictRow]:
     out = []
     for r in rows:
         t = r.test
-        worst = max(r.ctrl, key=lambda v: v[1]) if r.ctrl else ("", math.nan)
-        out.append(VerdictRow(t.key, t.quantity, worst[1], worst[0], TARGETS_PCT[t.key], t.thesis_ctrl))
+        # the run closest to (or furthest past) its own target
+        worst = min(r.ctrl, key=lambda v: target_pct(t.key, v[0]) - v[1]) if r.ctrl else ("", math.nan)
+        out.append(VerdictRow(t.key, t.quantity, worst[1], worst[0], target_pct(t.key, worst[0]), t.thesis_ctrl))
     return out
 
 
@@ -296,14 +306,15 @@ def verdict_blocks(rows: list[_Row613], char: _Source | None, val: _Source | Non
         Para(f"**{overall}**"),
         Para(prov),
         verdict_table(vrows),
-        Para(f"Targets: piezopress's own, each at most {TARGET_SHARE_OF_THESIS:g} x the thesis's worst controlled figure "
-             "(Table 6.13; the staircase's largest |relative error|, Sec. 6.6); margin = target - figure, in percentage points. "
-             "Each figure is the worst run's (the runs are listed under Table 6.13 below)."),
+        Para("Targets: piezopress's own (static hysteresis at most 1.0 % on every 0.1 Hz triangle, 1.5 % on the 75 N one "
+             "where the load cell's quantization weighs most; creep at most 0.3 % after 120 s; overshoot at most 3 %; the "
+             "staircase's relative tracking error at most 3 %); margin = target - figure, in percentage points. "
+             "Each figure is that of the run nearest its target (the runs are listed under Table 6.13 below)."),
         Heading("Warnings that qualify the verdict", 3),
     ]
     blocks.append(warnings_table(warnings) if warnings else Para("None: no run records a warning, and no model is used beyond its data."))
     return blocks, Verdict(f"Verdict: {overall}", prov, tuple(vrows), tuple(warnings))
 
 
-__all__ = ["verdict_blocks", "Verdict", "TARGETS_PCT", "VerdictRow", "Warning_", "metadata_warnings", "extrapolation_warnings",
+__all__ = ["verdict_blocks", "Verdict", "TARGETS_PCT", "RUN_TARGETS_PCT", "target_pct", "VerdictRow", "Warning_", "metadata_warnings", "extrapolation_warnings",
            "consistency_warnings", "provenance", "config_digest"]
