@@ -25,7 +25,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from piezopress import runformat, thesis, units
+from piezopress import runformat, units
 from piezopress.pipelines.files import MANIFEST, read_manifest
 from piezopress.pipelines.report_doc import Block, Heading, Para, Table
 from piezopress.pipelines.report_inputs import _freq, _Source

@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from piezopress import runformat, thesis
+from piezopress import runformat
 from piezopress.pipelines import report as R
 from piezopress.pipelines import report_frequency as RF
 from piezopress.pipelines import report_verdict as RV
