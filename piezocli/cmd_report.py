@@ -33,6 +33,8 @@ def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> No
     """
     result = rep.generate(out_dir, characterization=char_dir, validation=val_dir, bundle=bundle_path, diagnosis=diag_dir, replace=replace)
     report = result.report
+    if report.verdict is not None:
+        click.echo("\n".join(report.verdict.lines()) + "\n")
     if report.missing:
         click.echo("Missing pieces:")
         for line in report.missing:

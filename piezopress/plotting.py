@@ -68,61 +68,6 @@ def to_png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def hysteresis_loops(before: Curve | None, after: Curve | None, *, before_title: str = "", after_title: str = "",
-                     unit: str = "N", after_unit: str | None = None) -> Figure:
-    """Output against drive before compensation, and output against reference after it, side by side.
-
-    ``before``: drive (V) against the measured output (force in N, or displacement in µm:
-    ``unit``); ``after``: reference against measured output (``after_unit``, default
-    ``unit``), drawn with the ideal line ``output = reference``.
-    """
-    fig = _figure(4.2)
-    ax_b, ax_a = fig.subplots(1, 2)
-    qb, ub = units.quantity(unit), units.label(unit)
-    qa, ua = units.quantity(after_unit or unit), units.label(after_unit or unit)
-    ax_b.set(title=before_title or "Before: uncompensated", xlabel="drive command_v (V)", ylabel=f"measured {qb} ({ub})")
-    ax_a.set(title=after_title or "After: compensated", xlabel=f"reference {qa} ({ua})", ylabel=f"measured {qa} ({ua})")
-    if before is not None:
-        ax_b.plot(before.x, before.y, color=BEFORE_COLOURS[0], lw=0.8, label=before.label or None)
-        if before.label:
-            ax_b.legend(fontsize=8, loc="upper left")
-    else:
-        _no_data(ax_b, "no uncompensated 0.1 Hz triangle")
-    if after is not None:
-        lo, hi = float(np.nanmin(after.x)), float(np.nanmax(after.x))
-        ax_a.plot([lo, hi], [lo, hi], color="0.6", ls="--", lw=0.8, label=f"ideal: {qa} = reference")
-        ax_a.plot(after.x, after.y, color=AFTER_COLOURS[0], lw=0.8, label=after.label or "measured")
-        ax_a.legend(fontsize=8, loc="upper left")
-    else:
-        _no_data(ax_a, "no compensated 0.1 Hz triangle")
-    for ax in (ax_b, ax_a):
-        ax.grid(True, alpha=0.3)
-    fig.suptitle("Hysteresis loops (0.1 Hz triangles)")
-    return fig
-
-
-def creep_responses(before: Sequence[Curve], after: Sequence[Curve]) -> Figure:
-    """Held steps against time after the step (log axis), force normalised by the step.
-
-    Curves: ``x`` time after the step (s, > 0), ``y`` ``(F - F_0) / (F_ss - F_0)``.
-    """
-    fig = _figure(4.2)
-    ax = fig.subplots()
-    _lines(ax, list(before), BEFORE_COLOURS, lw=0.9)
-    for i, c in enumerate(after):
-        ax.plot(c.x, c.y, color=AFTER_COLOURS[i % len(AFTER_COLOURS)], lw=0.9, label=c.label or None)
-    if before or after:
-        ax.set_xscale("log")
-        ax.axhline(1.0, color="0.5", lw=0.8, ls=":")
-        ax.legend(fontsize=8, loc="lower right")
-    else:
-        _no_data(ax, "no creep run")
-    ax.set(title="Creep: held step, before and after compensation", xlabel="time after the step (s)",
-           ylabel="(F - F_0) / (F_ss - F_0)  (1)")
-    ax.grid(True, which="both", alpha=0.3)
-    return fig
-
-
 def step_responses(uncompensated: Sequence[Curve], compensated: Sequence[Curve]) -> Figure:
     """Step responses side by side: uncompensated and compensated, normalised by the step.
 
@@ -144,52 +89,6 @@ def step_responses(uncompensated: Sequence[Curve], compensated: Sequence[Curve])
         ax.grid(True, alpha=0.3)
     ax_u.set_ylabel("(F - F_0) / step size  (1)")
     fig.suptitle("Step responses (dotted: 2 % settling band)")
-    return fig
-
-
-def tracking(t_s: np.ndarray, reference: np.ndarray, measured: np.ndarray, error: np.ndarray,
-             evaluated_error: np.ndarray | None = None, *, title: str = "Staircase tracking", unit: str = "N") -> Figure:
-    """Reference and measured output (force, or displacement: ``unit``) against time, with the
-    error ``measured - reference`` below.
-
-    ``evaluated_error``: the error where the metric evaluates it (NaN elsewhere), drawn
-    over the full error.
-    """
-    q, u = units.quantity(unit), units.label(unit)
-    fig = _figure(5.6)
-    ax_f, ax_e = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1))
-    ax_f.plot(t_s, reference, color="0.3", lw=1.0, ls="--", label="reference")
-    ax_f.plot(t_s, measured, color=AFTER_COLOURS[0], lw=0.8, label="measured (compensated)")
-    ax_f.set(title=title, ylabel=f"{q} ({u})")
-    ax_f.legend(fontsize=8, loc="upper left")
-    ax_e.plot(t_s, error, color="0.7", lw=0.6, label="error")
-    if evaluated_error is not None:
-        ax_e.plot(t_s, evaluated_error, color=BEFORE_COLOURS[0], lw=0.5, label="error where evaluated (plateaus)")
-    ax_e.axhline(0.0, color="0.4", lw=0.6)
-    ax_e.set(xlabel="time (s)", ylabel=f"{q} - reference ({u})")
-    ax_e.legend(fontsize=8, loc="upper left")
-    for ax in (ax_f, ax_e):
-        ax.grid(True, alpha=0.3)
-    return fig
-
-
-def model_residuals(left: Sequence[Curve], right: Sequence[Curve], *, unit: str = "N", left_title: str = "",
-                    right_title: str = "", left_xlabel: str = "time (s)", right_xlabel: str = "time (s)",
-                    title: str = "Hysteresis model residuals") -> Figure:
-    """Measured minus modelled output (in ``unit``, a code or label: ``N``, ``um``/``µm``): two panels, e.g. the raw residual against
-    time and the residual with the creep removed (or against the drive)."""
-    fig = _figure(4.2)
-    ax_l, ax_r = fig.subplots(1, 2, sharey=True)
-    for ax, curves, sub, xlabel in ((ax_l, left, left_title, left_xlabel), (ax_r, right, right_title, right_xlabel)):
-        if curves:
-            _lines(ax, list(curves), AFTER_COLOURS, lw=0.5, alpha=0.85)
-        else:
-            _no_data(ax, "no fitting run")
-        ax.axhline(0.0, color="0.3", lw=0.6)
-        ax.set(title=sub, xlabel=xlabel)
-        ax.grid(True, alpha=0.3)
-    ax_l.set_ylabel(f"measured - model ({units.label(unit)})")
-    fig.suptitle(title)
     return fig
 
 
@@ -221,6 +120,10 @@ class ResidualRow:
     limit: float
     left_note: str = ""
     right_note: str = ""
+    #: shaded stretches of the x axis, each ``(start, stop, label)`` (e.g. the held-out end of a fit)
+    spans: Sequence[tuple[float, float, str]] = ()
+    #: whether the right column shares the left's x axis (and so its spans)
+    spans_right: bool = True
 
 
 def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title: str = "", right_title: str = "",
@@ -241,6 +144,11 @@ def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title:
                         label=(c.label or None) if len(curves) <= 6 else None)
             if len(curves) <= 6 and any(c.label for c in curves) and ax is ax_r:
                 ax.legend(fontsize=7, loc="upper right")
+            for x0, x1, label in (row.spans if ax is ax_l or row.spans_right else ()):
+                ax.axvspan(x0, x1, color="#f5d76e", alpha=0.35, lw=0)
+                if label:
+                    ax.text((x0 + x1) / 2, 0.97, label, transform=ax.get_xaxis_transform(), ha="center", va="top",
+                            fontsize=7, color="0.25")
             ax.axhline(0.0, color="0.3", lw=0.6)
             ax.set_ylim(-1.05 * row.limit, 1.05 * row.limit)
             ax.grid(True, alpha=0.3)
@@ -253,4 +161,240 @@ def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title:
                         bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
         ax_l.set_ylabel(f"{row.title}\n({units.label(unit)})", fontsize=9)
     fig.suptitle(title)
+    return fig
+
+
+# --------------------------------------------------------------------------- loops with their error
+
+
+@dataclass(frozen=True)
+class LoopPanel:
+    """One column of :func:`loops_with_error`: a loop (``loop``: measured output against
+    ``xlabel``'s quantity, with ``model`` drawn over it and, when ``ideal``, the line
+    output = x) above its error (``error``: the deviation, zoomed to its own scale)."""
+
+    title: str
+    loop: Curve | None
+    error: Curve | None
+    xlabel: str
+    error_label: str
+    model: Curve | None = None
+    ideal: bool = False
+    compensated: bool = False
+
+
+def loops_with_error(panels: Sequence[LoopPanel], *, unit: str = "N", title: str = "") -> Figure:
+    """Loops side by side (top row) with each one's error zoomed below it (bottom row).
+
+    The top row shares the output's unit (``unit``); each error axis has its own scale
+    so a 0.05 % residual loop is as visible as a 5 % one.
+    """
+    n = max(len(panels), 1)
+    fig = _figure(5.4 if n <= 2 else 5.0)
+    axes = np.atleast_2d(fig.subplots(2, n, squeeze=False, height_ratios=(3, 2)))
+    q, u = units.quantity(unit), units.label(unit)
+    if not panels:
+        _no_data(axes[0, 0], "no loop")
+    for i, p in enumerate(panels):
+        ax, ax_e = axes[0, i], axes[1, i]
+        colour = AFTER_COLOURS[0] if p.compensated else BEFORE_COLOURS[0]
+        if p.loop is not None:
+            if p.ideal:
+                lo, hi = float(np.nanmin(p.loop.x)), float(np.nanmax(p.loop.x))
+                ax.plot([lo, hi], [lo, hi], color="0.55", ls="--", lw=0.8, label=f"ideal: {q} = reference")
+            ax.plot(p.loop.x, p.loop.y, color=colour, lw=0.8, label=p.loop.label or "measured")
+            if p.model is not None:
+                ax.plot(p.model.x, p.model.y, color="k", lw=0.7, ls=(0, (4, 2)), label=p.model.label or "model")
+            if i == 0 or n <= 2:
+                ax.legend(fontsize=7 if n > 2 else 8, loc="upper left")
+        else:
+            _no_data(ax, "no run")
+        if p.error is not None:
+            ax_e.plot(p.error.x, p.error.y, color=colour, lw=0.7)
+            ax_e.axhline(0.0, color="0.4", lw=0.6)
+        else:
+            _no_data(ax_e, "no run")
+        ax.set_title(p.title, fontsize=9 if n > 2 else 10)
+        ax_e.set_xlabel(p.xlabel, fontsize=8 if n > 2 else 10)
+        ax_e.set_ylabel(p.error_label, fontsize=8 if n > 2 else 10)
+        if i == 0:
+            ax.set_ylabel(f"measured {q} ({u})")
+        for a in (ax, ax_e):
+            a.grid(True, alpha=0.3)
+            if n > 2:
+                a.tick_params(labelsize=7)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def creep_relative(before: Sequence[Curve], after: Sequence[Curve], *, t_ss_s: float = 1.0) -> Figure:
+    """Creep after ``t_ss_s`` on a log time axis, relative to the step (%): curves ``x``
+    time after the step (s), ``y`` ``100 (F - F_ss) / (F_ss - F_0)``, so a 2 % creep fills
+    the axis instead of a sliver on top of the step."""
+    fig = _figure(4.2)
+    ax = fig.subplots()
+    for curves, colours in ((before, BEFORE_COLOURS), (after, AFTER_COLOURS)):
+        for i, c in enumerate(curves):
+            ax.plot(c.x, c.y, color=colours[i % len(colours)], lw=0.9, label=c.label or None)
+    if before or after:
+        ax.set_xscale("log")
+        ax.axhline(0.0, color="0.4", lw=0.7)
+        ax.legend(fontsize=8, loc="upper left")
+    else:
+        _no_data(ax, "no creep run")
+    ax.set(title=f"Creep from {t_ss_s:.2g} s after the step", xlabel="time after the step (s, log)",
+           ylabel="(F - F_ss) / (F_ss - F_0)  (%)")
+    ax.grid(True, which="both", alpha=0.3)
+    return fig
+
+
+@dataclass(frozen=True)
+class Stair:
+    """One stair of :func:`tracking_stairs`: its reference level and the error on it."""
+
+    level: float
+    mean: float
+    low: float
+    high: float
+
+
+def tracking_stairs(t_s: np.ndarray, reference: np.ndarray, measured: np.ndarray, stairs: Sequence[Stair], *,
+                    title: str = "Staircase tracking", unit: str = "N", evaluated_from: float | None = None) -> Figure:
+    """Reference and measured output against time (top), and per stair the mean error
+    with whiskers from its minimum to its maximum (bottom): one bar per stair instead of a
+    barcode of samples."""
+    q, u = units.quantity(unit), units.label(unit)
+    fig = _figure(5.8)
+    ax_f, ax_e = fig.subplots(2, 1, height_ratios=(3, 2))
+    ax_f.plot(t_s, reference, color="0.3", lw=1.0, ls="--", label="reference")
+    ax_f.plot(t_s, measured, color=AFTER_COLOURS[0], lw=0.8, label="measured (compensated)")
+    ax_f.set(title=title, xlabel="time (s)", ylabel=f"{q} ({u})")
+    ax_f.legend(fontsize=8, loc="upper left")
+    if stairs:
+        x = np.arange(len(stairs))
+        mean = np.array([s.mean for s in stairs])
+        err = np.array([[s.mean - s.low for s in stairs], [s.high - s.mean for s in stairs]])
+        ax_e.bar(x, mean, width=0.6, color=AFTER_COLOURS[0], alpha=0.8, label="mean error on the stair")
+        ax_e.errorbar(x, mean, yerr=err, fmt="none", ecolor="k", capsize=3, lw=0.8, label="min to max")
+        ax_e.set_xticks(x, [f"{s.level:.0f}" for s in stairs], fontsize=8)
+        ax_e.axhline(0.0, color="0.4", lw=0.6)
+        ax_e.legend(fontsize=8, loc="best")
+    else:
+        _no_data(ax_e, "no stair evaluated")
+    where = f" (evaluated from {evaluated_from:g} {u} above the preload)" if evaluated_from is not None else ""
+    ax_e.set(xlabel=f"stair: reference {q} ({u}){where}", ylabel=f"{q} - reference ({u})")
+    for ax in (ax_f, ax_e):
+        ax.grid(True, alpha=0.3)
+    return fig
+
+
+# --------------------------------------------------------------------------- frequency domain
+
+
+@dataclass(frozen=True)
+class Response:
+    """A frequency response to draw: ``freq_hz``, ``magnitude`` (ratio) and ``phase_deg``."""
+
+    freq_hz: np.ndarray
+    magnitude: np.ndarray
+    phase_deg: np.ndarray
+    label: str = ""
+
+
+def bode(models: Sequence[Response], measured: Sequence[Response] = (), *, band_hz: tuple[float, float] | None = None,
+         band_label: str = "", marks_hz: Sequence[tuple[float, str]] = (), title: str = "",
+         magnitude_label: str = "magnitude (1)", log_magnitude: bool = True) -> Figure:
+    """Magnitude (log) and phase against frequency (log): models as lines, measured
+    responses as points; ``band_hz`` shaded (e.g. the band a shaper was designed for),
+    ``marks_hz`` vertical lines with their labels."""
+    fig = _figure(5.6)
+    ax_m, ax_p = fig.subplots(2, 1, sharex=True)
+    for i, m in enumerate(models):
+        c = "k" if i == 0 else AFTER_COLOURS[i % len(AFTER_COLOURS)]
+        ax_m.plot(m.freq_hz, m.magnitude, color=c, lw=1.2, label=m.label or None)
+        ax_p.plot(m.freq_hz, m.phase_deg, color=c, lw=1.2)
+    for i, m in enumerate(measured):
+        c = BEFORE_COLOURS[i % len(BEFORE_COLOURS)]
+        ax_m.plot(m.freq_hz, m.magnitude, "o", ms=3.5, color=c, label=m.label or None)
+        ax_p.plot(m.freq_hz, m.phase_deg, "o", ms=3.5, color=c)
+    for ax in (ax_m, ax_p):
+        if band_hz is not None:
+            ax.axvspan(*band_hz, color="#f5d76e", alpha=0.35, lw=0, label=(band_label or None) if ax is ax_m else None)
+        for f, text in marks_hz:
+            ax.axvline(f, color="0.3", lw=0.8, ls=":")
+            if ax is ax_m:
+                ax.annotate(text, (f, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -12), textcoords="offset points",
+                            fontsize=8, color="0.2")
+        ax.set_xscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    if log_magnitude:
+        ax_m.set_yscale("log")
+    ax_m.set(ylabel=magnitude_label, title=title)
+    ax_p.set(xlabel="frequency (Hz)", ylabel="phase (deg)")
+    if models or measured:
+        ax_m.legend(fontsize=8, loc="lower left")
+    return fig
+
+
+def shaper_sensitivity(curves: Sequence[Curve], *, chosen: str, band: tuple[float, float] | None = None,
+                       limit_pct: float | None = None, title: str = "") -> Figure:
+    """Residual vibration (%) against the mode's frequency relative to the design
+    frequency (%): one curve per shaper, the chosen one bold; ``band`` (relative, %)
+    shaded: the frequency error the choice was judged over; ``limit_pct`` a dotted line."""
+    fig = _figure(4.2)
+    ax = fig.subplots()
+    for i, c in enumerate(curves):
+        bold = c.label.split(" ")[0] == chosen
+        ax.plot(c.x, c.y, color="k" if bold else AFTER_COLOURS[(i + 1) % len(AFTER_COLOURS)], lw=2.0 if bold else 0.9,
+                label=(c.label + " (chosen)") if bold else c.label)
+    if band is not None:
+        ax.axvspan(*band, color="#f5d76e", alpha=0.35, lw=0, label=f"judged over {band[0]:+g} to {band[1]:+g} %")
+    if limit_pct is not None:
+        ax.axhline(limit_pct, color="0.4", ls=":", lw=0.9, label=f"{limit_pct:g} % limit")
+    ax.axvline(0.0, color="0.5", lw=0.6)
+    ax.set(xlabel="mode frequency error, relative to the design (%)", ylabel="residual vibration (%)", title=title)
+    ax.grid(True, alpha=0.3)
+    if curves:
+        ax.legend(fontsize=8, loc="upper center")
+    else:
+        _no_data(ax, "no shaper")
+    return fig
+
+
+@dataclass(frozen=True)
+class DrivePanel:
+    """One panel of :func:`drive_and_reference`: the reference (left axis, ``unit``) and
+    the compensated drive (right axis, V) against time (``time_unit``)."""
+
+    title: str
+    t: np.ndarray
+    reference: np.ndarray
+    drive: np.ndarray
+    time_unit: str = "s"
+    measured: np.ndarray | None = None
+
+
+def drive_and_reference(panels: Sequence[DrivePanel], *, unit: str = "N", title: str = "") -> Figure:
+    """What the compensator sends: per panel the reference and the measured output (left
+    axis) and the drive (right axis, V) over the same time."""
+    n = max(len(panels), 1)
+    fig = _figure(4.2)
+    axes = np.atleast_1d(fig.subplots(1, n, squeeze=False)[0])
+    q, u = units.quantity(unit), units.label(unit)
+    if not panels:
+        _no_data(axes[0], "no compensated run")
+    for ax, p in zip(axes, panels):
+        ax.plot(p.t, p.reference, color="0.3", ls="--", lw=1.0, label=f"reference ({u})")
+        if p.measured is not None:
+            ax.plot(p.t, p.measured, color=AFTER_COLOURS[0], lw=0.8, label=f"measured ({u})")
+        ax.set(title=p.title, xlabel=f"time ({p.time_unit})", ylabel=f"{q} ({u})")
+        ax.grid(True, alpha=0.3)
+        ax2 = ax.twinx()
+        ax2.plot(p.t, p.drive, color=BEFORE_COLOURS[1], lw=0.9, label="drive (V)")
+        ax2.set_ylabel("drive command_v (V)", color=BEFORE_COLOURS[3])
+        lines = ax.get_lines() + ax2.get_lines()
+        ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper left")
+    if title:
+        fig.suptitle(title)
     return fig

@@ -126,7 +126,7 @@ def read_metrics(path):
 def test_writes_every_file_and_prints_the_table_and_the_page(full):
     out, output = full
     for name in ("metrics.csv", "report.md", "report.html", "hysteresis_loops.png", "creep.png", "steps.png", "tracking.png",
-                 "model_residuals.png"):
+                 "model_residuals.png", "compensated_drive.png", "mode_bode.png", "shaper_sensitivity.png", "creep_bode.png"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     assert "| quantity" in output and "controlled (thesis)" in output
     assert output.rstrip().splitlines()[-1].endswith(str(out / "report.html"))
@@ -195,7 +195,9 @@ def test_html_is_self_contained(full):
     page = (out / "report.html").read_text()
     assert 'src="http' not in page and "<link" not in page and "<script" not in page and "@import" not in page
     srcs = page.split('src="')[1:]
-    assert len(srcs) == 5 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    # every figure written as PNG is embedded, and nothing else is loaded
+    pngs = sorted(p.name for p in out.glob("*.png"))
+    assert len(pngs) == 9 and len(srcs) == len(pngs) and all(s.startswith("data:image/png;base64,") for s in srcs)
     assert "max-width: 1100px" in page
     assert "Table 6.13" in page and "Model quality" in page
 
