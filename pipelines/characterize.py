@@ -18,6 +18,7 @@ import numpy as np
 
 import piezopress
 from piezopress import runformat
+from piezopress.acquisition import drive_check
 from piezopress.acquisition.backend import Backend, Measurement
 from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
 from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
@@ -296,8 +297,9 @@ def check_drives(plan: Plan, backend: Backend) -> None:
     for the whole plan up front keeps a characterization from stopping half-way on protocol 7.
     """
     check = getattr(backend, "check_drive", None)
-    if check is None:
-        return
+    if check is None:  # a backend without its own check: the shared one, on its stated limits
+        def check(command_v: np.ndarray, fs: float, label: str) -> None:
+            drive_check.check_drive(command_v, fs, backend.limits, f"{backend.name}: {label}")
     problems = []
     for i, proto in enumerate(plan.protocols, start=1):
         _, command_v = proto.waveform()
