@@ -9,6 +9,7 @@ complete. Existing data is never overwritten.
 
 from __future__ import annotations
 
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +20,7 @@ import numpy as np
 import piezopress
 from piezopress import runformat
 from piezopress.acquisition import drive_check
-from piezopress.acquisition.backend import Backend, Measurement
+from piezopress.acquisition.backend import Backend, Measurement, stop_signals_interrupt
 from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
 from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
@@ -222,7 +223,9 @@ def execute_plan(
     total = len(plan.protocols)
     plan_s = plan.duration_s
     remaining = plan_s
+    stop_signals = stop_signals_interrupt()
     try:
+        stop_signals.__enter__()  # SIGTERM/SIGHUP: like Ctrl-C (ramp to 0 V, runs kept, manifest interrupted)
         for i, proto in enumerate(plan.protocols, start=1):
             at = {"plan_s": plan_s, "remaining_s": remaining}
             if on_progress:
@@ -254,12 +257,15 @@ def execute_plan(
             manifest["zero_output_error"] = f"{type(zero_exc).__name__}: {zero_exc}"
         interrupted = isinstance(exc, KeyboardInterrupt)
         manifest["status"] = "interrupted" if interrupted else "failed"
-        manifest["status_reason"] = "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}"
+        manifest["status_reason"] = (f"interrupted by {signal.Signals(exc.signum).name}" if getattr(exc, "signum", None)
+                                     else "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}")
         manifest["finished_utc"] = utc_now()
         write_json_atomic(manifest_path, manifest)
         if isinstance(exc, (PiezopressError, KeyboardInterrupt)):
             raise
         raise BackendError(f"characterization stopped: {type(exc).__name__}: {exc} (runs so far kept in {out})") from exc
+    finally:
+        stop_signals.__exit__(None, None, None)
     manifest["status"] = "complete"
     manifest["finished_utc"] = utc_now()
     write_json_atomic(manifest_path, manifest)

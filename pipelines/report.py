@@ -42,7 +42,7 @@ from piezopress.analysis import metrics
 from piezopress.errors import OutputExistsError, PiezopressError
 from piezopress.pipelines import summary
 from piezopress.pipelines.bundle import read_document
-from piezopress.pipelines.files import MANIFEST, read_manifest, run_files
+from piezopress.pipelines.files import MANIFEST, read_manifest, run_files, status_notes
 
 COLUMNS = ["table", "test", "metric", "unit", "value", "thesis", "thesis_source"]
 #: The quasi-static triangles of Table 6.13 (and the hysteresis loops) are those at this frequency (Hz).
@@ -160,7 +160,7 @@ def _load_dir(path: str | Path, what: str, command: str, table_of: Callable[[Pat
     path = Path(path)
     if not path.is_dir():
         raise ReportError(f"{path}: no such directory; expected a {what} run directory (from `piezopress {command}`)")
-    files = run_files(path)
+    files = run_files(path, expect_kind=what)
     runs: dict[str, runformat.Run] = {}
     for f in files:
         r = runformat.read_run(f)
@@ -769,6 +769,7 @@ def _inputs_lines(char: _Source | None, val: _Source | None, bundle: str | Path 
                      f"software {doc.get('software_version', '?')})")
     else:
         lines.append("Bundle: not given")
+    lines += [f"Incomplete input: {note}" for note in status_notes()]  # accepted with --accept-incomplete
     return lines
 
 

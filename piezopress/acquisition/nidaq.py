@@ -50,6 +50,7 @@ fake that records the exact sequence of calls (``tests/test_nidaq.py``).
 from __future__ import annotations
 
 import math
+import signal
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -283,9 +284,11 @@ class RunInterrupted(KeyboardInterrupt):
     ``measurement`` holds what was measured (``complete`` false), so the caller keeps it.
     """
 
-    def __init__(self, measurement: Measurement):
+    def __init__(self, measurement: Measurement, signum: int | None = None):
         super().__init__(measurement.reason)
         self.measurement = measurement
+        #: the signal that stopped the run (SIGTERM, SIGHUP), None for Ctrl-C
+        self.signum = signum
 
 
 class NidaqBackend:
@@ -346,7 +349,7 @@ class NidaqBackend:
         check_preload(preload_measured_n, self.config.safety)
         m = self._play(command_v, float(sample_rate_hz), label, progress, {"preload_requested_n": float(preload_n), "preload_measured_n": preload_measured_n})
         if m.info.get("interrupted"):
-            raise RunInterrupted(m)
+            raise RunInterrupted(m, getattr(signal, str(m.info.get("signal")), None))
         return m
 
     def zero_output(self) -> None:
@@ -431,6 +434,7 @@ class NidaqBackend:
         got = 0
         reason = ""
         interrupted = False
+        signum = None
         started = False
         try:
             ao.write(daq_v, auto_start=False)
@@ -450,9 +454,10 @@ class NidaqBackend:
                     progress(got / n)
             if not reason:
                 ao.wait_until_done(TIMEOUT_MARGIN_S)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (backend.Terminated)
             interrupted = True
-            reason = "interrupted by the user (Ctrl-C)"
+            signum = getattr(exc, "signum", None)
+            reason = f"interrupted by {signal.Signals(signum).name}" if signum else "interrupted by the user (Ctrl-C)"
         except Exception as exc:  # driver errors included: the data so far is kept
             reason = f"{type(exc).__name__}: {exc}"
         errors: list[str] = []
@@ -480,6 +485,7 @@ class NidaqBackend:
             "ramp_down": ramp,
             "output_zeroed": self._output_confirmed,
             "interrupted": interrupted,
+            "signal": signal.Signals(signum).name if interrupted and signum else None,
         }
         channels = {col: buf[row, :got].copy() for row, col in enumerate(columns)}
         return Measurement(channels=channels, complete=complete, reason=reason, info=info)
