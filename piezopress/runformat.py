@@ -35,7 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from piezopress import units
-from piezopress.errors import OutputExistsError, RunFormatError
+from piezopress.errors import OutputExistsError, RunFormatError, output_error
 
 SCHEMA_VERSION = 1
 METADATA_KEY = b"piezopress"
@@ -170,6 +170,10 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
             i = int(np.argmax(bad))
             raise _problem(label, f"column {col} has {int(bad.sum())} NaN/infinite value(s), first at row {i}; expected finite numbers")
 
+    for col in data.columns:  # columns beyond the known ones are kept, but as numbers too (all float64)
+        if col not in KNOWN_COLUMNS and data[col].dtype != np.float64:
+            raise _problem(label, f"extra column {str(col)[:60]!r} has type {data[col].dtype}, expected float64 (every column of a run is a number)")
+
     t = data["t_s"].to_numpy()
     dt = np.diff(t)
     if np.any(dt <= 0):
@@ -232,7 +236,11 @@ def write_run(run: Run, path: str | os.PathLike[str], *, overwrite: bool = False
     meta[METADATA_KEY] = json.dumps(run.meta, default=_json_default, sort_keys=False).encode()
     table = table.replace_schema_metadata(meta)
     tmp = path.with_name(f".{path.name}.partial")
-    pq.write_table(table, tmp, compression="zstd")
+    try:
+        pq.write_table(table, tmp, compression="zstd")
+    except OSError as exc:  # a missing or read-only folder, a full disk: one line, nothing half-written left
+        tmp.unlink(missing_ok=True) if tmp.parent.is_dir() else None
+        raise output_error(path, exc) from None
     if path.exists() and not overwrite:  # appeared meanwhile
         tmp.unlink()
         raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (choose another name)")

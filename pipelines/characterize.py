@@ -25,7 +25,7 @@ from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, 
 from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
-from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError
+from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError, output_error
 from piezopress.pipelines.files import MANIFEST, MANIFEST_VERSION, new_output_dir, software_versions, utc_now, write_json_atomic
 from piezopress.resources import shipped
 
@@ -198,7 +198,12 @@ def execute_plan(
     on_progress: Callable[[ProgressEvent], None] | None = None,
 ) -> CharacterizeResult:
     """Play every protocol of a checked plan into a new run directory with a manifest."""
-    out = new_output_dir(out_dir)
+    try:  # the folder is made (and written to) before the rig is touched: a read-only one is one line
+        out = new_output_dir(out_dir)
+    except OSError as exc:
+        if isinstance(exc, PiezopressError):
+            raise
+        raise output_error(out_dir, exc, "create this run directory") from None
     manifest: dict[str, Any] = {
         "manifest_version": MANIFEST_VERSION,
         "kind": kind,
@@ -217,7 +222,10 @@ def execute_plan(
         "runs": [],
     }
     manifest_path = out / MANIFEST
-    write_json_atomic(manifest_path, manifest)
+    try:
+        write_json_atomic(manifest_path, manifest)
+    except OSError as exc:
+        raise output_error(manifest_path, exc) from None
     result = CharacterizeResult(out, manifest_path, plan=plan)
     extra = {"software_version": piezopress.__version__, "rig": backend.describe()}
     total = len(plan.protocols)

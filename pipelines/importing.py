@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from piezopress import __version__
-from piezopress.errors import ImportFormatError, OutputExistsError
+from piezopress.errors import ImportFormatError, OutputExistsError, output_error
 from piezopress.runformat import (
     KINDS,
     KNOWN_COLUMNS,
@@ -223,8 +223,14 @@ def import_file(source: str | os.PathLike[str], out: str | os.PathLike[str], **o
     out = Path(out)
     if out.exists():  # checked first so as not to spend time on the source
         raise OutputExistsError(f"{out}: already exists; refusing to overwrite it (choose another name)")
+    try:  # the output's folder is made (or refused) before the source is read
+        out.parent.mkdir(parents=True, exist_ok=True)
+        probe = out.with_name(f".{out.name}.partial")
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        raise output_error(out, exc, "write it there") from None
     run = import_table(source, **options)
-    out.parent.mkdir(parents=True, exist_ok=True)
     sha = write_run(run, out)
     return Run(run.data, run.meta, out), sha
 
