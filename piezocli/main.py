@@ -16,14 +16,27 @@ from piezopress import __version__
 from piezopress.errors import PiezopressError
 
 
+#: Whether a progress line was started without its end (``[1/2] tri ... ``): an error then starts a new line.
+_PROGRESS_LINE = {"open": False}
+
+
+def progress_line(open_: bool) -> None:
+    """Say whether a progress line is open (printed without its newline)."""
+    _PROGRESS_LINE["open"] = open_
+
+
 def reports_errors(func):
     """Turn library errors into a clean ``Error: ...`` and a non-zero exit, never a traceback."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        progress_line(False)
         try:
             return func(*args, **kwargs)
         except PiezopressError as exc:
+            if _PROGRESS_LINE["open"]:  # the error on a line of its own, not after "... "
+                click.echo()
+            progress_line(False)
             raise click.ClickException(str(exc)) from None
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP during a plan (signum: which)
             signum = getattr(exc, "signum", 2)

@@ -164,7 +164,13 @@ def import_table(
             i = int(np.argmax(bad))
             _bad_cell(label, source.cell(lo + lag + i, col), col, target, lo + lag + i, first_line, int(bad.sum()))
         scale, offset = scales.get(target, 1.0), offsets.get(target, 0.0)
-        values[target] = raw if (scale, offset) == (1.0, 0.0) else raw * scale + offset
+        if (scale, offset) != (1.0, 0.0):
+            with np.errstate(over="ignore", invalid="ignore"):
+                raw = raw * scale + offset
+            if not np.isfinite(raw).all():
+                raise ImportFormatError(f"{label}: scale {target}={scale:g} with offset {offset:g} makes column {col + 1} overflow to "
+                                        "infinity; expected a scale and offset that convert to V, N, µm or s")
+        values[target] = raw
 
     time_info: dict[str, Any]
     if "t_s" in values:

@@ -468,7 +468,7 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
             problems.append(f"{where}: expected a table")
             continue
         kind = table.get("kind")
-        if kind not in KINDS:
+        if not isinstance(kind, str) or kind not in KINDS:
             problems.append(f"{where}: key 'kind' = {kind!r} is unknown; expected one of {', '.join(KINDS)}")
             continue
         spec = KINDS[kind]
