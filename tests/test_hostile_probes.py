@@ -263,3 +263,83 @@ def test_diagnose_with_an_unknown_cause_is_one_line_exit_2(tmp_path):
     line = one_error_line(res, code=2)
     assert "'bogus' is not a cause of the catalogue; expected one of" in line
     assert not (tmp_path / "d").exists()
+
+
+# --------------------------------------------------------------------------- what the fuzz test found
+
+
+def _write_raw_run(path: Path, cols: dict, meta: bytes) -> Path:
+    table = pa.table(cols).replace_schema_metadata({"piezopress": meta})
+    pq.write_table(table, path)
+    return path
+
+
+def _step_columns(n: int = 100) -> tuple[dict, dict]:
+    from piezopress import runformat
+
+    t = np.arange(n) / 1000.0
+    return ({"t_s": t, "command_v": np.full(n, 10.0), "force_n": np.full(n, 70.0)},
+            runformat.make_meta("step", "s", 1000.0, preload_n=50.0))
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda c, m: c.update(extra=np.full(len(c["t_s"]), np.nan)), "extra column 'extra' has NaN/infinite values; expected finite numbers"),
+    (lambda c, m: c.update(force_n=c["force_n"] * 1e300), "column force_n holds 7e+301 at row 0; expected magnitudes below 1e+12 (no press measures that: a unit or scale error?)"),
+])
+def test_runs_with_non_finite_extras_or_absurd_magnitudes_are_refused(tmp_path, change, words):
+    cols, meta = _step_columns()
+    change(cols, meta)
+    path = _write_raw_run(tmp_path / "r.parquet", cols, json.dumps(meta).encode())
+    assert one_error_line(invoke("inspect", str(path))) == f"Error: {path}: {words}"
+
+
+def test_run_metadata_that_is_not_utf8_is_one_line(tmp_path):
+    cols, _ = _step_columns()
+    path = _write_raw_run(tmp_path / "r.parquet", cols, b'{"name": "\xff\xfe"}')
+    assert "'piezopress' metadata is not UTF-8 text (byte" in one_error_line(invoke("inspect", str(path)))
+
+
+@pytest.mark.parametrize("kind", [[], {}, 3, True])
+def test_a_protocol_kind_of_the_wrong_type_is_a_plan_problem(kind):
+    doc = {"plan": {"name": "p"}, "protocol": [{"name": "a", "kind": kind, "hold_s": 1.0, "sample_rate_hz": 100.0}]}
+    with pytest.raises(PlanError, match="key 'kind' = .* is unknown; expected one of triangle"):
+        parse_plan(doc, DriveLimits())
+
+
+def test_an_import_scale_that_overflows_is_one_line(tmp_path):
+    src = tmp_path / "m.csv"
+    src.write_text("0,1e300\n1,2\n2,3\n")
+    res = invoke("import", str(src), "--out", str(tmp_path / "r.parquet"), "--col", "command_v=1", "--col", "force_n=2",
+                 "--sample-rate-hz", "10", "--scale", "force_n=1e308")
+    assert "scale force_n=1e+308 with offset 0 makes column 2 overflow to infinity" in one_error_line(res)
+    assert not (tmp_path / "r.parquet").exists()
+
+
+def test_a_rig_mode_below_1_rad_s_is_refused(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_text("[mode]\nnatural_freq_rad_s = 1e-300\n")
+    assert "natural_freq_rad_s = 1e-300: outside the allowed range [1, 1e+07]" in one_error_line(invoke("check-rig", "--rig", str(rig)))
+
+
+class _FailsOnSecondRun(VirtualRig):
+    def __init__(self):
+        super().__init__()
+        self.calls = 0
+
+    def run(self, *args, **kwargs):
+        self.calls += 1
+        if self.calls == 2:
+            raise BackendError("rig on fire")
+        return super().run(*args, **kwargs)
+
+
+def test_an_error_after_a_progress_line_starts_a_line_of_its_own(tmp_path, monkeypatch):
+    from piezopress.pipelines import characterize as char
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN_HEAD + proto("a", hold_s="0.05", sample_rate_hz="1000.0", level_v="10.0")
+                    + proto("b", hold_s="0.05", sample_rate_hz="1000.0", level_v="10.0"))
+    monkeypatch.setattr(char, "make_backend", lambda name, rig: _FailsOnSecondRun())
+    res = invoke("characterize", "--plan", str(plan), "--out", str(tmp_path / "runs"))
+    assert res.exit_code == 1
+    assert "\nError: rig on fire" in res.output and res.output.rstrip().endswith("Error: rig on fire")
