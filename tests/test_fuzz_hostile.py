@@ -414,3 +414,29 @@ def test_fuzz_hostile_inputs_give_a_result_or_one_error_line(tmp_path):
     assert count >= 500, count
     assert not found, f"{len(found)} of {count} cases failed:\n" + "\n".join(found[:40])
     assert took < 60.0, f"the fuzz test took {took:.0f} s"
+
+
+def test_the_fuzz_checker_flags_every_forbidden_outcome(tmp_path):
+    """The checker is not vacuous: a traceback, a bad exit, two Error lines, an error after
+    exit 0, a slow case and a non-finite value written are each flagged; the allowed outcomes are not."""
+
+    class Res:
+        def __init__(self, code=0, output="", exception=None):
+            self.exit_code, self.output, self.exception = code, output, exception
+
+    nan_file = tmp_path / "x.parquet"
+    pd.DataFrame({"a": [1.0, np.nan]}).to_parquet(nan_file)
+    csv = tmp_path / "x.csv"
+    csv.write_text("a,b\n1,inf\n")
+    ok_csv = tmp_path / "ok.csv"
+    ok_csv.write_text("a,b\n1,\n")
+    case = Case("c", ["compensate"], [])
+    assert problem(case, Res(1, "Error: x\n", ValueError("boom")), 0.1).startswith("traceback")
+    assert problem(case, Res(3, ""), 0.1) == "exit 3"
+    assert "2 Error lines" in problem(case, Res(1, "Error: a\nError: b\n", SystemExit(1)), 0.1)
+    assert problem(case, Res(0, "Error: a\n"), 0.1) == "exit 0 with an error printed"
+    assert "ran" in problem(case, Res(0, ""), CASE_SECONDS + 1)
+    assert "non-finite" in problem(Case("c", ["x"], [nan_file]), Res(0, ""), 0.1)
+    assert "non-finite value 'inf'" in problem(Case("c", ["x"], [csv]), Res(0, ""), 0.1)
+    assert problem(Case("c", ["x"], [ok_csv]), Res(0, ""), 0.1) == ""
+    assert problem(case, Res(1, "Error: p: 2 problem(s) in the plan\n  - a\n  - b\n", SystemExit(1)), 0.1) == ""

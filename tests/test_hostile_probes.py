@@ -343,3 +343,46 @@ def test_an_error_after_a_progress_line_starts_a_line_of_its_own(tmp_path, monke
     res = invoke("characterize", "--plan", str(plan), "--out", str(tmp_path / "runs"))
     assert res.exit_code == 1
     assert "\nError: rig on fire" in res.output and res.output.rstrip().endswith("Error: rig on fire")
+
+
+def test_validate_checks_every_compensated_drive_before_the_directory_is_made(tmp_path):
+    """A rig whose actuator stops at 10 V: the compensated drives of a 50 N reference need
+    more, so validate refuses in one line and creates nothing."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text((ROOT / "rigs" / "thesis-press.toml").read_text().replace("drive_max_v = 150.0", "drive_max_v = 10.0"))
+    plan = tmp_path / "v.toml"
+    plan.write_text('[plan]\nname = "v"\n[[protocol]]\nname = "tri"\nkind = "triangle"\nfreq_hz = 10.0\ncycles = 1\npeak_n = 50.0\n'
+                    'sample_rate_hz = 1000.0\n')
+    out = tmp_path / "val"
+    res = invoke("validate", "--bundle", str(BUNDLE), "--plan", str(plan), "--rig", str(rig), "--out", str(out))
+    line = one_error_line(res)
+    assert f"{plan}: protocol 'tri' through {BUNDLE}: drive refused: drive spans" in line and "outside the actuator's range -30 to 10 V" in line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args", [
+    ["check-rig", "--rig", "rigs/thesis-press.toml", "--sample-rate-hz", "1e9"],
+    ["check-rig", "--rig", "rigs/thesis-press.toml", "--duration-s", "1e7"],
+    ["characterize", "--plan", "{plan}", "--out", "{tmp}/runs"],
+])
+def test_costly_commands_are_refused_under_a_memory_cap(tmp_path, args):
+    """In a fresh process whose address space is capped at 1.5 GB above what its imports take,
+    the command ends with one Error line (before: killed at 24 GB or a MemoryError traceback)."""
+    import subprocess
+    import sys
+
+    plan = tmp_path / "plan.toml"
+    plan.write_text(PLAN_HEAD + proto(hold_s="1e7", sample_rate_hz="100000.0"))
+    args = [a.replace("{plan}", str(plan)).replace("{tmp}", str(tmp_path)) for a in args]
+    code = ("import resource, sys\n"
+            "from piezopress.piezocli.main import cli\n"
+            "import piezopress.piezocli.cmd_characterize, piezopress.piezocli.cmd_check_rig, pandas, scipy.signal, pyarrow.parquet\n"
+            "vm = next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmSize:')) * 1024\n"
+            "resource.setrlimit(resource.RLIMIT_AS, (vm + 1500 * 2**20, resource.getrlimit(resource.RLIMIT_AS)[1]))\n"
+            "cli(sys.argv[1:])\n")
+    if not Path("/proc/self/status").exists():
+        pytest.skip("needs /proc to size the cap")
+    out = subprocess.run([sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1, out.stderr[-2000:]
+    assert "Traceback" not in out.stderr and "MemoryError" not in out.stderr
+    assert [ln for ln in (out.stdout + out.stderr).splitlines() if ln.startswith("Error")], out.stderr
