@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, reports_errors
+from piezopress.piezocli.main import cli, progress_line, reports_errors
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import summary
 
@@ -41,11 +41,13 @@ def _print_progress(ev: char.ProgressEvent) -> None:
         return
     if not ev.done:
         click.echo(head, nl=False)
+        progress_line(True)
     else:
         if tty:
             click.echo(f"\r{head}", nl=False)
         left = f", {_duration(ev.remaining_s)} of drive left" if ev.remaining_s > 0 else ""
         click.echo(f"done in {ev.elapsed_s:.2f} s{left}")
+        progress_line(False)
 
 
 @cli.command("characterize")

@@ -61,6 +61,12 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds) -> None:
       piezopress diagnose runs/char runs/more --bundle build/base.json --out runs/diagnosis-2
       piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis-3 --gain
     """
+    from piezopress.analysis.diagnosis import CAUSES
+
+    unknown = [c for c in causes if c not in CAUSES]
+    if unknown:  # before any work, one line with the catalogue
+        raise click.BadParameter(f"{', '.join(map(repr, unknown))} is not a cause of the catalogue; expected one of {', '.join(CAUSES)}",
+                                 param_hint="'--cause'")
     result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None)
     plan = diag.next_plan_info(out)
     click.echo(diag.format_summary(result, plan))

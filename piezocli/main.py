@@ -16,18 +16,32 @@ from piezopress import __version__
 from piezopress.errors import PiezopressError
 
 
+#: Whether a progress line was started without its end (``[1/2] tri ... ``): an error then starts a new line.
+_PROGRESS_LINE = {"open": False}
+
+
+def progress_line(open_: bool) -> None:
+    """Say whether a progress line is open (printed without its newline)."""
+    _PROGRESS_LINE["open"] = open_
+
+
 def reports_errors(func):
     """Turn library errors into a clean ``Error: ...`` and a non-zero exit, never a traceback."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
+        progress_line(False)
         try:
             return func(*args, **kwargs)
         except PiezopressError as exc:
+            if _PROGRESS_LINE["open"]:  # the error on a line of its own, not after "... "
+                click.echo()
+            progress_line(False)
             raise click.ClickException(str(exc)) from None
-        except KeyboardInterrupt:
-            click.echo("\nInterrupted.", err=True)
-            sys.exit(130)
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP during a plan (signum: which)
+            signum = getattr(exc, "signum", 2)
+            click.echo(f"\nInterrupted{f' by signal {signum}' if signum != 2 else ''}.", err=True)
+            sys.exit(128 + signum)
 
     return wrapper
 
@@ -103,6 +117,31 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+#: Commands that read run directories: they refuse one whose manifest is not ``complete``
+#: unless given ``--accept-incomplete`` (see piezopress.pipelines.files.check_status).
+READS_RUN_DIRECTORIES = ("diagnose", "fit", "fit-creep", "fit-hysteresis", "fit-shaper", "report")
+
+
+def _accept_incomplete(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    """Set whether incomplete run directories are accepted; name what was accepted on stderr at the end."""
+    from piezopress.pipelines import files
+
+    files.accept_incomplete(value)
+
+    def close() -> None:
+        for note in files.status_notes():
+            click.echo(f"Note: {note}", err=True)
+        files.accept_incomplete(False)
+
+    ctx.call_on_close(close)
+
+
+def accept_incomplete_option() -> click.Option:
+    return click.Option(["--accept-incomplete"], is_flag=True, expose_value=False, is_eager=True, callback=_accept_incomplete,
+                        help="Use the complete runs of a run directory whose manifest says interrupted, failed or running "
+                             "(the output says so); without it such a directory is refused.")
+
+
 class LazyGroup(click.Group):
     """A group whose commands are imported on first use (see :data:`COMMANDS`)."""
 
@@ -114,7 +153,10 @@ class LazyGroup(click.Group):
             import importlib
 
             importlib.import_module(f"piezopress.piezocli.{COMMANDS[name][0]}")  # its decorators add the command to this group
-        return self.commands.get(name)
+        cmd = self.commands.get(name)
+        if cmd is not None and name in READS_RUN_DIRECTORIES and not any(p.name == "accept_incomplete" for p in cmd.params):
+            cmd.params.append(accept_incomplete_option())
+        return cmd
 
     def format_commands(self, ctx, formatter):
         rows = [(name, COMMANDS[name][1]) for name in self.list_commands(ctx) if name in COMMANDS]

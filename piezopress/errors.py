@@ -56,3 +56,15 @@ class FitError(PiezopressError, ValueError):
 
 class CompensatorUnstableError(PiezopressError, ValueError):
     """An inverse (compensator) would be unstable: a closed-loop discrete eigenvalue has ``|z| >= 1``."""
+
+
+class OutputError(PiezopressError, OSError):
+    """An output cannot be written where asked (missing or read-only folder, full disk)."""
+
+
+def output_error(path: object, exc: OSError, what: str = "write it") -> OutputError:
+    """One line for an :class:`OSError` met writing ``path``: the path, the system's reason and what to do."""
+    import os
+
+    reason = os.strerror(exc.errno) if exc.errno else (exc.strerror or type(exc).__name__)
+    return OutputError(f"{path}: cannot {what} ({reason}); expected a folder that exists and that you may write to")

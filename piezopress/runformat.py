@@ -35,7 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from piezopress import units
-from piezopress.errors import OutputExistsError, RunFormatError
+from piezopress.errors import OutputExistsError, RunFormatError, output_error
 
 SCHEMA_VERSION = 1
 METADATA_KEY = b"piezopress"
@@ -44,6 +44,8 @@ REQUIRED_COLUMNS = ("t_s", "command_v")
 OUTPUT_COLUMNS = ("force_n", "displacement_um")
 OPTIONAL_COLUMNS = ("reference_n", "monitor_v")
 KNOWN_COLUMNS = REQUIRED_COLUMNS + OUTPUT_COLUMNS + OPTIONAL_COLUMNS
+#: Largest magnitude of any value of a run (s, V, N, µm): beyond it, arithmetic on the data overflows.
+MAX_MAGNITUDE = 1e12
 REQUIRED_METADATA = ("schema_version", "kind", "name", "sample_rate_hz")
 #: Relative tolerance on the sampling interval: a dropped or duplicated sample is a 100 %
 #: deviation, clock jitter in real files (SmartHysteresis: 5e-5) is far below this.
@@ -170,6 +172,20 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
             i = int(np.argmax(bad))
             raise _problem(label, f"column {col} has {int(bad.sum())} NaN/infinite value(s), first at row {i}; expected finite numbers")
 
+    for col in data.columns:  # columns beyond the known ones are kept, but as numbers too (all float64, finite)
+        if col in KNOWN_COLUMNS:
+            continue
+        if data[col].dtype != np.float64:
+            raise _problem(label, f"extra column {str(col)[:60]!r} has type {data[col].dtype}, expected float64 (every column of a run is a number)")
+        if not np.isfinite(data[col].to_numpy()).all():
+            raise _problem(label, f"extra column {str(col)[:60]!r} has NaN/infinite values; expected finite numbers")
+    for col in data.columns:
+        big = np.abs(data[col].to_numpy()) > MAX_MAGNITUDE
+        if big.any():
+            i = int(np.argmax(big))
+            raise _problem(label, f"column {str(col)[:60]} holds {data[col].iloc[i]:g} at row {i}; expected magnitudes below {MAX_MAGNITUDE:g} "
+                                  "(no press measures that: a unit or scale error?)")
+
     t = data["t_s"].to_numpy()
     dt = np.diff(t)
     if np.any(dt <= 0):
@@ -232,7 +248,11 @@ def write_run(run: Run, path: str | os.PathLike[str], *, overwrite: bool = False
     meta[METADATA_KEY] = json.dumps(run.meta, default=_json_default, sort_keys=False).encode()
     table = table.replace_schema_metadata(meta)
     tmp = path.with_name(f".{path.name}.partial")
-    pq.write_table(table, tmp, compression="zstd")
+    try:
+        pq.write_table(table, tmp, compression="zstd")
+    except OSError as exc:  # a missing or read-only folder, a full disk: one line, nothing half-written left
+        tmp.unlink(missing_ok=True) if tmp.parent.is_dir() else None
+        raise output_error(path, exc) from None
     if path.exists() and not overwrite:  # appeared meanwhile
         tmp.unlink()
         raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (choose another name)")
@@ -264,7 +284,12 @@ def read_run(path: str | os.PathLike[str], *, allow_incomplete: bool = False) ->
         meta = json.loads(raw)
     except json.JSONDecodeError as exc:
         raise _problem(label, f"'piezopress' metadata is not valid JSON ({exc.msg} at character {exc.pos}); expected a JSON object") from None
-    data = table.to_pandas()
+    except UnicodeDecodeError as exc:
+        raise _problem(label, f"'piezopress' metadata is not UTF-8 text (byte {exc.start}); expected a JSON object") from None
+    try:
+        data = table.to_pandas()
+    except Exception as exc:  # pyarrow raises many types for columns it cannot convert
+        raise _problem(label, f"columns cannot be read ({type(exc).__name__}); expected float64 columns") from None
     validate(data, meta, label, allow_incomplete=allow_incomplete)
     return Run(data, meta, path)
 

@@ -9,6 +9,7 @@ complete. Existing data is never overwritten.
 
 from __future__ import annotations
 
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,12 +19,13 @@ import numpy as np
 
 import piezopress
 from piezopress import runformat
-from piezopress.acquisition.backend import Backend, Measurement
+from piezopress.acquisition import drive_check
+from piezopress.acquisition.backend import Backend, Measurement, stop_signals_interrupt
 from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
 from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
-from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError
+from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError, output_error
 from piezopress.pipelines.files import MANIFEST, MANIFEST_VERSION, new_output_dir, software_versions, utc_now, write_json_atomic
 from piezopress.resources import shipped
 
@@ -196,7 +198,12 @@ def execute_plan(
     on_progress: Callable[[ProgressEvent], None] | None = None,
 ) -> CharacterizeResult:
     """Play every protocol of a checked plan into a new run directory with a manifest."""
-    out = new_output_dir(out_dir)
+    try:  # the folder is made (and written to) before the rig is touched: a read-only one is one line
+        out = new_output_dir(out_dir)
+    except OSError as exc:
+        if isinstance(exc, PiezopressError):
+            raise
+        raise output_error(out_dir, exc, "create this run directory") from None
     manifest: dict[str, Any] = {
         "manifest_version": MANIFEST_VERSION,
         "kind": kind,
@@ -215,13 +222,18 @@ def execute_plan(
         "runs": [],
     }
     manifest_path = out / MANIFEST
-    write_json_atomic(manifest_path, manifest)
+    try:
+        write_json_atomic(manifest_path, manifest)
+    except OSError as exc:
+        raise output_error(manifest_path, exc) from None
     result = CharacterizeResult(out, manifest_path, plan=plan)
     extra = {"software_version": piezopress.__version__, "rig": backend.describe()}
     total = len(plan.protocols)
     plan_s = plan.duration_s
     remaining = plan_s
+    stop_signals = stop_signals_interrupt()
     try:
+        stop_signals.__enter__()  # SIGTERM/SIGHUP: like Ctrl-C (ramp to 0 V, runs kept, manifest interrupted)
         for i, proto in enumerate(plan.protocols, start=1):
             at = {"plan_s": plan_s, "remaining_s": remaining}
             if on_progress:
@@ -253,12 +265,15 @@ def execute_plan(
             manifest["zero_output_error"] = f"{type(zero_exc).__name__}: {zero_exc}"
         interrupted = isinstance(exc, KeyboardInterrupt)
         manifest["status"] = "interrupted" if interrupted else "failed"
-        manifest["status_reason"] = "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}"
+        manifest["status_reason"] = (f"interrupted by {signal.Signals(exc.signum).name}" if getattr(exc, "signum", None)
+                                     else "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}")
         manifest["finished_utc"] = utc_now()
         write_json_atomic(manifest_path, manifest)
         if isinstance(exc, (PiezopressError, KeyboardInterrupt)):
             raise
         raise BackendError(f"characterization stopped: {type(exc).__name__}: {exc} (runs so far kept in {out})") from exc
+    finally:
+        stop_signals.__exit__(None, None, None)
     manifest["status"] = "complete"
     manifest["finished_utc"] = utc_now()
     write_json_atomic(manifest_path, manifest)
@@ -296,8 +311,9 @@ def check_drives(plan: Plan, backend: Backend) -> None:
     for the whole plan up front keeps a characterization from stopping half-way on protocol 7.
     """
     check = getattr(backend, "check_drive", None)
-    if check is None:
-        return
+    if check is None:  # a backend without its own check: the shared one, on its stated limits
+        def check(command_v: np.ndarray, fs: float, label: str) -> None:
+            drive_check.check_drive(command_v, fs, backend.limits, f"{backend.name}: {label}")
     problems = []
     for i, proto in enumerate(plan.protocols, start=1):
         _, command_v = proto.waveform()

@@ -9,14 +9,16 @@ The analysis is :func:`piezopress.analysis.rigcheck.rig_check`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from piezopress.acquisition import waveforms
+from piezopress.acquisition import drive_check, waveforms
 from piezopress.acquisition.backend import Backend
+from piezopress.acquisition.plan import DriveLimits
 from piezopress.analysis.rigcheck import RigCheck, rig_check
 from piezopress.errors import BackendError, PiezopressError
 from piezopress.pipelines.characterize import make_backend
@@ -45,16 +47,30 @@ class RigCheckReport:
         return {**d, **{f"check_{k}": v for k, v in self.check.__dict__.items()}}
 
 
-def check_drive(amplitude_v: float, freq_hz: float, duration_s: float, rest_s: float, sample_rate_hz: float) -> tuple[np.ndarray, int]:
-    """``(command_v, rest_samples)``: rest at 0 V, then raised-cosine cycles 0 -> ``amplitude_v`` -> 0."""
-    if not (amplitude_v > 0 and freq_hz > 0 and duration_s > 0 and rest_s > 0 and sample_rate_hz > 0):
+def check_drive(amplitude_v: float, freq_hz: float, duration_s: float, rest_s: float, sample_rate_hz: float,
+                limits: DriveLimits | None = None) -> tuple[np.ndarray, int]:
+    """``(command_v, rest_samples)``: rest at 0 V, then raised-cosine cycles 0 -> ``amplitude_v`` -> 0.
+
+    With ``limits`` (the rig's), the sample rate, the number of samples and the duration are
+    checked against them before anything is built, and the drive itself by the shared
+    drive check."""
+    values = (amplitude_v, freq_hz, duration_s, rest_s, sample_rate_hz)
+    if not all(math.isfinite(v) and v > 0 for v in values):
         raise PiezopressError(
             f"check-rig: amplitude_v = {amplitude_v:g}, freq_hz = {freq_hz:g}, duration_s = {duration_s:g}, rest_s = {rest_s:g}, "
-            f"sample_rate_hz = {sample_rate_hz:g}; expected all positive"
+            f"sample_rate_hz = {sample_rate_hz:g}; expected all positive and finite"
         )
     if sample_rate_hz < 20 * freq_hz:
         raise PiezopressError(f"check-rig: sample_rate_hz = {sample_rate_hz:g} is too low for freq_hz = {freq_hz:g}; expected at least 20 samples per cycle")
     cycles = max(1, int(round(duration_s * freq_hz)))
+    if limits is not None:
+        problems = drive_check.sample_rate_problems(sample_rate_hz, limits, "--sample-rate-hz")
+        samples = (rest_s + cycles / freq_hz) * sample_rate_hz
+        problems += drive_check.sample_count_problems(samples, sample_rate_hz, limits, "the check drive")
+        if rest_s + cycles / freq_hz > limits.max_duration_s:
+            problems.append(f"the check drive lasts {rest_s + cycles / freq_hz:.4g} s, more than the rig's limit of {limits.max_duration_s:g} s")
+        if problems:
+            raise drive_check.DriveRefused(f"check-rig: {'; '.join(problems)}; expected a short, small drive within the rig's limits")
     rest = np.zeros(max(10, int(round(rest_s * sample_rate_hz))))
     sine = waveforms.sine(freq_hz, cycles, 0.0, amplitude_v, sample_rate_hz)
     return np.concatenate([rest, sine[1:]]), len(rest)
@@ -82,7 +98,8 @@ def check_rig(
         reason says why); the drive is back at 0 V then.
     """
     backend = backend or make_backend(backend_name, rig_path)
-    command_v, rest_samples = check_drive(amplitude_v, freq_hz, duration_s, rest_s, sample_rate_hz)
+    command_v, rest_samples = check_drive(amplitude_v, freq_hz, duration_s, rest_s, sample_rate_hz, backend.limits)
+    drive_check.check_drive(command_v, sample_rate_hz, backend.limits, f"check-rig ({backend.name})")
     m = backend.run(command_v, sample_rate_hz, preload_n=preload_n, label="check-rig")
     if not m.complete:
         raise BackendError(f"check-rig: the run was cut short after {min(map(len, m.channels.values()), default=0)} samples: {m.reason}")

@@ -8,10 +8,13 @@ import numpy as np
 import pandas as pd
 
 from piezopress import units
+from piezopress.acquisition.drive_check import check_drive, check_sample_rate
+from piezopress.acquisition.plan import DriveLimits
 from piezopress.analysis.compensation import CompensationResult
 from piezopress.errors import ImportFormatError, OutputExistsError
 from piezopress.runformat import UNIFORM_RTOL
 from piezopress.pipelines.bundle import compensator, read_document
+from piezopress.pipelines.characterize import DEFAULT_RIG, rig_limits
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:
@@ -45,7 +48,11 @@ def reference_column(bundle: dict) -> str:
     return f"reference_{units.key(bundle['hysteresis']['model'].get('output_unit', units.FORCE))}"
 
 
-def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True) -> CompensationResult:
+def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True,
+                    limits: DriveLimits | None = None) -> CompensationResult:
+    """Write the drive for a reference; ``limits`` (default: the shipped rig's) bound its sample rate,
+    range and slew (:mod:`piezopress.acquisition.drive_check`, the check every backend makes)."""
+    limits = limits or rig_limits(DEFAULT_RIG)
     out = Path(out)
     if out.exists():
         raise OutputExistsError(f"{out}: already exists; refusing to overwrite it")
@@ -53,6 +60,8 @@ def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Pa
     comp = compensator(bundle, use_shaper=use_shaper)
     column = reference_column(bundle)
     t, r, fs = read_reference(ref_path, column)
+    check_sample_rate(fs, limits, str(ref_path))
     result = comp.drive(r, fs)
+    check_drive(result.command_v, fs, limits, f"{ref_path} through {bundle_path}")
     pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v}).to_csv(out, index=False, float_format="%.9g")
     return result

@@ -12,6 +12,7 @@ import datetime as _dt
 import json
 import os
 import platform
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
@@ -68,10 +69,15 @@ def read_manifest(run_dir: str | Path) -> dict[str, Any]:
         raise PiezopressError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
 
 
-def run_files(run_dir: str | Path) -> list[Path]:
-    """The complete runs of a directory: those its manifest lists, else every ``*.parquet``."""
+def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Path]:
+    """The complete runs of a directory: those its manifest lists, else every ``*.parquet``.
+
+    A directory whose manifest is not ``complete`` (or not of ``expect_kind``) is refused by
+    :func:`check_status`, unless incomplete directories are accepted (then a note names it
+    and the runs skipped)."""
     run_dir = Path(run_dir)
     if (run_dir / MANIFEST).is_file():
+        check_status(run_dir, expect_kind=expect_kind)
         return [run_dir / r["file"] for r in read_manifest(run_dir)["runs"] if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE]
     return sorted(run_dir.glob("*.parquet"))
 
@@ -86,4 +92,62 @@ def check_output(path: str | Path, *, replace: bool = False) -> None:
         raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it, keeping the old one as .prev.json)")
 
 
-__all__ = ["MANIFEST", "MANIFEST_VERSION", "utc_now", "software_versions", "write_json_atomic", "new_output_dir", "read_manifest", "run_files", "check_output"]
+# --- the status of a run directory ------------------------------------------------------------
+
+#: Whether stages accept a run directory whose manifest is not ``complete`` (``--accept-incomplete``).
+_ACCEPT_INCOMPLETE: ContextVar[bool] = ContextVar("accept_incomplete", default=False)
+#: What was accepted that way, one line each, for the command's output and the report's inputs.
+_STATUS_NOTES: ContextVar[tuple[str, ...]] = ContextVar("status_notes", default=())
+
+
+def accept_incomplete(accept: bool = True) -> None:
+    """Accept (or refuse, the default) run directories whose manifest is not ``complete``, and
+    start a new list of :func:`status_notes`."""
+    _ACCEPT_INCOMPLETE.set(bool(accept))
+    _STATUS_NOTES.set(())
+
+
+def status_notes() -> list[str]:
+    """The incomplete directories accepted (and runs skipped) since :func:`accept_incomplete`."""
+    return list(_STATUS_NOTES.get())
+
+
+def check_status(run_dir: str | Path, *, expect_kind: str | None = None, accept: bool | None = None) -> list[str]:
+    """Refuse a run directory whose manifest is not ``complete`` or not of ``expect_kind``.
+
+    ``accept`` (default: what :func:`accept_incomplete` set) takes an incomplete directory
+    anyway: the returned notes (also kept for :func:`status_notes`) name it, its status and
+    every run of its manifest that is skipped as incomplete. A directory without a manifest
+    (loose run files) has no status to check.
+    """
+    run_dir = Path(run_dir)
+    if not (run_dir / MANIFEST).is_file():
+        return []
+    manifest = read_manifest(run_dir)
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("runs", []), list):
+        raise PiezopressError(f"{run_dir / MANIFEST}: not a manifest (expected an object with a 'runs' list); expected a directory written by `piezopress characterize`")
+    kind = manifest.get("kind")
+    if expect_kind is not None and kind != expect_kind:
+        raise PiezopressError(f"{run_dir}: its manifest says kind {kind!r}; expected a {expect_kind} directory "
+                              f"(from `piezopress {'validate' if expect_kind == 'validation' else 'characterize'}`)")
+    runs = [r for r in manifest.get("runs", []) if isinstance(r, dict)]
+    skipped = [str(r.get("file")) for r in runs if r.get("status", runformat.STATUS_COMPLETE) != runformat.STATUS_COMPLETE]
+    status = manifest.get("status")
+    notes: list[str] = []
+    if status != "complete":
+        reason = manifest.get("status_reason") or "no reason recorded"
+        done = len(runs) - len(skipped)
+        accept = _ACCEPT_INCOMPLETE.get() if accept is None else accept
+        if not accept:
+            raise PiezopressError(f"{run_dir}: its manifest says status {status!r} ({reason}), with {done} complete run(s); expected a "
+                                  "complete directory: run the plan again, or pass --accept-incomplete to use its complete runs")
+        notes.append(f"{run_dir}: accepted although its manifest says status {status!r} ({reason}); {done} complete run(s) used")
+    if skipped:
+        notes.append(f"{run_dir}: skipped incomplete run(s) {', '.join(skipped)}")
+    if notes:
+        _STATUS_NOTES.set(_STATUS_NOTES.get() + tuple(n for n in notes if n not in _STATUS_NOTES.get()))
+    return notes
+
+
+__all__ = ["MANIFEST", "MANIFEST_VERSION", "utc_now", "software_versions", "write_json_atomic", "new_output_dir", "read_manifest", "run_files",
+           "check_output", "accept_incomplete", "status_notes", "check_status"]

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from piezopress import __version__
-from piezopress.errors import ImportFormatError, OutputExistsError
+from piezopress.errors import ImportFormatError, OutputExistsError, output_error
 from piezopress.runformat import (
     KINDS,
     KNOWN_COLUMNS,
@@ -134,17 +134,14 @@ def import_table(
     offsets = _check_numbers(label, "offset", offsets, columns, nonzero=False)
     lags = _check_lags(label, lag_samples, columns)
 
-    table, delim_name, has_header, skipped = _read_table(path, delimiter, header)
-    n_rows, n_cols = table.shape
-    names = [str(v).strip() for v in table.iloc[0]] if has_header else None
-    if has_header:
-        table = table.iloc[1:].reset_index(drop=True)
-        n_rows -= 1
+    source = _read_table(path, delimiter, header)
+    delim_name, has_header, skipped, n_cols = source.delim_name, source.header, source.skipped, source.n_cols
     first_line = skipped + (2 if has_header else 1)  # file line of data row 0
+
+    index = {target: _resolve_column(label, target, spec, source.names, n_cols) for target, spec in columns.items()}
+    numbers, n_rows = source.read_columns(sorted(set(index.values())))  # streamed: only the mapped columns, as floats
     if n_rows == 0:
         raise ImportFormatError(f"{label}: has a header but no data rows; expected rows of numbers below it")
-
-    index = {target: _resolve_column(label, target, spec, names, n_cols) for target, spec in columns.items()}
 
     # Rows of the input kept: within the requested range and with a partner at every lag.
     start, stop = _check_rows(label, rows, n_rows)
@@ -161,8 +158,19 @@ def import_table(
             continue
         lag = lags.get(target, 0)
         col = index[target]
-        raw = _numbers(label, table.iloc[lo + lag : hi + lag, col], col, target, lo + lag, first_line)
-        values[target] = raw * scales.get(target, 1.0) + offsets.get(target, 0.0)
+        raw = numbers[col][lo + lag : hi + lag]
+        bad = ~np.isfinite(raw)
+        if bad.any():
+            i = int(np.argmax(bad))
+            _bad_cell(label, source.cell(lo + lag + i, col), col, target, lo + lag + i, first_line, int(bad.sum()))
+        scale, offset = scales.get(target, 1.0), offsets.get(target, 0.0)
+        if (scale, offset) != (1.0, 0.0):
+            with np.errstate(over="ignore", invalid="ignore"):
+                raw = raw * scale + offset
+            if not np.isfinite(raw).all():
+                raise ImportFormatError(f"{label}: scale {target}={scale:g} with offset {offset:g} makes column {col + 1} overflow to "
+                                        "infinity; expected a scale and offset that convert to V, N, µm or s")
+        values[target] = raw
 
     time_info: dict[str, Any]
     if "t_s" in values:
@@ -223,8 +231,14 @@ def import_file(source: str | os.PathLike[str], out: str | os.PathLike[str], **o
     out = Path(out)
     if out.exists():  # checked first so as not to spend time on the source
         raise OutputExistsError(f"{out}: already exists; refusing to overwrite it (choose another name)")
+    try:  # the output's folder is made (or refused) before the source is read
+        out.parent.mkdir(parents=True, exist_ok=True)
+        probe = out.with_name(f".{out.name}.partial")
+        probe.touch()
+        probe.unlink()
+    except OSError as exc:
+        raise output_error(out, exc, "write it there") from None
     run = import_table(source, **options)
-    out.parent.mkdir(parents=True, exist_ok=True)
     sha = write_run(run, out)
     return Run(run.data, run.meta, out), sha
 
@@ -349,14 +363,80 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _read_table(path: Path, delimiter: str | None, header: bool | None) -> tuple[pd.DataFrame, str, bool, int]:
-    """The table as strings (header row included), the delimiter's name, whether there is a
-    header and how many blank lines were skipped at the top."""
+#: Largest source file imported: above it, the reason and what to do (select a segment first).
+MAX_IMPORT_BYTES = 1_000_000_000
+#: Rows read at a time: the table is streamed, only the mapped columns kept, as float64.
+CHUNK_ROWS = 100_000
+
+
+class _Table:
+    """A CSV/TSV source, read a chunk at a time: its delimiter, header and shape."""
+
+    def __init__(self, path: Path, sep: str, delim_name: str, header: bool, skipped: int):
+        self.path, self.label, self.sep, self.delim_name, self.header, self.skipped = path, str(path), sep, delim_name, header, skipped
+        first = self._read(nrows=1)
+        if len(first) == 0:
+            raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers")
+        self.n_cols = first.shape[1]
+        self.names = [str(v).strip() for v in first.iloc[0]] if header else None
+
+    def _read(self, **options: Any) -> Any:
+        try:
+            return pd.read_csv(self.path, sep=self.sep, header=None, dtype=str, keep_default_na=False, skip_blank_lines=False,
+                               encoding="utf-8-sig", engine="c", **{"skiprows": self.skipped, **options})
+        except pd.errors.EmptyDataError:
+            raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers") from None
+        except pd.errors.ParserError as exc:
+            raise self._parser_error(exc) from None
+        except UnicodeDecodeError as exc:
+            raise ImportFormatError(f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file") from None
+
+    def _parser_error(self, exc: Exception) -> ImportFormatError:
+        first = str(exc).strip().splitlines()[0]
+        return ImportFormatError(f"{self.label}: cannot be split into columns with delimiter {self.delim_name} ({first}); "
+                                 "expected the same number of fields on every line")
+
+    def read_columns(self, cols: list[int]) -> tuple[dict[int, np.ndarray], int]:
+        """Columns ``cols`` (0-based) of every data row as float64 (NaN where a cell is not a
+        number) and the number of data rows; blank lines at the end are not data."""
+        parts: dict[int, list[np.ndarray]] = {c: [] for c in cols}
+        last, offset = -1, 0
+        try:
+            for chunk in self._read(chunksize=CHUNK_ROWS):  # every field (a line with too many is refused), one chunk at a time
+                filled = (chunk.notna() & (chunk != "")).any(axis=1).to_numpy()
+                if filled.any():
+                    last = offset + int(np.flatnonzero(filled)[-1])
+                for c in cols:
+                    parts[c].append(pd.to_numeric(chunk[c].astype(str).str.strip(), errors="coerce").to_numpy(dtype=np.float64))
+                offset += len(chunk)
+        except pd.errors.ParserError as exc:
+            raise self._parser_error(exc) from None
+        except UnicodeDecodeError as exc:
+            raise ImportFormatError(f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file") from None
+        if last < 0:
+            raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers")
+        head = 1 if self.header else 0
+        columns = {c: np.concatenate(parts[c])[head : last + 1] for c in cols}
+        return columns, last + 1 - head
+
+    def cell(self, row: int, col: int) -> str:
+        """The text of data row ``row``, column ``col`` (0-based), read again for a message."""
+        found = self._read(skiprows=self.skipped + (1 if self.header else 0) + row, nrows=1, usecols=[col])
+        return str(found.iloc[0, 0]).strip() if len(found) else ""
+
+
+def _read_table(path: Path, delimiter: str | None, header: bool | None) -> _Table:
+    """The source, its delimiter and header decided from its first line, refused above
+    :data:`MAX_IMPORT_BYTES`; its columns are read later, streamed."""
     label = str(path)
     if not path.exists():
         raise ImportFormatError(f"{label}: no such file; expected a CSV/TSV measurement")
     if not path.is_file():
         raise ImportFormatError(f"{label}: is not a file; expected a CSV/TSV measurement")
+    size = path.stat().st_size
+    if size > MAX_IMPORT_BYTES:
+        raise ImportFormatError(f"{label}: is {size / 1e9:.3g} GB, above the import limit of {MAX_IMPORT_BYTES / 1e9:g} GB (a run of that "
+                                "length would not fit in memory); expected a smaller file: cut the segment you need first (head/tail, split)")
     line, skipped = _first_line(path, label)
     if line is None:
         raise ImportFormatError(f"{label}: is empty; expected rows of numbers separated by commas, tabs or whitespace")
@@ -382,34 +462,7 @@ def _read_table(path: Path, delimiter: str | None, header: bool | None) -> tuple
             raise ImportFormatError(
                 f"{label}: line 1 mixes numbers and text ({line[:60]!r}); expected to be told whether it is a header (--header/--no-header)"
             )
-
-    try:
-        table = pd.read_csv(
-            path,
-            sep=sep,
-            header=None,
-            dtype=str,
-            keep_default_na=False,
-            skip_blank_lines=False,
-            skiprows=skipped,
-            encoding="utf-8-sig",
-            engine="c",
-        )
-    except pd.errors.EmptyDataError:
-        raise ImportFormatError(f"{label}: is empty; expected rows of numbers") from None
-    except pd.errors.ParserError as exc:
-        first = str(exc).strip().splitlines()[0]
-        raise ImportFormatError(f"{label}: cannot be split into columns with delimiter {delim_name} ({first}); expected the same number of fields on every line") from None
-    except UnicodeDecodeError as exc:
-        raise ImportFormatError(f"{label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file") from None
-
-    # Blank lines at the end are not data; blank lines inside are reported as empty cells.
-    filled = (table != "").any(axis=1).to_numpy()
-    last = int(np.flatnonzero(filled)[-1]) + 1 if filled.any() else 0
-    table = table.iloc[:last]
-    if len(table) == 0:
-        raise ImportFormatError(f"{label}: is empty; expected rows of numbers")
-    return table, delim_name, bool(header), skipped
+    return _Table(path, sep, delim_name, bool(header), skipped)
 
 
 def _resolve_column(label: str, target: str, spec: int | str, names: list[str] | None, n_cols: int) -> int:
@@ -440,22 +493,15 @@ def _resolve_column(label: str, target: str, spec: int | str, names: list[str] |
     return number - 1
 
 
-def _numbers(label: str, cells: pd.Series, col: int, target: str, row0: int, first_line: int) -> np.ndarray:
-    """Convert one source column to float64, naming the first bad cell by row, line and column."""
-    text = cells.astype(str).str.strip()
-    values = pd.to_numeric(text, errors="coerce").to_numpy(dtype=np.float64)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        i = int(np.argmax(bad))
-        cell = text.iloc[i]
-        row = row0 + i
-        where = f"at data row {row} (line {row + first_line}), column {col + 1} ({target})"
-        if cell == "":
-            raise ImportFormatError(f"{label}: empty cell {where}; expected a number")
-        if cell.lower() in _NAN_TEXT or (not np.isnan(values[i]) and not np.isfinite(values[i])):
-            raise ImportFormatError(f"{label}: {cell} {where} ({int(bad.sum())} such cell(s)); expected finite numbers")
-        raise ImportFormatError(f"{label}: non-numeric cell {cell[:40]!r} {where}; expected a number")
-    return values
+def _bad_cell(label: str, cell: str, col: int, target: str, row: int, first_line: int, count: int) -> None:
+    """Raise the one line for the first cell of a column that is not a finite number."""
+    where = f"at data row {row} (line {row + first_line}), column {col + 1} ({target})"
+    if cell == "":
+        raise ImportFormatError(f"{label}: empty cell {where}; expected a number")
+    value = pd.to_numeric(pd.Series([cell]), errors="coerce").iloc[0]
+    if cell.lower() in _NAN_TEXT or (not np.isnan(value) and not np.isfinite(value)):
+        raise ImportFormatError(f"{label}: {cell} {where} ({count} such cell(s)); expected finite numbers")
+    raise ImportFormatError(f"{label}: non-numeric cell {cell[:40]!r} {where}; expected a number")
 
 
 def _uniform_step(label: str, t: np.ndarray, col: int, row0: int, first_line: int) -> tuple[float, float, float]:

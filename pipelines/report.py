@@ -30,6 +30,7 @@ import pandas as pd
 from piezopress.errors import OutputExistsError
 from piezopress.pipelines import summary
 from piezopress.pipelines.bundle import read_document
+from piezopress.pipelines.files import status_notes
 from piezopress.pipelines import report_frequency
 from piezopress.pipelines.report_doc import (CSS, Block, Bullets, Contents, FigureBlock, Heading, Para, Table, _md_table,
                                              render_html, render_markdown)
@@ -166,6 +167,7 @@ def _inputs_lines(char: _Source | None, val: _Source | None, bundle: str | Path 
                      f"software {doc.get('software_version', '?')})")
     else:
         lines.append("Bundle: not given")
+    lines += [f"Incomplete input: {note}" for note in status_notes()]  # accepted with --accept-incomplete
     return lines
 
 

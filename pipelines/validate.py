@@ -15,6 +15,7 @@ from typing import Callable
 from piezopress.resources import shipped
 from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
+from piezopress.acquisition.drive_check import check_drive
 from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
 from piezopress.pipelines.bundle import BundleError, compensator, read_document
 from piezopress.pipelines.characterize import (
@@ -58,9 +59,10 @@ def validate(
     plan = load_plan(plan_path, ref_limits, unit="N")
     bundle_sha = runformat.sha256_file(bundle_path)
 
-    def drive_for(proto: Protocol) -> Drive:
+    def compensated(proto: Protocol) -> Drive:
         t, ref = proto.waveform()
         res = comp.drive(ref, proto.sample_rate_hz)
+        check_drive(res.command_v, proto.sample_rate_hz, lim, f"{plan_path}: protocol '{proto.name}' through {bundle_path}")
         for w in res.warnings:
             if on_warning:
                 on_warning(f"{proto.name}: {w}")
@@ -68,6 +70,12 @@ def validate(
                                  "creep": use_creep and comp.creep is not None, "clipped_samples": res.clipped_samples,
                                  "warnings": list(res.warnings), "notes": list(res.notes)}}
         return Drive(t, res.command_v, {"reference_n": proto.preload_n + ref}, meta)
+
+    # every drive computed and checked before the directory is made or the rig touched
+    drives = {proto.name: compensated(proto) for proto in plan.protocols}
+
+    def drive_for(proto: Protocol) -> Drive:
+        return drives[proto.name]
 
     extra = {"bundle": {"file": str(bundle_path), "sha256": bundle_sha}, "compensation_options": {"shaper": use_shaper, "creep": use_creep}}
     return execute_plan(out_dir, plan, Path(plan_path), backend, kind="validation", drive_for=drive_for,

@@ -8,8 +8,11 @@ waveform and its sample rate up front and returns the measured channels. The vir
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Iterator, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -71,3 +74,38 @@ class Backend(Protocol):
     def zero_output(self) -> None:
         """Bring the drive back to zero now (after an interruption or an error)."""
         ...
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP while a rig plays: handled exactly like Ctrl-C (ramp to 0 V, runs kept,
+    manifest ``interrupted``); ``signum`` says which signal."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+
+
+#: The signals turned into :class:`Terminated` while a plan runs (SIGHUP where the platform has it).
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+@contextlib.contextmanager
+def stop_signals_interrupt() -> Iterator[None]:
+    """While inside, SIGTERM and SIGHUP raise :class:`Terminated` (a ``KeyboardInterrupt``), so
+    every backend's Ctrl-C path (ramp-down, partial run kept) handles them too. Outside the
+    main thread (where Python cannot install handlers) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Terminated(signum)
+
+    previous = {}
+    try:
+        for sig in STOP_SIGNALS:
+            previous[sig] = signal.signal(sig, handler)
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)

@@ -158,7 +158,8 @@ class DaqRigConfig(SectionedConfig):
     @property
     def limits(self) -> DriveLimits:
         lo, hi = self.drive_range_v
-        return DriveLimits(drive_min_v=lo, drive_max_v=hi, max_sample_rate_hz=self.daq.max_sample_rate_hz, max_force_n=self.safety.safe_force_n)
+        return DriveLimits(drive_min_v=lo, drive_max_v=hi, max_sample_rate_hz=self.daq.max_sample_rate_hz, max_force_n=self.safety.safe_force_n,
+                           slew_limit_v_per_s=self.actuator.slew_limit_v_per_s)
 
     def physical(self, channel: str) -> str:
         """``Dev1/ai0`` from ``ai0``."""

@@ -50,12 +50,14 @@ fake that records the exact sequence of calls (``tests/test_nidaq.py``).
 from __future__ import annotations
 
 import math
+import signal
 from typing import Any, Callable, Protocol
 
 import numpy as np
 
 from piezopress.acquisition.backend import Measurement
 from piezopress.acquisition.daq_config import TERMINALS, DaqRigConfig, SafetySection
+from piezopress.acquisition.drive_check import drive_problems as shared_drive_problems
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import BackendError, PiezopressError
 
@@ -209,34 +211,16 @@ def drive_problems(command_v: np.ndarray, sample_rate_hz: float, config: DaqRigC
     output range times the gain, and the slew limit ``max |diff| * fs`` over the drive
     including the move from ``start_v`` (the output before the run) to its first sample.
     """
-    cfg, problems = config, []
-    v = np.asarray(command_v, dtype=np.float64)
-    if v.ndim != 1 or v.size < 2:
-        return [f"drive of shape {v.shape}; expected a 1-D waveform of at least 2 samples"]
-    if not np.all(np.isfinite(v)):
-        return ["drive holds NaN or infinite values; expected finite volts"]
-    if not (math.isfinite(sample_rate_hz) and 0 < sample_rate_hz <= cfg.daq.max_sample_rate_hz):
-        problems.append(f"sample rate {sample_rate_hz:g} Hz is outside 0 to {cfg.daq.max_sample_rate_hz:g} Hz ([daq] max_sample_rate_hz)")
-    lo, hi = float(v.min()), float(v.max())
-    a, amp, d = cfg.actuator, cfg.amplifier, cfg.daq
-    for what, rlo, rhi in (
-        ("the actuator's range ([actuator] drive_min_v/drive_max_v)", a.drive_min_v, a.drive_max_v),
-        ("the amplifier's output range ([amplifier] output_min_v/output_max_v)", amp.output_min_v, amp.output_max_v),
-        (f"the analog output range x gain ([daq] ao_min_v/ao_max_v x {amp.gain:g})", amp.gain * d.ao_min_v, amp.gain * d.ao_max_v),
-    ):
-        if lo < rlo - 1e-9 or hi > rhi + 1e-9:
-            problems.append(f"drive spans {lo:g} to {hi:g} V, outside {what}: {rlo:g} to {rhi:g} V")
-    if not problems:
-        steps = np.abs(np.diff(np.concatenate([[start_v], v])))
-        k = int(np.argmax(steps))
-        slew = float(steps[k]) * sample_rate_hz
-        if slew > a.slew_limit_v_per_s * (1 + 1e-9):
-            where = "from the output at rest to the first sample" if k == 0 else f"at sample {k - 1} to {k}"
-            problems.append(
-                f"drive changes at {slew:.4g} V/s ({steps[k]:g} V in one sample at {sample_rate_hz:g} Hz, {where}), "
-                f"above the slew limit [actuator] slew_limit_v_per_s = {a.slew_limit_v_per_s:g} V/s"
-            )
-    return problems
+    a, amp, d = config.actuator, config.amplifier, config.daq
+    return shared_drive_problems(
+        command_v, sample_rate_hz, config.limits, start_v=start_v,
+        ranges=[
+            ("the actuator's range ([actuator] drive_min_v/drive_max_v)", a.drive_min_v, a.drive_max_v),
+            ("the amplifier's output range ([amplifier] output_min_v/output_max_v)", amp.output_min_v, amp.output_max_v),
+            (f"the analog output range x gain ([daq] ao_min_v/ao_max_v x {amp.gain:g})", amp.gain * d.ao_min_v, amp.gain * d.ao_max_v),
+        ],
+        rate_key="[daq] max_sample_rate_hz", slew_key="the slew limit [actuator] slew_limit_v_per_s",
+    )
 
 
 def check_preload(force_n: float, safety: SafetySection) -> None:
@@ -300,9 +284,11 @@ class RunInterrupted(KeyboardInterrupt):
     ``measurement`` holds what was measured (``complete`` false), so the caller keeps it.
     """
 
-    def __init__(self, measurement: Measurement):
+    def __init__(self, measurement: Measurement, signum: int | None = None):
         super().__init__(measurement.reason)
         self.measurement = measurement
+        #: the signal that stopped the run (SIGTERM, SIGHUP), None for Ctrl-C
+        self.signum = signum
 
 
 class NidaqBackend:
@@ -363,7 +349,7 @@ class NidaqBackend:
         check_preload(preload_measured_n, self.config.safety)
         m = self._play(command_v, float(sample_rate_hz), label, progress, {"preload_requested_n": float(preload_n), "preload_measured_n": preload_measured_n})
         if m.info.get("interrupted"):
-            raise RunInterrupted(m)
+            raise RunInterrupted(m, getattr(signal, str(m.info.get("signal")), None))
         return m
 
     def zero_output(self) -> None:
@@ -448,6 +434,7 @@ class NidaqBackend:
         got = 0
         reason = ""
         interrupted = False
+        signum = None
         started = False
         try:
             ao.write(daq_v, auto_start=False)
@@ -467,9 +454,10 @@ class NidaqBackend:
                     progress(got / n)
             if not reason:
                 ao.wait_until_done(TIMEOUT_MARGIN_S)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (backend.Terminated)
             interrupted = True
-            reason = "interrupted by the user (Ctrl-C)"
+            signum = getattr(exc, "signum", None)
+            reason = f"interrupted by {signal.Signals(signum).name}" if signum else "interrupted by the user (Ctrl-C)"
         except Exception as exc:  # driver errors included: the data so far is kept
             reason = f"{type(exc).__name__}: {exc}"
         errors: list[str] = []
@@ -497,6 +485,7 @@ class NidaqBackend:
             "ramp_down": ramp,
             "output_zeroed": self._output_confirmed,
             "interrupted": interrupted,
+            "signal": signal.Signals(signum).name if interrupted and signum else None,
         }
         channels = {col: buf[row, :got].copy() for row, col in enumerate(columns)}
         return Measurement(channels=channels, complete=complete, reason=reason, info=info)

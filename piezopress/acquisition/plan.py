@@ -46,6 +46,26 @@ class DriveLimits:
     max_force_n: float = 800.0
     max_duration_s: float = 3600.0
     max_samples: int = 50_000_000
+    #: fastest change of the drive the actuator (or amplifier) allows; ``inf``: no limit stated
+    slew_limit_v_per_s: float = math.inf
+    #: samples of all the protocols of one plan together (each is held in memory while it runs, then written)
+    max_plan_samples: int = 200_000_000
+
+
+#: Bytes a sample costs in memory along the chain (drive, time, 2-4 measured channels, the
+#: run frame and its Parquet buffer): used to state the memory a plan implies.
+BYTES_PER_SAMPLE = 64
+#: Longest protocol name: it names a file (``NAME.incomplete.parquet``) on every file system.
+MAX_NAME_CHARS = 100
+
+
+def memory_text(samples: float) -> str:
+    """The memory ``samples`` imply, e.g. ``about 3.2 GB``."""
+    b = samples * BYTES_PER_SAMPLE
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if b >= size:
+            return f"about {b / size:.3g} {unit}"
+    return f"about {b / 1e3:.3g} kB"
 
 
 @dataclass(frozen=True)
@@ -279,6 +299,26 @@ KINDS: dict[str, KindSpec] = {
     ),
 }
 
+def estimated_duration_s(kind: str, p: Mapping[str, Any]) -> float:
+    """How long a checked protocol lasts, from its keys alone (nothing built): the cost of a
+    protocol is known before any memory is spent on it."""
+    if kind in ("triangle", "sine"):
+        if kind == "triangle" and p.get("peaks_v") is not None:
+            cycles = len(p["peaks_v"])
+        elif kind == "triangle" and p.get("random_peaks") is not None:
+            cycles = p["random_peaks"]["count"]
+        else:
+            cycles = p["cycles"]
+        return float(cycles) / float(p["freq_hz"])
+    if kind in ("step", "creep"):
+        return float(p["pre_s"]) + float(p["hold_s"]) + float(p["post_s"])
+    if kind == "staircase":
+        return float(p["pre_s"]) + float(p["count"]) * (float(p["ramp_s"]) + float(p["dwell_s"]))
+    if kind == "random":
+        return float(p["duration_s"])
+    return float(p["points"][-1][0])
+
+
 PLAN_KEYS: dict[str, Key] = {
     "name": Key(str, REQUIRED, "name of the plan"),
     "description": Key(str, "", "free text"),
@@ -418,7 +458,9 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
         tables = []
     protocols: list[Protocol] = []
     seen: set[str] = set()
+    folded: dict[str, str] = {}
     total_s = 0.0
+    total_samples = 0
     for i, table in enumerate(tables, start=1):
         label = table.get("name", "?") if isinstance(table, dict) else "?"
         where = f"protocol[{i}] '{label}'"
@@ -426,7 +468,7 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
             problems.append(f"{where}: expected a table")
             continue
         kind = table.get("kind")
-        if kind not in KINDS:
+        if not isinstance(kind, str) or kind not in KINDS:
             problems.append(f"{where}: key 'kind' = {kind!r} is unknown; expected one of {', '.join(KINDS)}")
             continue
         spec = KINDS[kind]
@@ -437,9 +479,17 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
         name = p["name"]
         if name in seen:
             problems.append(f"{where}: name '{name}' is used by an earlier protocol; names must be unique")
+        elif name.casefold() in folded:
+            problems.append(f"{where}: name '{name}' differs from the earlier protocol '{folded[name.casefold()]}' only in case; "
+                            "expected names that differ otherwise (their run files would overwrite each other on Windows and macOS)")
         seen.add(name)
-        if not name.replace("-", "").replace("_", "").replace(".", "").isalnum():
-            problems.append(f"{where}: name '{name}' may hold only letters, digits, '-', '_' and '.' (it names a file)")
+        folded.setdefault(name.casefold(), name)
+        if not (name.replace("-", "").replace("_", "").replace(".", "").isalnum() and name.isascii()) or name.startswith("."):
+            problems.append(f"{where}: name '{name[:MAX_NAME_CHARS]}' may hold only ASCII letters, digits, '-', '_' and '.', "
+                            "not starting with '.' (it names a file)")
+        elif len(name) > MAX_NAME_CHARS:
+            problems.append(f"{where}: name of {len(name)} characters is longer than {MAX_NAME_CHARS}; expected a shorter name "
+                            "(it names the run file, and file systems limit names to 255 bytes)")
         fs = p["sample_rate_hz"]
         if not 0 < fs <= limits.max_sample_rate_hz:
             problems.append(f"{where}: key 'sample_rate_hz' = {fs:g} is outside 0 to {limits.max_sample_rate_hz:g} Hz (the backend's maximum)")
@@ -453,11 +503,20 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
             continue
         params = {k: v for k, v in p.items() if k not in COMMON_KEYS}
         proto = Protocol(name=name, kind=kind, sample_rate_hz=fs, preload_n=float(preload), params=params)
+        estimate = estimated_duration_s(kind, params) * fs  # before anything is built
+        if not estimate <= 1.01 * limits.max_samples + 10:
+            problems.append(f"{where}: {estimate:.4g} samples ({estimate / fs:.4g} s at {fs:g} Hz, {memory_text(estimate)} in memory) "
+                            f"exceed the limit of {limits.max_samples} samples per run; lower sample_rate_hz or shorten it")
+            total_s += estimate / fs
+            total_samples += int(min(estimate, 1e18))
+            continue
         n = len(spec.build(params, fs))
         duration = n / fs
         total_s += duration
+        total_samples += n
         if n > limits.max_samples:
-            problems.append(f"{where}: {n} samples exceed the limit of {limits.max_samples}; lower sample_rate_hz or shorten it")
+            problems.append(f"{where}: {n} samples ({memory_text(n)} in memory) exceed the limit of {limits.max_samples} samples per run; "
+                            "lower sample_rate_hz or shorten it")
             continue
         _, v = proto.waveform()
         lo, hi = float(v.min()), float(v.max())
@@ -470,6 +529,9 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
         protocols.append(proto)
     if total_s > limits.max_duration_s:
         problems.append(f"the plan lasts {total_s:.0f} s, more than the limit of {limits.max_duration_s:.0f} s")
+    if total_samples > limits.max_plan_samples:
+        problems.append(f"the plan totals {total_samples:.4g} samples ({memory_text(total_samples)} of runs), more than the limit of "
+                        f"{limits.max_plan_samples} samples per plan; lower sample rates or split the plan")
     if problems:
         raise PlanError(source, problems)
     return Plan(name=head["name"], description=head.get("description", ""), protocols=tuple(protocols), source=source, raw=dict(doc))

@@ -143,7 +143,7 @@ class ModeSection:
     """The lightly damped mode of stack, mass and load cell (thesis Eq. 6.2)."""
 
     enabled: bool = param(True, "switch the mode off (an infinitely stiff press)")
-    natural_freq_rad_s: float = param(6440.0, "natural frequency (thesis: 6.44e3 rad/s)", "rad/s", 0, 1e7, True)
+    natural_freq_rad_s: float = param(6440.0, "natural frequency (thesis: 6.44e3 rad/s)", "rad/s", 1.0, 1e7)
     damping: float = param(0.115, "damping ratio (thesis: 0.115)", "", 0, 2, True)
 
 
@@ -152,7 +152,7 @@ class Mode2Section:
     """Effect second_resonance: a second, weaker mode sharing the response."""
 
     enabled: bool = param(False, "switch the second mode on")
-    natural_freq_rad_s: float = param(17_000.0, "natural frequency", "rad/s", 0, 1e7, True)
+    natural_freq_rad_s: float = param(17_000.0, "natural frequency", "rad/s", 1.0, 1e7)
     damping: float = param(0.05, "damping ratio", "", 0, 2, True)
     share: float = param(0.15, "share of the response through this mode", "", 0, 1)
 

@@ -15,9 +15,9 @@ import numpy as np
 
 from piezopress.acquisition import rig_physics as phys
 from piezopress.acquisition.backend import Measurement
+from piezopress.acquisition.drive_check import check_drive
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.acquisition.rig_config import RigConfig
-from piezopress.errors import BackendError
 
 
 def _label_seed(label: str) -> int:
@@ -61,17 +61,8 @@ class VirtualRig:
         label: str,
         progress: Callable[[float], None] | None = None,
     ) -> Measurement:
+        self.check_drive(command_v, sample_rate_hz, label)
         command_v = np.asarray(command_v, dtype=np.float64)
-        lim = self.limits
-        if command_v.ndim != 1 or command_v.size < 2:
-            raise BackendError(f"virtual rig: drive of shape {command_v.shape}; expected a 1-D waveform of at least 2 samples")
-        if not np.all(np.isfinite(command_v)):
-            raise BackendError("virtual rig: drive holds NaN or infinite values; expected finite volts")
-        lo, hi = float(command_v.min()), float(command_v.max())
-        if lo < lim.drive_min_v - 1e-9 or hi > lim.drive_max_v + 1e-9:
-            raise BackendError(f"virtual rig: drive spans {lo:g} to {hi:g} V, outside the actuator's range {lim.drive_min_v:g} to {lim.drive_max_v:g} V")
-        if not 0 < sample_rate_hz <= lim.max_sample_rate_hz:
-            raise BackendError(f"virtual rig: sample rate {sample_rate_hz:g} Hz outside 0 to {lim.max_sample_rate_hz:g} Hz")
         seed = [self.config.rig.seed, _label_seed(label)]
         rng = np.random.default_rng(np.random.SeedSequence(seed))
         try:
@@ -84,6 +75,10 @@ class VirtualRig:
         factor, segments = phys.fine_windows(command_v, sample_rate_hz, self.config)
         info = {"seed": seed, "fine_factor": factor, "fine_segments": sum(1 for s in segments if s[2] > 1)}
         return Measurement(channels=channels, info=info)
+
+    def check_drive(self, command_v: np.ndarray, sample_rate_hz: float, label: str = "drive") -> None:
+        """Refuse a drive the rig may not play (the shared check of :mod:`piezopress.acquisition.drive_check`)."""
+        check_drive(command_v, sample_rate_hz, self.limits, f"virtual rig: {label}", start_v=self.output_v)
 
     def zero_output(self) -> None:
         self.output_v = 0.0
