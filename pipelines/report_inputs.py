@@ -44,7 +44,7 @@ def _load_dir(path: str | Path, what: str, command: str, table_of: Callable[[Pat
     path = Path(path)
     if not path.is_dir():
         raise ReportError(f"{path}: no such directory; expected a {what} run directory (from `piezopress {command}`)")
-    files = run_files(path, expect_kind=what)
+    files = run_files(path, expect_kind=what if what in ("characterization", "validation") else None)
     runs: dict[str, runformat.Run] = {}
     for f in files:
         r = runformat.read_run(f)
