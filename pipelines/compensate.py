@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from piezopress import units
+from piezopress.analysis.bundle import MAX_OUTPUT, Bundle, BundleError
 from piezopress.analysis.compensation import CompensationResult
-from piezopress.errors import ImportFormatError, OutputExistsError
+from piezopress.errors import ImportFormatError
 from piezopress.runformat import UNIFORM_RTOL
-from piezopress.pipelines.bundle import compensator, read_document
+from piezopress.pipelines.bundle import read_bundle
+from piezopress.pipelines.files import check_output, write_output
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:
@@ -33,6 +36,8 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
         raise ImportFormatError(f"{path}: non-numeric values in t_s or {column}; expected numbers") from None
     if t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(r))):
         raise ImportFormatError(f"{path}: {t.size} rows or non-finite values; expected at least 2 finite rows")
+    if np.max(np.abs(r)) > MAX_OUTPUT:
+        raise ImportFormatError(f"{path}: {column} reaches {np.max(np.abs(r)):.6g}; expected values within +/-{MAX_OUTPUT:g} (a press's range)")
     dt = np.diff(t)
     mean = (t[-1] - t[0]) / (t.size - 1)
     if mean <= 0 or np.max(np.abs(dt - mean)) > UNIFORM_RTOL * mean:
@@ -40,19 +45,47 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
     return t, r, 1.0 / mean
 
 
-def reference_column(bundle: dict) -> str:
+def reference_column(bundle: Bundle) -> str:
     """The reference column a bundle's compensator takes: ``reference_n`` or ``reference_um``."""
-    return f"reference_{units.key(bundle['hysteresis']['model'].get('output_unit', units.FORCE))}"
+    return f"reference_{units.key(bundle.unit)}"
 
 
-def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True) -> CompensationResult:
+def _reference_unit(path: Path, bundle: Bundle) -> None:
+    """Refuse a reference in the other unit (its column names it) with one line."""
+    try:
+        header = pd.read_csv(path, nrows=0).columns
+    except Exception:  # unreadable: read_reference says why
+        return
+    for unit in units.LABELS:
+        col = f"reference_{units.key(unit)}"
+        if col in header and unit != bundle.unit and reference_column(bundle) not in header:
+            bundle.check_unit(unit, f"{path} (column {col})", f"a {units.quantity(bundle.unit)} reference, column {reference_column(bundle)}")
+
+
+def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True, replace: bool = False,
+                    rig_limits: Any = None, rig: str = "the rig file") -> tuple[CompensationResult, Path | None]:
+    """The drive for a reference file, written to ``out`` (``t_s``, the reference, ``command_v``);
+    returns the result and where the replaced file was kept (``None``: nothing replaced).
+
+    The output place is checked before anything is read; the bundle is checked as it is read
+    and then against the reference (its unit, the lead against its length, the creep
+    compensator at its rate) and, with ``rig_limits``, against the rig's drive range and
+    sample rate."""
     out = Path(out)
-    if out.exists():
-        raise OutputExistsError(f"{out}: already exists; refusing to overwrite it")
-    bundle = read_document(bundle_path, "bundle")
-    comp = compensator(bundle, use_shaper=use_shaper)
+    check_output(out, replace=replace)
+    bundle = read_bundle(bundle_path)
+    if rig_limits is not None:
+        bundle.check_drive_range(rig_limits.drive_min_v, rig_limits.drive_max_v, rig)
+    ref_path = Path(ref_path)
+    _reference_unit(ref_path, bundle)
     column = reference_column(bundle)
     t, r, fs = read_reference(ref_path, column)
-    result = comp.drive(r, fs)
-    pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v}).to_csv(out, index=False, float_format="%.9g")
-    return result
+    if rig_limits is not None and fs > rig_limits.max_sample_rate_hz * (1 + 1e-9):
+        raise ImportFormatError(f"{ref_path}: sampled at {fs:.6g} Hz; expected at most the rig's {rig_limits.max_sample_rate_hz:g} Hz ({rig})")
+    bundle.check_reference(t.size, fs, str(ref_path))
+    result = bundle.compensator(use_shaper=use_shaper).drive(r, fs)
+    if not np.all(np.isfinite(result.command_v)):
+        raise BundleError(f"{bundle_path}: its compensator gives a non-finite drive for {ref_path}; expected a finite drive (check the bundle)")
+    frame = pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v})
+    previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)
+    return result, previous

@@ -35,14 +35,13 @@ import numpy as np
 import pandas as pd
 
 from piezopress import plotting, runformat, thesis, units
-from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import diagnosis as dg
-from piezopress.analysis import hysteresis as H
 from piezopress.analysis import metrics
 from piezopress.errors import OutputExistsError, PiezopressError
 from piezopress.pipelines import summary
 from piezopress.pipelines.bundle import read_document
-from piezopress.pipelines.files import MANIFEST, read_manifest, run_files
+from piezopress.analysis.bundle import Bundle
+from piezopress.pipelines.files import MANIFEST, keep_previous, read_manifest, run_files, writable_folder
 
 COLUMNS = ["table", "test", "metric", "unit", "value", "thesis", "thesis_source"]
 #: The quasi-static triangles of Table 6.13 (and the hysteresis loops) are those at this frequency (Hz).
@@ -498,10 +497,9 @@ def _rms(x: np.ndarray) -> float:
 def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: list[str]) -> FigureBlock | None:
     if bundle is None:
         return None
-    model = H.PIModel.from_dict(bundle["hysteresis"]["model"])
-    cm = None
-    if bundle["hysteresis"].get("creep_removed") and "creep" in bundle:
-        cm = creep_mod.CreepModel.from_dict(bundle["creep"]["model"])
+    checked = Bundle.from_dict(bundle)
+    model = checked.hysteresis
+    cm = checked.creep if bundle["hysteresis"].get("creep_removed") else None
     raw, other = [], []
     unit = units.label(bundle["hysteresis"]["model"].get("output_unit", units.FORCE))
     for r in _fitting_runs(bundle, char, missing):
@@ -510,8 +508,7 @@ def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missi
         raw.append(plotting.Curve(r.t_s, res, f"{r.name} (RMS {_rms(res):.2f} {unit})"))
         if cm is not None:
             # the fit saw the sweeps with the creep compensator applied (piezopress.pipelines.fit): the same here
-            _, rest = H.rest_offset(r.command_v, r.output)
-            no_creep = rest + cm.compensate(r.output - rest, r.sample_rate_hz)[0] - pred
+            no_creep = checked.remove_creep(r) - pred
             other.append(plotting.Curve(r.t_s, no_creep, f"{r.name} (RMS {_rms(no_creep):.2f} {unit})"))
         else:
             other.append(plotting.Curve(r.command_v, res, ""))
@@ -868,32 +865,27 @@ def _is_report_dir(path: Path) -> bool:
     return path.is_dir() and any((path / f).is_file() for f in REPORT_FILES)
 
 
-def previous_dir(out_dir: str | Path) -> Path:
-    out = Path(out_dir)
-    return out.with_name(out.name + ".prev")
-
-
 def check_output_dir(out_dir: str | Path, replace: bool = False) -> None:
     """Refuse an output that exists and holds anything, unless ``replace`` and it is an old report."""
     out = Path(out_dir)
     if not out.exists():
+        writable_folder(out.parent)
         return
     if not out.is_dir():
         raise OutputExistsError(f"{out}: exists and is not a directory; expected a new or empty directory for the report")
+    writable_folder(out.parent)
     if not any(out.iterdir()):
         return
-    prev = previous_dir(out)
     if not replace:
         raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory, or pass --replace to replace "
-                                f"an old report (kept as {prev})")
+                                f"an old report (kept as {out.name}.replaced-<UTC time>)")
     if not _is_report_dir(out):
         raise OutputExistsError(f"{out}: is not a piezopress report (none of {', '.join(REPORT_FILES)}); refusing to replace it")
-    if prev.exists() and not (_is_report_dir(prev) or (prev.is_dir() and not any(prev.iterdir()))):
-        raise OutputExistsError(f"{prev}: exists and is not an old report; refusing to replace it (move it away first)")
 
 
 def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) -> ReportResult:
-    """Write the report into ``out_dir`` (new or empty; with ``replace`` an old report moves to ``<out_dir>.prev``).
+    """Write the report into ``out_dir`` (new or empty; with ``replace`` an old report moves to
+    ``<out_dir>.replaced-<UTC time>``, a new name each time: :func:`~piezopress.pipelines.files.keep_previous`).
 
     Files are written into a hidden staging directory beside ``out_dir`` and renamed into
     place, so a report is never half written and the old one is moved only once the new
@@ -901,8 +893,7 @@ def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) 
     """
     out = Path(out_dir)
     check_output_dir(out, replace)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = out.with_name(f".{out.name}.partial")
+    staging = out.with_name(f".{out.name}.{os.getpid()}-{id(report):x}.partial")
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir()
@@ -916,10 +907,7 @@ def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) 
     previous = None
     if out.exists():
         if any(out.iterdir()):
-            previous = previous_dir(out)
-            if previous.exists():
-                shutil.rmtree(previous)
-            os.replace(out, previous)
+            previous = keep_previous(out)
         else:
             out.rmdir()
     os.replace(staging, out)
