@@ -96,7 +96,7 @@ class _Checker:
             self.fail(where, value, f"a finite number ({what})")
         v = float(value)
         if (v <= lo if lo_open else v < lo) or (v >= hi if hi_open else v > hi):
-            self.fail(where, value, f"{what}, {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}")
+            self.fail(where, value, f"{what} within {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}")
         return v
 
     def optional(self, value: Any, where: str, lo: float, hi: float, what: str, **kw) -> float | None:
@@ -174,9 +174,15 @@ def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:
         c.number(v, f"{w}.params.{k}", -MAX_OUTPUT, MAX_OUTPUT, "a finite parameter")
     if kc + sum(gains) <= 0:
         c.fail(f"{w}.gains", list(gains), f"a positive long-time gain K_c + sum(gains) (K_c = {kc:g})")
-    fit_unit = sec.get("fit", {}).get("output_unit") if isinstance(sec.get("fit"), Mapping) else None
+    fit = sec.get("fit") if isinstance(sec.get("fit"), Mapping) else {}
+    fit_unit = fit.get("output_unit")
     if fit_unit is not None and units.normalise(fit_unit) != unit:
         c.fail("creep.fit.output_unit", fit_unit, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
+    for other in units.LABELS:  # a section written before the unit was recorded: its figures' keys say it
+        key = f"rms_{units.key(other)}"
+        if fit_unit is None and other != unit and key in fit:
+            c.fail(f"creep.fit.{key}", fit[key], f"a creep fitted in {units.label(unit)} (rms_{units.key(unit)}), the hysteresis "
+                   "model's output unit (one unit across the sections)")
     try:
         return CreepModel.from_dict(m)
     except FitError as exc:
@@ -196,7 +202,7 @@ def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
         c.fail(f"{where}.amplitudes", list(a), f"positive impulses summing to 1 (within {SHAPER_SUM_TOL:g}; they sum to {sum(a):.9g})")
     if any(t1 < t0 for t0, t1 in zip(t, t[1:])):
         c.fail(f"{where}.times_s", list(t), "non-decreasing impulse times")
-    wn = c.number(c.get(s, where, "natural_freq_rad_s"), f"{where}.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "rad/s", lo_open=True)
+    wn = c.number(c.get(s, where, "natural_freq_rad_s"), f"{where}.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
     zeta = c.number(c.get(s, where, "damping"), f"{where}.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
     zp = s.get("zv_power")
     if zp is not None and not (isinstance(zp, int) and not isinstance(zp, bool) and 1 <= zp <= 20):
@@ -209,9 +215,9 @@ def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
 
 def check_shaper(c: _Checker, sec: Mapping[str, Any], unit: str) -> tuple[Shaper, Shaper | None, tuple[float, float, float | None]]:
     mode = c.mapping(c.get(sec, "shaper", "mode"), "shaper.mode", "a mapping (the identified mode)")
-    wn = c.number(c.get(mode, "shaper.mode", "natural_freq_rad_s"), "shaper.mode.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "rad/s", lo_open=True)
+    wn = c.number(c.get(mode, "shaper.mode", "natural_freq_rad_s"), "shaper.mode.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
     zeta = c.number(c.get(mode, "shaper.mode", "damping"), "shaper.mode.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
-    lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 0.0, 1e9, "Hz", lo_open=True)
+    lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 0.0, 1e9, "null or a cut-off in Hz", lo_open=True)
     mu = mode.get("output_unit")
     if mu is not None and units.normalise(mu) != unit:
         c.fail("shaper.mode.output_unit", mu, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
@@ -236,8 +242,8 @@ class Settings:
 def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
     comp = c.mapping(comp, "compensation", "a mapping (drive range, rate limit, lead)")
     w = "compensation"
-    lo = c.number(comp.get("drive_min_v", 0.0), f"{w}.drive_min_v", -MAX_DRIVE_V, MAX_DRIVE_V, "V")
-    hi = c.number(comp.get("drive_max_v", 150.0), f"{w}.drive_max_v", -MAX_DRIVE_V, MAX_DRIVE_V, "V")
+    lo = c.number(comp.get("drive_min_v", 0.0), f"{w}.drive_min_v", -MAX_DRIVE_V, MAX_DRIVE_V, "a drive limit in V")
+    hi = c.number(comp.get("drive_max_v", 150.0), f"{w}.drive_max_v", -MAX_DRIVE_V, MAX_DRIVE_V, "a drive limit in V")
     if hi <= lo:
         c.fail(f"{w}.drive_max_v", hi, f"more than drive_min_v ({lo:g} V)")
     k = units.key(unit)
@@ -260,7 +266,7 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
         rate = RateDependence(widen_v_per_kv_s=c.number(rd.get("widen_v_per_kv_s", 0.0), f"{q}.widen_v_per_kv_s", 0.0, MAX_DRIVE_V, "V per kV/s"),
                               loss_per_kv_s=c.number(rd.get("loss_per_kv_s", 0.0), f"{q}.loss_per_kv_s", 0.0, 1e3, "per kV/s"),
                               saturation_v_per_s=sat,
-                              tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "s", lo_open=True))
+                              tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True))
     return Settings(lo, hi, rate_limit, lead, delay, slew, rate)
 
 
