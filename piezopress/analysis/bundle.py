@@ -56,6 +56,8 @@ MAX_LEAD_S = 1.0
 LEAD_MAX_FRACTION = 0.1
 #: The shaper's impulses sum to 1 within this.
 SHAPER_SUM_TOL = 1e-6
+#: A stored inverse model agrees with the one computed from the forward parameters within this (relative).
+INVERSE_RTOL = 1e-6
 #: The most operators a model may have.
 MAX_OPERATORS = 10_000
 
@@ -152,6 +154,15 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
     inv = model.inverse_parameters()
     if not all(np.all(np.isfinite(v)) for v in inv.values()):
         c.fail(f"{w}.play_weights", list(pw), "weights whose inverse is finite")
+    stored = m.get("inverse")
+    if stored is not None:  # written for people to read; the compensator recomputes it, so it must agree
+        stored = c.mapping(stored, f"{w}.inverse", "a mapping (the inverse model's thresholds and weights)")
+        for key, value in inv.items():
+            got = c.numbers(c.get(stored, f"{w}.inverse", key), f"{w}.inverse.{key}", -MAX_OUTPUT * MAX_WEIGHT, MAX_OUTPUT * MAX_WEIGHT,
+                            "a number of the inverse model")
+            if len(got) != len(value) or not np.allclose(got, value, rtol=INVERSE_RTOL, atol=INVERSE_RTOL * float(np.max(np.abs(value)))):
+                c.fail(f"{w}.inverse.{key}", list(got), f"the inverse of the forward model's parameters (within {INVERSE_RTOL:g}: "
+                       f"{', '.join(f'{v:.6g}' for v in value[:4])}{', ...' if len(value) > 4 else ''}); the file was edited or corrupted")
     # the model maps the rest drive and the drive range's ends to finite outputs, and back
     y, _ = model.forward(np.array([x0, x0 + r[-1] + 1.0, x0]))
     if not np.all(np.isfinite(y)) or not np.all(np.isfinite(model.inverse(y)[0])):
@@ -217,7 +228,7 @@ def check_shaper(c: _Checker, sec: Mapping[str, Any], unit: str) -> tuple[Shaper
     mode = c.mapping(c.get(sec, "shaper", "mode"), "shaper.mode", "a mapping (the identified mode)")
     wn = c.number(c.get(mode, "shaper.mode", "natural_freq_rad_s"), "shaper.mode.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
     zeta = c.number(c.get(mode, "shaper.mode", "damping"), "shaper.mode.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
-    lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 0.0, 1e9, "null or a cut-off in Hz", lo_open=True)
+    lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 1.0, 1e9, "null or a cut-off in Hz")
     mu = mode.get("output_unit")
     if mu is not None and units.normalise(mu) != unit:
         c.fail("shaper.mode.output_unit", mu, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
@@ -319,7 +330,9 @@ class Bundle:
             raise BundleError(f"{source}: has no hysteresis section; expected a bundle made by `piezopress fit` or `bundle`")
         for name in SECTIONS:
             if name in doc:
-                c.mapping(doc[name], name, f"a mapping (the {name} section)")
+                sec = c.mapping(doc[name], name, f"a mapping (the {name} section)")
+                if "bundle_version" in sec and sec["bundle_version"] != BUNDLE_VERSION:
+                    c.fail(f"{name}.bundle_version", sec["bundle_version"], f"{BUNDLE_VERSION} (this software's schema)")
         hyst = check_hysteresis(c, doc["hysteresis"])
         unit = hyst.output_unit
         creep = check_creep(c, doc["creep"], unit) if "creep" in doc else None
