@@ -38,7 +38,8 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
 @click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle whose model is judged.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory: diagnosis.json, extended_bundle.json, residual plots.")
-@click.option("--cause", "causes", multiple=True, help="Only these causes (repeatable; default: the whole catalogue).")
+@click.option("--cause", "causes", multiple=True, type=click.Choice(sorted(diag.dg.CAUSES)), metavar="CAUSE",
+              help="Only these causes (repeatable; default: the whole catalogue; an unknown name lists the known ones).")
 @click.option("--gain", "gain", is_flag=True, help="Also measure the gain on the press: validate the base and the extended bundle on "
               "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).")
 @click.option("--gain-seeds", type=click.IntRange(1, 10), default=2, show_default=True,

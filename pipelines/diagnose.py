@@ -94,8 +94,8 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
         raise dg.H.HysteresisFitError("no runs to diagnose")
     base = checked.forward_model()
     fitted = fitted_run_keys(bundle)
+    out = new_output_dir(out_dir)  # refused (or created) before the diagnosis's minutes of work
     result = dg.diagnose(base, runs, fitted, list(causes) if causes else None)
-    out = new_output_dir(out_dir)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
     doc = {"bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
