@@ -12,8 +12,8 @@ from piezopress import runformat, units
 from piezopress.analysis import diagnosis as dg
 from piezopress import plotting
 from piezopress.analysis.bundle import (FAST_CREEP_S, MODE_REFIT_CAUSES, Bundle, creep_for_compensator,  # noqa: F401 (moved there)
-                                       modal_delay_s, rate_dependence, second_shaper)
-from piezopress.pipelines.bundle import collect_runs, read_bundle, write_document
+                                       extend_document, modal_delay_s, rate_dependence, second_shaper)
+from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
 from piezopress.pipelines import next_plan
 from piezopress.pipelines.files import check_output, new_output_dir, write_json_atomic, write_output
 
@@ -51,8 +51,9 @@ def simulate_file(bundle_path: str | Path, run_path: str | Path, out: str | Path
 
 
 def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding], model: dg.Model | None = None) -> dict[str, Any]:
-    """The bundle with every finding's extension recorded (:meth:`Bundle.extended`)."""
-    return Bundle.from_dict(bundle).extended(findings, model).to_dict()
+    """The bundle document with every finding's extension recorded (:func:`piezopress.analysis.bundle.extend_document`;
+    :meth:`Bundle.extended` is the same, checked)."""
+    return extend_document(bundle, findings, model)
 
 
 def fitted_run_keys(bundle: dict[str, Any]) -> list[str]:
@@ -103,7 +104,7 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
                              "needs": "; or ".join(n.text() for n in c.needs)} for c in dg.CAUSES.values()},
            **result.as_dict(), "next_plan": plan}
     write_json_atomic(out / "diagnosis.json", doc)
-    write_document(extend_bundle(bundle, result.findings, result.model), out / "extended_bundle.json")
+    write_document(checked.extended(result.findings, result.model).to_dict(), out / "extended_bundle.json")
     before = {s.run: s for s in result.before}
     after = {s.run: s for s in result.after}
     names = [r.name for r in runs]
