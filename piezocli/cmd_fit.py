@@ -241,7 +241,8 @@ def _fit_error(fit, unit: str) -> str:
               help="CSV with columns t_s and reference_n (force above the preload; reference_um for a displacement bundle), uniformly sampled.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="CSV to write: t_s, the reference column, command_v.")
 @click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Rig file: the bundle's drive range must lie inside its drive range (default: not checked against a rig).")
+              help="Rig file: the bundle's drive range must lie inside its drive range, the reference's rate within its maximum "
+                   "(default: the drive range is not checked, the rate against the virtual rig's maximum).")
 @click.option("--no-shaper", is_flag=True, help="Leave the input shaper out.")
 @_replace_opt
 @reports_errors
@@ -262,9 +263,8 @@ def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, replace) -> 
     """
     from piezopress.pipelines import compensate as comp_mod
 
-    limits = char.rig_limits(rig_path) if rig_path is not None else None
     result, previous = comp_mod.compensate_file(bundle_path, ref_path, out, use_shaper=not no_shaper, replace=replace,
-                                                rig_limits=limits, rig=str(rig_path))
+                                                rig_limits=char.rig_limits(rig_path), rig=str(rig_path) if rig_path else None)
     for w in result.warnings:
         click.echo(f"Warning: {w}", err=True)
     click.echo(f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to {result.command_v.max():.2f} V"

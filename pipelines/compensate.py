@@ -63,25 +63,27 @@ def _reference_unit(path: Path, bundle: Bundle) -> None:
 
 
 def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True, replace: bool = False,
-                    rig_limits: Any = None, rig: str = "the rig file") -> tuple[CompensationResult, Path | None]:
+                    rig_limits: Any = None, rig: str | None = None) -> tuple[CompensationResult, Path | None]:
     """The drive for a reference file, written to ``out`` (``t_s``, the reference, ``command_v``);
     returns the result and where the replaced file was kept (``None``: nothing replaced).
 
     The output place is checked before anything is read; the bundle is checked as it is read
     and then against the reference (its unit, the lead against its length, the creep
-    compensator at its rate) and, with ``rig_limits``, against the rig's drive range and
-    sample rate."""
+    compensator at its rate) and, with ``rig_limits``, against the rig's sample rate and, when
+    the rig file is named (``rig``), its drive range (``rig=None``: the limits are the virtual
+    rig's defaults, which bound the rate only)."""
     out = Path(out)
     check_output(out, replace=replace)
     bundle = read_bundle(bundle_path)
-    if rig_limits is not None:
+    if rig_limits is not None and rig is not None:
         bundle.check_drive_range(rig_limits.drive_min_v, rig_limits.drive_max_v, rig)
     ref_path = Path(ref_path)
     _reference_unit(ref_path, bundle)
     column = reference_column(bundle)
     t, r, fs = read_reference(ref_path, column)
     if rig_limits is not None and fs > rig_limits.max_sample_rate_hz * (1 + 1e-9):
-        raise ImportFormatError(f"{ref_path}: sampled at {fs:.6g} Hz; expected at most the rig's {rig_limits.max_sample_rate_hz:g} Hz ({rig})")
+        raise ImportFormatError(f"{ref_path}: sampled at {fs:.6g} Hz; expected at most the rig's {rig_limits.max_sample_rate_hz:g} Hz "
+                                f"({rig or 'the virtual rig; pass --rig for another'})")
     bundle.check_reference(t.size, fs, str(ref_path))
     result = bundle.compensator(use_shaper=use_shaper).drive(r, fs)
     if not np.all(np.isfinite(result.command_v)):

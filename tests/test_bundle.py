@@ -222,18 +222,28 @@ def test_the_sound_bundle_passes_the_same_commands(ref_csv, tiny_plan, tmp_path)
 
 
 def test_a_lead_longer_than_a_tenth_of_the_reference_is_refused(tmp_path):
-    """Issue 14: 100 rows at 1 MHz (99 µs) gave a constant drive; the bundle's 52 µs lead is more than a tenth of it."""
+    """Issue 14: a 99 µs reference gave a constant drive; the bundle's 52 µs lead is more than a tenth of it."""
     lead = base_doc()["compensation"]["lead_s"]
-    t = np.arange(100) / 1e6
-    pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 100, t.size)}).to_csv(tmp_path / "fast.csv", index=False)
-    line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "fast.csv", "--out", tmp_path / "d.csv"))
-    assert f"compensation.lead_s = {lead:.6g} s; expected less than {LEAD_MAX_FRACTION:g} of the reference's 9.9e-05 s" in line
+    fs = 1e5
+    t = np.arange(10) / fs
+    pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 100, t.size)}).to_csv(tmp_path / "short.csv", index=False)
+    line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "short.csv", "--out", tmp_path / "d.csv"))
+    assert f"compensation.lead_s = {lead:.6g} s; expected less than {LEAD_MAX_FRACTION:g} of the reference's 9e-05 s" in line
     # a reference ten leads long and more passes
-    n = int(np.ceil(lead / LEAD_MAX_FRACTION * 1e6)) + 2
-    t = np.arange(n) / 1e6
+    n = int(np.ceil(lead / LEAD_MAX_FRACTION * fs)) + 2
+    t = np.arange(n) / fs
     pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 1, n)}).to_csv(tmp_path / "ok.csv", index=False)
     code, out = invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "ok.csv", "--out", tmp_path / "d.csv")
     assert code == 0, out
+
+
+@pytest.mark.parametrize("fs", [1e6, 1e9])
+def test_a_reference_faster_than_the_rig_is_refused_at_once(fs, tmp_path):
+    """Issue 14: 100 rows at 1 MHz gave a constant drive; a reference at 1 GHz ran past 600 s."""
+    t = np.arange(100) / fs
+    pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 100, t.size)}).to_csv(tmp_path / "fast.csv", index=False)
+    line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "fast.csv", "--out", tmp_path / "d.csv"))
+    assert f"sampled at {fs:.6g} Hz; expected at most the rig's 100000 Hz (the virtual rig; pass --rig for another)" in line
 
 
 def test_a_long_lead_is_refused_by_validate_before_anything_runs(tmp_path):
