@@ -63,6 +63,7 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, r
       piezopress fit-hysteresis runs/char --out build/hysteresis.json
       piezopress fit-hysteresis smart.parquet --skip-s 3.3 --out build/smart.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
     digest = fit_mod.hysteresis_digest(fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, skip_s=skip_s, rows=rows)
     if _skip(out, digest, if_changed):
@@ -94,6 +95,7 @@ def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace, if_cha
     Example:
       piezopress fit-creep runs/char --hysteresis build/hysteresis.json --out build/creep.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     hyst = bundle_mod.read_document(hyst_path, "hysteresis")
     if _skip(out, fit_mod.creep_digest(fit_mod.select_creep_run(runs, names), hyst, holdout_fraction), if_changed):
         return
@@ -121,6 +123,7 @@ def fit_shaper_cmd(runs, out, names, replace, if_changed) -> None:
     Example:
       piezopress fit-shaper runs/char --out build/shaper.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     if _skip(out, fit_mod.shaper_digest(fit_mod.select_shaper_runs(runs, names), None), if_changed):
         return
     doc, fit = fit_mod.fit_shaper_section(runs, names=names)
@@ -151,6 +154,7 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
       piezopress bundle --hysteresis build/hysteresis.json --creep build/creep.json \\
           --shaper build/shaper.json --out build/bundle.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)
     sections = {"hysteresis": bundle_mod.read_document(hyst_path, "hysteresis")}
     if creep_path:
         sections["creep"] = bundle_mod.read_document(creep_path, "creep")

@@ -311,3 +311,18 @@ def test_from_dict_names_the_source():
         doc = base_doc()
         doc["compensation"]["lead_s"] = -1
         Bundle.from_dict(copy.deepcopy(doc), "my-file.json")
+
+
+def test_a_creep_compensator_unstable_at_the_references_rate_is_refused(tmp_path, ref_csv, tiny_plan):
+    """K_c > 0 and a positive long-time gain, but K_c + C(s) has zeros in the right half-plane
+    (1 - 16 s + 10 s^2): its compensator diverges at every rate it would run."""
+    doc = base_doc()
+    doc["creep"]["model"] = {"form": "poles", "static_gain": 1.0, "taus_s": [1.0, 10.0], "gains": [-3.0, 3.0], "params": {}}
+    (tmp_path / "b.json").write_text(json.dumps(doc))
+    Bundle.from_dict(doc)  # nothing wrong with the numbers themselves
+    line = one_error_line(*invoke("compensate", "--bundle", tmp_path / "b.json", "--reference", ref_csv, "--out", tmp_path / "d.csv"))
+    assert "b.json: creep.model: creep compensator 1/(K_c + C) is unstable at fs_hz=1000" in line and "ramp.csv's rate 1000 Hz" in line
+    line = one_error_line(*invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v"))
+    assert "is unstable at fs_hz=5000" in line and "protocol step-30n's rate 5000 Hz" in line
+    code, out = invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v2", "--no-creep")
+    assert code == 0, out  # without the creep compensator nothing diverges

@@ -219,3 +219,15 @@ def test_a_bundle_never_holds_a_non_finite_number(tmp_path):
     B.write_document(doc, tmp_path / "b.json")
     text = (tmp_path / "b.json").read_text()
     assert "NaN" not in text and json.loads(text)["hysteresis"]["fit"]["holdout_rms_pct_of_range"] is None
+
+
+@pytest.mark.parametrize("command", ["fit-hysteresis", "fit-shaper", "fit"])
+def test_fit_commands_refuse_their_output_before_fitting(command, tmp_path, monkeypatch):
+    """Issue 14: `fit-shaper` found a read-only folder only after the whole fit."""
+    from piezopress.pipelines import fit as F
+
+    for name in ("fit_hysteresis_section", "fit_shaper_section", "fit_all"):
+        monkeypatch.setattr(F, name, lambda *a, **k: pytest.fail("fitted although the output is refused"))
+    (tmp_path / "f").write_text("x")
+    code, out = invoke(command, ROOT / "sample_runs" / "characterization", "--out", tmp_path / "f" / "out.json")
+    assert code == 1 and out.startswith("Error: ") and out.count("\n") == 1 and "is a file; expected a folder" in out
