@@ -67,10 +67,7 @@ def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
         tmp = Path(tmp)
         try:
             char.characterize(tmp / "char", backend=backend, **({"plan_path": plan} if plan else {}))
-            h, _, c, _ = F.fit_hysteresis_and_creep([tmp / "char"], base=True)
-            s, _ = F.fit_shaper_section([tmp / "char"])
-            secs = {"hysteresis": h, "creep": c, "shaper": s}
-            B.write_document(B.assemble(secs, F.compensation_settings(secs)), tmp / "base.json")
+            B.write_document(F.fit_bundle([tmp / "char"], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
             result, _ = D.diagnose([tmp / "char"], tmp / "base.json", tmp / "diag")
         except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
             return effect, (f"error: {type(exc).__name__}",), float("nan")

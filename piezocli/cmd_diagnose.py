@@ -15,8 +15,9 @@ from piezopress.pipelines import diagnose as diag
 @click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Run file to write: the run with columns predicted and residual added.")
+@click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>).")
 @reports_errors
-def simulate_cmd(run, bundle_path, out) -> None:
+def simulate_cmd(run, bundle_path, out, replace) -> None:
     """Run the bundle's model on a run's measured drive, beside the measurement.
 
     This is "the simulation" diagnose judges: hysteresis, creep, mode and the sensor's
@@ -26,17 +27,19 @@ def simulate_cmd(run, bundle_path, out) -> None:
     Example:
       piezopress simulate runs/char/step-100v.parquet --bundle build/bundle.json --out sim.parquet
     """
-    sim = diag.simulate_file(bundle_path, run, out)
+    sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace)
     res = sim.data["residual"].to_numpy()
     u = units.label(sim.output_unit)
-    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column})")
+    kept = f" (previous version kept as {previous})" if previous else ""
+    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column}){kept}")
 
 
 @cli.command("diagnose")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle whose model is judged.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory: diagnosis.json, extended_bundle.json, residual plots.")
-@click.option("--cause", "causes", multiple=True, help="Only these causes (repeatable; default: the whole catalogue).")
+@click.option("--cause", "causes", multiple=True, type=click.Choice(sorted(diag.dg.CAUSES)), metavar="CAUSE",
+              help="Only these causes (repeatable; default: the whole catalogue; an unknown name lists the known ones).")
 @click.option("--gain", "gain", is_flag=True, help="Also measure the gain on the press: validate the base and the extended bundle on "
               "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).")
 @click.option("--gain-seeds", type=click.IntRange(1, 10), default=2, show_default=True,

@@ -15,13 +15,13 @@ from piezopress.pipelines import fit as fit_mod
 
 _runs_arg = click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 _names_opt = click.option("--run", "names", multiple=True, help="Use only the run(s) of this name (repeatable).")
-_replace_opt = click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as .prev.json).")
+_replace_opt = click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>).")
 _skip_opt = click.option("--skip-s", "skip_s", type=click.FloatRange(min=0.0), default=None, metavar="SECONDS",
                          help="Do not fit the first SECONDS of each sweep (a rest, a start-up transient); they still carry the model's state. "
                               "Default: detected (the sweep's start until its input has reached both ends of its range).")
 _rows_opt = click.option("--rows", type=ROWS, default=None, help="Fit only rows START to STOP-1 of each sweep (from 0); earlier rows still carry the state.")
 _if_changed_opt = click.option("--if-changed", is_flag=True,
-                               help="Do nothing if the output was made from the same inputs; else replace it (keeping .prev.json).")
+                               help="Do nothing if the output was made from the same inputs; else replace it (keeping the old one, timestamped).")
 
 
 def _skip(out: Path, digest: str, if_changed: bool) -> bool:
@@ -32,7 +32,7 @@ def _skip(out: Path, digest: str, if_changed: bool) -> bool:
 
 
 def _wrote(path: Path, previous: Path | None) -> None:
-    click.echo(f"Wrote {path}" + (f" (previous version kept as {previous})" if previous else ""))
+    click.echo(f"Wrote {path}{files_mod.kept_note(previous)}")
 
 
 @cli.command("fit-hysteresis")
@@ -63,6 +63,7 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, r
       piezopress fit-hysteresis runs/char --out build/hysteresis.json
       piezopress fit-hysteresis smart.parquet --skip-s 3.3 --out build/smart.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
     digest = fit_mod.hysteresis_digest(fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, skip_s=skip_s, rows=rows)
     if _skip(out, digest, if_changed):
@@ -94,6 +95,7 @@ def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace, if_cha
     Example:
       piezopress fit-creep runs/char --hysteresis build/hysteresis.json --out build/creep.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     hyst = bundle_mod.read_document(hyst_path, "hysteresis")
     if _skip(out, fit_mod.creep_digest(fit_mod.select_creep_run(runs, names), hyst, holdout_fraction), if_changed):
         return
@@ -121,6 +123,7 @@ def fit_shaper_cmd(runs, out, names, replace, if_changed) -> None:
     Example:
       piezopress fit-shaper runs/char --out build/shaper.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     if _skip(out, fit_mod.shaper_digest(fit_mod.select_shaper_runs(runs, names), None), if_changed):
         return
     doc, fit = fit_mod.fit_shaper_section(runs, names=names)
@@ -151,6 +154,7 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
       piezopress bundle --hysteresis build/hysteresis.json --creep build/creep.json \\
           --shaper build/shaper.json --out build/bundle.json
     """
+    files_mod.check_output(out, replace=replace or if_changed)
     sections = {"hysteresis": bundle_mod.read_document(hyst_path, "hysteresis")}
     if creep_path:
         sections["creep"] = bundle_mod.read_document(creep_path, "creep")
@@ -161,7 +165,7 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
     doc = bundle_mod.assemble(sections, comp)
     if _skip(out, doc["inputs_digest"], if_changed):
         return
-    bundle_mod.compensator(doc)  # check it builds
+    bundle_mod.Bundle.from_dict(doc, str(out))  # a bundle that would not be read back is never written
     _wrote(out, bundle_mod.write_document(doc, out, replace=replace or if_changed))
 
 
@@ -195,7 +199,8 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     def say(text: str) -> None:
         click.echo(text, err=as_json)
 
-    res = fit_mod.fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=lambda stage: say(f"fitting {stage} ..."))
+    fitted = fit_mod.fit_bundle(runs, act, base=base, skip_s=skip_s, rows=rows, on_stage=lambda stage: say(f"fitting {stage} ..."))
+    res = fitted.result
     u = units.label(res.unit)
     hfit = res.fits["hysteresis"]
     say(f"hysteresis: {hfit.reason}")
@@ -211,11 +216,9 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     if lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
         say(f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
             f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this actuator's range)")
-    doc = bundle_mod.assemble(res.sections, fit_mod.compensation_settings(res.sections, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v))
-    bundle_mod.compensator(doc)  # check it builds
-    previous = bundle_mod.write_document(doc, out, replace=replace)
+    previous = bundle_mod.write_document(fitted.doc, out, replace=replace)
     if as_json:
-        say(f"Wrote {out}" + (f" (previous version kept as {previous})" if previous else ""))
+        say(f"Wrote {out}{files_mod.kept_note(previous)}")
         emit_json({
             "bundle": out, "previous": previous, "output_unit": res.unit, "sections": list(res.sections),
             "not_fitted": res.not_fitted,
@@ -241,9 +244,13 @@ def _fit_error(fit, unit: str) -> str:
 @click.option("--reference", "ref_path", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="CSV with columns t_s and reference_n (force above the preload; reference_um for a displacement bundle), uniformly sampled.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="CSV to write: t_s, the reference column, command_v.")
+@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Rig file: the bundle's drive range must lie inside its drive range, the reference's rate within its maximum "
+                   "(default: the drive range is not checked, the rate against the virtual rig's maximum).")
 @click.option("--no-shaper", is_flag=True, help="Leave the input shaper out.")
+@_replace_opt
 @reports_errors
-def compensate_cmd(bundle_path, ref_path, out, no_shaper) -> None:
+def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, replace) -> None:
     """Turn a reference force (or displacement) trajectory into the actuator drive.
 
     The reference is in the bundle's output unit: column reference_n (N above the preload)
@@ -251,7 +258,8 @@ def compensate_cmd(bundle_path, ref_path, out, no_shaper) -> None:
 
     Input shaper, creep compensator and inverse hysteresis, in the thesis's order; the
     drive is limited to the actuator's safe range, with a warning where the reference
-    cannot be reached.
+    cannot be reached. The bundle is checked first (finite numbers in their ranges, a lead
+    shorter than a tenth of the reference, a creep compensator stable at its rate).
 
     \b
     Example:
@@ -259,7 +267,9 @@ def compensate_cmd(bundle_path, ref_path, out, no_shaper) -> None:
     """
     from piezopress.pipelines import compensate as comp_mod
 
-    result = comp_mod.compensate_file(bundle_path, ref_path, out, use_shaper=not no_shaper)
+    result, previous = comp_mod.compensate_file(bundle_path, ref_path, out, use_shaper=not no_shaper, replace=replace,
+                                                rig_limits=char.rig_limits(rig_path), rig=str(rig_path) if rig_path else None)
     for w in result.warnings:
         click.echo(f"Warning: {w}", err=True)
-    click.echo(f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to {result.command_v.max():.2f} V")
+    click.echo(f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to {result.command_v.max():.2f} V"
+               f"{files_mod.kept_note(previous)}")

@@ -12,7 +12,7 @@ from piezopress.pipelines.importing import import_file
 
 # The two shared data sets, imported with one command each (also in docs/import.md; the
 # tests run exactly these commands).
-HELP = """Convert a CSV/TSV measurement (SOURCE) into a run file (--out, never overwritten).
+HELP = """Convert a CSV/TSV measurement (SOURCE) into a run file (--out, never overwritten unless --replace, which keeps the old one).
 
 Map run columns to source columns with --col RUN_COLUMN=SOURCE_COLUMN, the source column
 given as a number counted from 1 or as a header name. Run columns: t_s, command_v (required),
@@ -88,7 +88,7 @@ def _rows(text: str | None) -> tuple[int | None, int | None] | None:
 
 @cli.command("import", help=HELP, short_help="Convert a CSV/TSV measurement into a run file.")
 @click.argument("source", type=click.Path(path_type=Path))
-@click.option("--out", "-o", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Run file to write (.parquet); refused if it exists.")
+@click.option("--out", "-o", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Run file to write (.parquet); refused if it exists (see --replace).")
 @click.option("--col", "cols", multiple=True, metavar="RUN_COLUMN=SOURCE", help="Map a run column to a source column (number from 1, or header name). Repeat.")
 @click.option("--scale", "scales", multiple=True, metavar="RUN_COLUMN=FACTOR", help="Multiply a column to get V, N, µm or s. Repeat.")
 @click.option("--offset", "offsets", multiple=True, metavar="RUN_COLUMN=VALUE", help="Add to a column after scaling. Repeat.")
@@ -101,6 +101,7 @@ def _rows(text: str | None) -> tuple[int | None, int | None] | None:
 @click.option("--rows", "rows_text", default=None, metavar="START:STOP", help="Keep these data rows of the input (from 0, STOP excluded; either end may be left out).")
 @click.option("--keep-time", is_flag=True, help="Keep the source's time origin instead of starting t_s at 0.")
 @click.option("--units-note", default=None, help="Note on units and assumptions, stored in the metadata.")
+@click.option("--replace", is_flag=True, help="Replace an existing --out (the old one is kept as <name>.replaced-<UTC time>).")
 @reports_errors
 def import_command(
     source: Path,
@@ -117,10 +118,12 @@ def import_command(
     rows_text: str | None,
     keep_time: bool,
     units_note: str | None,
+    replace: bool,
 ) -> None:
-    run, _sha = import_file(
+    run, _sha, previous = import_file(
         source,
         out,
+        replace=replace,
         columns=_pairs("--col", cols, _source_column),
         scales=_pairs("--scale", scales, _number),
         offsets=_pairs("--offset", offsets, _number),
@@ -142,3 +145,5 @@ def import_command(
         f"Wrote {out}: {len(data)} samples at {run.sample_rate_hz:.6g} Hz ({t[-1] - t[0]:.6g} s), kind {run.kind}, "
         f"from rows {rows[0]}:{rows[1]} of {source.name}; {ranges}"
     )
+    if previous is not None:
+        click.echo(f"previous version kept as {previous}")

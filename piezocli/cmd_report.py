@@ -16,7 +16,7 @@ from piezopress.pipelines import report as rep
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), help="Parameter bundle (from `piezopress fit`).")
 @click.option("--diagnosis", "diag_dir", type=click.Path(file_okay=False, path_type=Path), help="Diagnosis directory (from `piezopress diagnose`).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New (or empty) directory for the report.")
-@click.option("--replace", is_flag=True, help="Replace an existing report in --out, keeping the old one as <out>.prev.")
+@click.option("--replace", is_flag=True, help="Replace an existing report in --out (the old one is kept as <out>.replaced-<UTC time>).")
 @reports_errors
 def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> None:
     """Write the report: Table 6.13 beside the thesis, the detailed tables, model quality, figures.
@@ -24,7 +24,7 @@ def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> No
     Every input is optional; what is missing is said in the report. The output directory
     gets metrics.csv (one row per figure, the same bytes for the same inputs), report.md,
     report.html (one self-contained page) and the figures as PNG. It must be new or empty;
-    --replace moves an old report to <out>.prev first.
+    --replace moves an old report to <out>.replaced-<UTC time> first.
 
     \b
     Example:

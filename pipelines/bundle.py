@@ -9,25 +9,14 @@ redo only the stages whose inputs changed.
 from __future__ import annotations
 
 import json
-import shutil
+import math
 from pathlib import Path
 from typing import Any, Iterable
 
 import piezopress
-from piezopress import runformat, units
-from piezopress.analysis.compensation import RATE_TAU_S, Compensator, RateDependence
-from piezopress.analysis.creep import CreepModel
-from piezopress.analysis.hysteresis import PIModel
-from piezopress.analysis.shaper import Shaper
-from piezopress.errors import PiezopressError
-from piezopress.pipelines.files import check_output, run_files, utc_now, write_json_atomic
-
-BUNDLE_VERSION = 1
-SECTIONS = ("hysteresis", "creep", "shaper")
-
-
-class BundleError(PiezopressError, ValueError):
-    """A bundle or section file is missing, unreadable or inconsistent."""
+from piezopress import runformat
+from piezopress.analysis.bundle import BUNDLE_VERSION, SECTIONS, Bundle, BundleError, check_section
+from piezopress.pipelines.files import run_files, utc_now, write_json_atomic, write_output
 
 
 def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> list[runformat.Run]:
@@ -95,34 +84,52 @@ def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run], dige
 
 
 def write_document(doc: dict[str, Any], path: str | Path, *, replace: bool = False) -> Path | None:
-    """Write a section or bundle; an existing file is replaced only with ``replace``, and then
-    kept as ``<name>.prev.json`` (returned) so nothing is lost."""
+    """Write a section or bundle atomically; an existing file is replaced only with
+    ``replace``, its old version kept under a unique timestamped name (returned) so nothing
+    is lost. A non-finite figure (a fit quality that could not be computed) is written as
+    ``null``: JSON has no NaN (the models' numbers are checked finite before they get here)."""
+    clean = _finite(doc)
+    return write_output(path, lambda tmp: write_json_atomic(tmp, clean, finite=True), replace=replace)
+
+
+def _finite(v: Any) -> Any:
+    """``v`` with every non-finite float (NaN, inf) as ``None``."""
+    if isinstance(v, float) or type(v).__name__ in ("float64", "float32"):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    return v
+
+
+def _load(path: Path, expect: str) -> Any:
+    if not path.is_file():
+        raise BundleError(f"{path}: no such file; expected a {expect} JSON file")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise BundleError(f"{path}: not text (binary data); expected a {expect} JSON file") from None
+    except RecursionError:
+        raise BundleError(f"{path}: nested too deeply; expected a {expect} JSON file") from None
+    except json.JSONDecodeError as exc:
+        raise BundleError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); expected a {expect} file") from None
+
+
+def read_bundle(path: str | Path) -> Bundle:
+    """The bundle file at ``path``, checked (:meth:`Bundle.from_dict`)."""
     path = Path(path)
-    previous = None
-    check_output(path, replace=replace)
-    if path.exists():
-        previous = path.with_name(path.stem + ".prev.json")
-        shutil.copy2(path, previous)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(path, doc)
-    return previous
+    return Bundle.from_dict(_load(path, "bundle"), str(path))
 
 
 def read_document(path: str | Path, expect: str | None = None) -> dict[str, Any]:
+    """A bundle (``expect`` ``"bundle"`` or ``None``) or section file, checked as it is read."""
     path = Path(path)
-    if not path.is_file():
-        raise BundleError(f"{path}: no such file; expected a {expect or 'bundle'} JSON file")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise BundleError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); expected a {expect or 'bundle'} file") from None
-    if doc.get("bundle_version") != BUNDLE_VERSION:
-        raise BundleError(f"{path}: bundle_version is {doc.get('bundle_version')!r}, expected {BUNDLE_VERSION}")
-    if expect in SECTIONS and doc.get("section") != expect:
-        raise BundleError(f"{path}: holds section {doc.get('section')!r}, expected {expect!r}")
-    if expect == "bundle" and "hysteresis" not in doc:
-        raise BundleError(f"{path}: has no hysteresis section; expected a bundle made by `piezopress bundle`")
-    return doc
+    if expect in SECTIONS:
+        doc = _load(path, expect)
+        check_section(expect, doc, str(path))
+        return doc
+    return read_bundle(path).to_dict()
 
 
 def assemble(sections: dict[str, dict[str, Any]], compensation: dict[str, Any]) -> dict[str, Any]:
@@ -133,46 +140,3 @@ def assemble(sections: dict[str, dict[str, Any]], compensation: dict[str, Any]) 
     return {"bundle_version": BUNDLE_VERSION, "kind": "piezopress-bundle", "software_version": piezopress.__version__,
             "created_utc": utc_now(), "inputs_digest": digest, **{k: sections[k] for k in SECTIONS if k in sections},
             "compensation": compensation}
-
-
-def _rate(d: dict[str, Any] | None) -> RateDependence | None:
-    """The rate dependence a bundle's ``compensation.rate_dependence`` describes (diagnose writes it)."""
-    if not d:
-        return None
-    sat = d.get("saturation_v_per_s")
-    return RateDependence(widen_v_per_kv_s=float(d.get("widen_v_per_kv_s", 0.0)), loss_per_kv_s=float(d.get("loss_per_kv_s", 0.0)),
-                          saturation_v_per_s=float(sat) if sat else None, tau_s=float(d.get("tau_s", RATE_TAU_S)))
-
-
-def _shaper(s: dict[str, Any]) -> Shaper:
-    return Shaper(name=s["name"], times_s=tuple(s["times_s"]), amplitudes=tuple(s["amplitudes"]),
-                  wn=float(s["natural_freq_rad_s"]), zeta=float(s["damping"]), zv_power=s.get("zv_power"))
-
-
-def compensator(bundle: dict[str, Any], *, use_shaper: bool = True, use_creep: bool = True) -> Compensator:
-    """The compensator a bundle describes."""
-    try:
-        hyst = PIModel.from_dict(bundle["hysteresis"]["model"])
-        creep = CreepModel.from_dict(bundle["creep"]["model"]) if use_creep and "creep" in bundle else None
-        shaper = shaper2 = None
-        if use_shaper and "shaper" in bundle:
-            shaper = _shaper(bundle["shaper"]["shaper"])
-            # a second mode found by diagnose: its own shaper, after the first
-            shaper2 = _shaper(bundle["shaper"]["shaper2"]) if bundle["shaper"].get("shaper2") else None
-        comp = bundle.get("compensation", {})
-        # without the shaper the mode's delay is not led; a pure input delay still is
-        lead = float(comp.get("lead_s", 0.0)) if use_shaper else float(comp.get("delay_lead_s", 0.0))
-        return Compensator(
-            hysteresis=hyst,
-            creep=creep,
-            shaper=shaper,
-            drive_min_v=float(comp.get("drive_min_v", 0.0)),
-            drive_max_v=float(comp.get("drive_max_v", 150.0)),
-            max_rate_per_s=comp.get(f"max_rate_{units.key(hyst.output_unit)}_per_s"),
-            lead_s=lead,
-            shaper2=shaper2,
-            rate=_rate(comp.get("rate_dependence")),
-            slew_v_per_s=comp.get("slew_v_per_s"),
-        )
-    except (KeyError, TypeError, ValueError) as exc:
-        raise BundleError(f"the bundle is incomplete or inconsistent ({type(exc).__name__}: {exc})") from None

@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from piezopress import units
 from piezopress.acquisition.drive_check import check_drive, check_sample_rate
-from piezopress.acquisition.plan import DriveLimits
+from piezopress.analysis.bundle import MAX_OUTPUT, Bundle, BundleError
 from piezopress.analysis.compensation import CompensationResult
-from piezopress.errors import ImportFormatError, OutputExistsError
+from piezopress.errors import ImportFormatError
 from piezopress.runformat import UNIFORM_RTOL
-from piezopress.pipelines.bundle import compensator, read_document
-from piezopress.pipelines.characterize import DEFAULT_RIG, rig_limits
+from piezopress.pipelines.bundle import read_bundle
+from piezopress.pipelines.characterize import DEFAULT_RIG
+from piezopress.pipelines.characterize import rig_limits as limits_of_rig
+from piezopress.pipelines.files import check_output, write_output
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:
@@ -36,6 +39,8 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
         raise ImportFormatError(f"{path}: non-numeric values in t_s or {column}; expected numbers") from None
     if t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(r))):
         raise ImportFormatError(f"{path}: {t.size} rows or non-finite values; expected at least 2 finite rows")
+    if np.max(np.abs(r)) > MAX_OUTPUT:
+        raise ImportFormatError(f"{path}: {column} reaches {np.max(np.abs(r)):.6g}; expected values within +/-{MAX_OUTPUT:g} (a press's range)")
     dt = np.diff(t)
     mean = (t[-1] - t[0]) / (t.size - 1)
     if mean <= 0 or np.max(np.abs(dt - mean)) > UNIFORM_RTOL * mean:
@@ -43,25 +48,50 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
     return t, r, 1.0 / mean
 
 
-def reference_column(bundle: dict) -> str:
+def reference_column(bundle: Bundle) -> str:
     """The reference column a bundle's compensator takes: ``reference_n`` or ``reference_um``."""
-    return f"reference_{units.key(bundle['hysteresis']['model'].get('output_unit', units.FORCE))}"
+    return f"reference_{units.key(bundle.unit)}"
 
 
-def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True,
-                    limits: DriveLimits | None = None) -> CompensationResult:
-    """Write the drive for a reference; ``limits`` (default: the shipped rig's) bound its sample rate,
-    range and slew (:mod:`piezopress.acquisition.drive_check`, the check every backend makes)."""
-    limits = limits or rig_limits(DEFAULT_RIG)
+def _reference_unit(path: Path, bundle: Bundle) -> None:
+    """Refuse a reference in the other unit (its column names it) with one line."""
+    try:
+        header = pd.read_csv(path, nrows=0).columns
+    except Exception:  # unreadable: read_reference says why
+        return
+    for unit in units.LABELS:
+        col = f"reference_{units.key(unit)}"
+        if col in header and unit != bundle.unit and reference_column(bundle) not in header:
+            bundle.check_unit(unit, f"{path} (column {col})", f"a {units.quantity(bundle.unit)} reference, column {reference_column(bundle)}")
+
+
+def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True, replace: bool = False,
+                    rig_limits: Any = None, rig: str | None = None) -> tuple[CompensationResult, Path | None]:
+    """The drive for a reference file, written to ``out`` (``t_s``, the reference, ``command_v``);
+    returns the result and where the replaced file was kept (``None``: nothing replaced).
+
+    The output place is checked before anything is read; the bundle is checked as it is read
+    and then against the reference (its unit, the lead against its length, the creep
+    compensator at its rate) and, with ``rig_limits``, against the rig's sample rate and, when
+    the rig file is named (``rig``), its drive range (``rig=None``: the limits are the virtual
+    rig's defaults, which bound the rate only). The drive passes the check every backend makes
+    (:mod:`piezopress.acquisition.drive_check`: finite, in range, slew, sample rate) before it is written."""
     out = Path(out)
-    if out.exists():
-        raise OutputExistsError(f"{out}: already exists; refusing to overwrite it")
-    bundle = read_document(bundle_path, "bundle")
-    comp = compensator(bundle, use_shaper=use_shaper)
+    check_output(out, replace=replace)
+    bundle = read_bundle(bundle_path)
+    if rig_limits is not None and rig is not None:
+        bundle.check_drive_range(rig_limits.drive_min_v, rig_limits.drive_max_v, rig)
+    ref_path = Path(ref_path)
+    _reference_unit(ref_path, bundle)
     column = reference_column(bundle)
     t, r, fs = read_reference(ref_path, column)
-    check_sample_rate(fs, limits, str(ref_path))
-    result = comp.drive(r, fs)
+    limits = rig_limits if rig_limits is not None else limits_of_rig(DEFAULT_RIG)
+    check_sample_rate(fs, limits, f"{ref_path} ({rig or 'the virtual rig; pass --rig for another'})")
+    bundle.check_reference(t.size, fs, str(ref_path))
+    result = bundle.compensator(use_shaper=use_shaper).drive(r, fs)
+    if not np.all(np.isfinite(result.command_v)):
+        raise BundleError(f"{bundle_path}: its compensator gives a non-finite drive for {ref_path}; expected a finite drive (check the bundle)")
     check_drive(result.command_v, fs, limits, f"{ref_path} through {bundle_path}")
-    pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v}).to_csv(out, index=False, float_format="%.9g")
-    return result
+    frame = pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v})
+    previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)
+    return result, previous

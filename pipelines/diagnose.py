@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterable
@@ -11,22 +10,17 @@ import numpy as np
 
 from piezopress import runformat, units
 from piezopress.analysis import diagnosis as dg
-from piezopress.analysis.creep import CreepModel
-from piezopress.analysis.hysteresis import PIModel
-from piezopress.analysis.shaper import design_shaper
-from piezopress.errors import FitError
 from piezopress import plotting
-from piezopress.pipelines.bundle import collect_runs, read_document, write_document
+from piezopress.analysis.bundle import (FAST_CREEP_S, MODE_REFIT_CAUSES, Bundle, creep_for_compensator,  # noqa: F401 (moved there)
+                                       extend_document, modal_delay_s, rate_dependence, second_shaper)
+from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
 from piezopress.pipelines import next_plan
-from piezopress.pipelines.files import new_output_dir, write_json_atomic
+from piezopress.pipelines.files import check_output, new_output_dir, write_json_atomic, write_output
 
 
 def base_model(bundle: dict[str, Any]) -> dg.Model:
     """The forward model a bundle describes (hysteresis, and creep and mode if present)."""
-    h = PIModel.from_dict(bundle["hysteresis"]["model"])
-    c = CreepModel.from_dict(bundle["creep"]["model"]) if "creep" in bundle else None
-    mode = bundle.get("shaper", {}).get("mode", {})
-    return dg.Model(h, c, mode.get("natural_freq_rad_s"), mode.get("damping"), mode.get("sensor_lowpass_hz"))
+    return Bundle.from_dict(bundle).forward_model()
 
 
 def fitted_run_names(bundle: dict[str, Any]) -> list[str]:
@@ -38,142 +32,28 @@ def run_data(run: runformat.Run) -> dg.RunData:
     return dg.RunData(run.name, run.kind, run.t_s, run.command_v, run.output, run.sample_rate_hz, run.column("monitor_v"), dict(run.meta))
 
 
-def simulate_file(bundle_path: str | Path, run_path: str | Path, out: str | Path) -> runformat.Run:
+def simulate_file(bundle_path: str | Path, run_path: str | Path, out: str | Path, *, replace: bool = False) -> tuple[runformat.Run, Path | None]:
     """The bundle's model on a run's measured drive, written beside the measurement
-    (columns ``predicted`` and ``residual`` added, in the run's output unit)."""
-    bundle = read_document(bundle_path, "bundle")
+    (columns ``predicted`` and ``residual`` added, in the run's output unit); returns the
+    run and where a replaced file was kept."""
+    check_output(out, replace=replace)
+    bundle = read_bundle(bundle_path)
     run = runformat.read_run(run_path)
-    pred = base_model(bundle).predict(run_data(run))
+    bundle.check_unit(run.output_unit, f"{run_path} ({run.output_column})")
+    pred = bundle.forward_model().predict(run_data(run))
     cols = {c: run.data[c].to_numpy() for c in run.data.columns}
     cols["predicted"] = pred
     cols["residual"] = run.output - pred
     meta = {**run.meta, "simulated_with": {"bundle": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)}}
     sim = runformat.make_run(cols, meta)
-    runformat.write_run(sim, out)
-    return sim
-
-
-def second_shaper(parameters: dict[str, float]) -> dict[str, Any]:
-    """A ZVD shaper for a second mode (``natural_freq_rad_s``, ``damping``), as a bundle's
-    ``shaper.shaper2`` (the compensator applies it after the first shaper)."""
-    sh = design_shaper("zvd", float(parameters["natural_freq_rad_s"]), float(parameters["damping"]))
-    return {"name": sh.name, "times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes), "natural_freq_rad_s": sh.wn,
-            "damping": sh.zeta, "zv_power": sh.zv_power, "delay_ms": 1e3 * sh.delay_s, "centroid_ms": 1e3 * sh.centroid_s,
-            "for": "diagnose: second_resonance"}
-
-
-#: Findings whose fit refits the main mode freely because the effect distorts its
-#: identification (a delay is read as damping, and the base lead ``2 zeta / wn`` then holds
-#: part of the delay): with one of them, the extended bundle's shaper and lead are designed
-#: for the diagnosis model's mode. (A second mode is not among them: its joint refit moves
-#: the main mode little, and the base lead, which the refit would shorten, also stands for
-#: the delays the lead formula leaves out - the load cell's low-pass, the DAC's hold - so a
-#: shorter lead loses more at 50 Hz than the better shaper gains.)
-MODE_REFIT_CAUSES = ("input_delay",)
-
-
-def rate_dependence(model: dg.Model) -> dict[str, Any]:
-    """A model's rate dependence as the bundle's ``compensation.rate_dependence``."""
-    sat = getattr(model, "rate_saturation_v_per_s", None)
-    return {"widen_v_per_kv_s": float(model.rate_v_per_kv_s), "loss_per_kv_s": float(getattr(model, "rate_loss_per_kv_s", 0.0)),
-            "saturation_v_per_s": float(sat) if sat and np.isfinite(sat) else None, "tau_s": float(getattr(model, "rate_tau_s", 5e-4))}
-
-
-#: Creep elements (not the log tail) faster than this are folded into the compensator's
-#: instantaneous gain (see :func:`creep_for_compensator`).
-FAST_CREEP_S = 1.0
-
-
-def creep_for_compensator(model: CreepModel) -> CreepModel:
-    """The found creep model as the compensator inverts it.
-
-    The log-creep finding fits a few Kelvin-Voigt elements and a log tail (equal gains, two
-    per decade from 0.05 s) on the hold read at 50 Hz. An element faster than
-    :data:`FAST_CREEP_S` there is not told apart from the step's own transient and the tail's
-    first terms (it lands on the grid's floor, 0.2 s, taking what the tail's fit left): as
-    a dynamic term its compensator drives every step too hard for a fraction of a second
-    (an overshoot the press does not have). It is folded into the instantaneous gain: the
-    creep at long times is kept, the fast part is the tail's.
-    """
-    gamma = model.params.get("per_decade")
-    if model.form != "kv" or gamma is None:
-        return model
-    tail_gain = 0.5 * float(gamma)
-    fast = [i for i, (t, g) in enumerate(zip(model.taus_s, model.gains)) if t < FAST_CREEP_S and not np.isclose(g, tail_gain, rtol=1e-9)]
-    if not fast:
-        return model
-    keep = [i for i in range(len(model.taus_s)) if i not in fast]
-    return CreepModel("kv", model.static_gain + sum(model.gains[i] for i in fast), tuple(model.taus_s[i] for i in keep),
-                      tuple(model.gains[i] for i in keep), dict(model.params))
-
-
-def modal_delay_s(model: dg.Model) -> float:
-    """The low-frequency delay of a model's mode(s): ``2 zeta / wn``, each mode weighted by its share."""
-    share2 = model.mode2[0] if model.mode2 else 0.0
-    d = (1.0 - share2) * 2.0 * float(model.zeta) / float(model.wn)
-    if model.mode2:
-        d += share2 * 2.0 * float(model.mode2[2]) / float(model.mode2[1])
-    return d
+    previous = write_output(out, lambda tmp: runformat.write_run(sim, tmp), replace=replace)
+    return sim, previous
 
 
 def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding], model: dg.Model | None = None) -> dict[str, Any]:
-    """The bundle with every finding's extension recorded; those that belong in the
-    compensator change it (creep form, lead, slew, rate-aware inverse, second shaper).
-
-    ``model`` is the diagnosis's final model (all findings applied): when a finding refitted
-    the main mode (:data:`MODE_REFIT_CAUSES`), the main shaper is designed again for it and
-    the lead is its low-frequency delay plus the input delay found (the base bundle's lead
-    had absorbed part of that delay into the mode's damping; adding the delay to it would
-    lead twice)."""
-    ext = copy.deepcopy(bundle)
-    ext["extensions"] = {f.cause: f.parameters for f in findings}
-    # what the compensator applies of them, and what it only records: the catalogue says
-    # (Cause.in_compensator, the one place; a branch below must change the compensator for exactly those)
-    applied = {c.id for c in dg.CAUSES.values() if c.in_compensator}
-    ext["extensions_applied_by_compensator"] = sorted(f.cause for f in findings if f.cause in applied)
-    ext["extensions_recorded_only"] = sorted(f.cause for f in findings if f.cause not in applied)
-    comp = ext.setdefault("compensation", {})
-    for f in findings:
-        if f.cause == "amplifier_slew_limit":
-            # the compensator keeps its drive below the slew (slowing the reference where the drive would outrun it)
-            comp["slew_v_per_s"] = float(f.parameters["slew_rate_v_per_s"])
-        elif f.cause == "input_delay":
-            comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
-            if f.parameters.get("operators_refitted"):  # found on slow sweeps: the lag had widened the fitted loop
-                ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
-                ext["hysteresis"]["extended_by"] = "diagnose: input_delay (operators refitted on the delayed drive)"
-            comp["delay_lead_s"] = comp.get("delay_lead_s", 0.0) + f.parameters["delay_s"]
-        elif f.cause == "rate_dependent_hysteresis":
-            comp["rate_dependence"] = rate_dependence(f.model)  # the inverse at the drive's own rate
-        elif f.cause == "second_resonance" and "shaper" in ext:
-            ext["shaper"]["shaper2"] = second_shaper(f.parameters)
-        elif f.cause == "hysteresis_order":
-            ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
-            ext["hysteresis"]["extended_by"] = "diagnose: hysteresis_order"
-        elif f.cause == "logarithmic_creep" and "creep" in ext:
-            # the creep model the finding fitted and judged (its elements and log tail), not a log form rebuilt
-            # from two of its numbers: the compensator inverts what was found
-            log = f.model.creep if f.model.creep is not None else CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
-            ext["creep"]["model"] = creep_for_compensator(log).to_dict()
-            ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
-    refit_by = [f.cause for f in findings if f.cause in MODE_REFIT_CAUSES]
-    if model is not None and model.wn and model.zeta and refit_by and "shaper" in ext:
-        sh = ext["shaper"]
-        try:
-            new = design_shaper(sh["shaper"]["name"], float(model.wn), float(model.zeta))
-        except FitError:
-            new = None  # the design does not hold at the refitted damping: the base shaper stays
-        if new is not None:
-            sh["shaper"] = {**sh["shaper"], "times_s": list(new.times_s), "amplitudes": list(new.amplitudes),
-                            "natural_freq_rad_s": new.wn, "damping": new.zeta, "zv_power": new.zv_power,
-                            "delay_ms": 1e3 * new.delay_s, "centroid_ms": 1e3 * new.centroid_s}
-            sh["mode"] = {**sh["mode"], "natural_freq_rad_s": float(model.wn), "damping": float(model.zeta)}
-            sh["extended_by"] = f"diagnose: the mode refitted with {', '.join(refit_by)}"
-            # the lead's modal part (2 zeta / wn of the base mode) replaced by the refitted modes' low-frequency delay
-            old_modal = 2.0 * float(bundle["shaper"]["mode"]["damping"]) / float(bundle["shaper"]["mode"]["natural_freq_rad_s"])
-            comp["lead_s"] = float(bundle.get("compensation", {}).get("lead_s", old_modal)) - old_modal + modal_delay_s(model) \
-                + comp.get("delay_lead_s", 0.0)
-    return ext
+    """The bundle document with every finding's extension recorded (:func:`piezopress.analysis.bundle.extend_document`;
+    :meth:`Bundle.extended` is the same, checked)."""
+    return extend_document(bundle, findings, model)
 
 
 def fitted_run_keys(bundle: dict[str, Any]) -> list[str]:
@@ -205,15 +85,18 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
     write ``diagnosis.json``, ``extended_bundle.json``, the residual figures and, when some
     causes could not be tested, ``next-plan.toml``: the experiment that would test them."""
     paths = list(paths)
-    bundle = read_document(bundle_path, "bundle")
+    checked = read_bundle(bundle_path)
+    bundle = checked.to_dict()
     loaded = collect_runs(paths)
+    for r in loaded:  # one unit: a displacement run is not judged by a force model
+        checked.check_unit(r.output_unit, f"{r.path} ({r.output_column})")
     runs = diagnosis_runs(loaded)
     if not runs:
         raise dg.H.HysteresisFitError("no runs to diagnose")
-    base = base_model(bundle)
+    base = checked.forward_model()
     fitted = fitted_run_keys(bundle)
+    out = new_output_dir(out_dir)  # refused (or created) before the diagnosis's minutes of work
     result = dg.diagnose(base, runs, fitted, list(causes) if causes else None)
-    out = new_output_dir(out_dir)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
     doc = {"bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
@@ -221,7 +104,7 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
                              "needs": "; or ".join(n.text() for n in c.needs)} for c in dg.CAUSES.values()},
            **result.as_dict(), "next_plan": plan}
     write_json_atomic(out / "diagnosis.json", doc)
-    write_document(extend_bundle(bundle, result.findings, result.model), out / "extended_bundle.json")
+    write_document(checked.extended(result.findings, result.model).to_dict(), out / "extended_bundle.json")
     before = {s.run: s for s in result.before}
     after = {s.run: s for s in result.after}
     names = [r.name for r in runs]

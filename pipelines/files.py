@@ -3,18 +3,26 @@ files, run directories and their manifests.
 
 Nothing is ever overwritten silently: :func:`new_output_dir` refuses a directory that holds
 anything, :func:`check_output` refuses an existing file unless the caller was asked to
-replace it, and JSON is written beside its target and renamed into place.
+replace it, and every output is written beside its target and renamed into place
+(:func:`write_output`). Replacing never loses: the old version is first kept under a unique
+timestamped name (:func:`keep_previous`), under a lock, so two replaces in a row or at once
+leave every earlier version recoverable. Output places are checked (and their folders
+created) before any work, with one line when the folder cannot be written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import os
 import platform
 from contextvars import ContextVar
+import shutil
+import time
+import uuid
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterator
 
 import piezopress
 from piezopress import runformat
@@ -42,20 +50,53 @@ def software_versions() -> dict[str, str]:
     }
 
 
-def write_json_atomic(path: Path, obj: Any) -> None:
-    """Write JSON beside ``path`` and rename it into place (never a half-written file)."""
-    tmp = path.with_name(f".{path.name}.partial")
-    tmp.write_text(json.dumps(obj, indent=2, default=runformat._json_default) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+def _partial(path: Path) -> Path:
+    """A temporary name beside ``path``, unique to this writer, keeping its suffix."""
+    return path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.partial{path.suffix}")
+
+
+def write_json_atomic(path: Path, obj: Any, *, finite: bool = False) -> None:
+    """Write JSON beside ``path`` and rename it into place (never a half-written file).
+    ``finite``: refuse a non-finite number (a model's parameters: NaN there is a defect)."""
+    path = Path(path)
+    try:
+        text = json.dumps(obj, indent=2, default=runformat._json_default, allow_nan=not finite)
+    except ValueError:
+        raise PiezopressError(f"{path}: would hold a non-finite number (NaN or inf); expected finite values, refusing to write it") from None
+    tmp = _partial(path)
+    try:
+        tmp.write_text(text + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _unwritable(folder: Path, exc: OSError | None = None) -> PiezopressError:
+    why = exc.strerror if exc is not None and exc.strerror else "permission denied"
+    return PiezopressError(f"{folder}: cannot write there ({why.lower()}); expected a folder you may write to (choose another --out)")
+
+
+def writable_folder(folder: str | Path) -> Path:
+    """Create ``folder`` (and its parents) if needed and check it can be written: one line if not."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise PiezopressError(f"{folder}: is a file; expected a folder for the output") from None
+    except OSError as exc:
+        raise _unwritable(folder, exc) from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise _unwritable(folder)
+    return folder
 
 
 def new_output_dir(out_dir: str | Path) -> Path:
-    """Create ``out_dir``; refuse if it exists and holds anything (no data is ever overwritten)."""
+    """Create ``out_dir``; refuse if it exists and holds anything (no data is ever overwritten),
+    or if it cannot be written (one line)."""
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory (runs are never overwritten)")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    return writable_folder(out)
 
 
 def read_manifest(run_dir: str | Path) -> dict[str, Any]:
@@ -83,13 +124,15 @@ def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Pa
 
 
 def check_output(path: str | Path, *, replace: bool = False) -> None:
-    """Refuse, before any work, an output file that exists (without ``replace``) or a
-    directory in its place."""
+    """Refuse, before any work, an output file that exists (without ``replace``), a
+    directory in its place, or a folder that cannot be written; create its folder."""
     path = Path(path)
     if path.is_dir():
-        raise OutputExistsError(f"{path}: is a directory; expected a file name for the JSON document")
+        raise OutputExistsError(f"{path}: is a directory; expected a file name for the output")
     if path.exists() and not replace:
-        raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it, keeping the old one as .prev.json)")
+        raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it; the old one is kept "
+                                "under a timestamped name)")
+    writable_folder(path.parent)
 
 
 # --- the status of a run directory ------------------------------------------------------------
@@ -149,5 +192,103 @@ def check_status(run_dir: str | Path, *, expect_kind: str | None = None, accept:
     return notes
 
 
+
+
+#: How long a writer waits for another one replacing the same output.
+LOCK_WAIT_S = 30.0
+
+
+@contextlib.contextmanager
+def _lock(path: Path) -> Iterator[None]:
+    """Only one writer at a time keeps and replaces ``path`` (a lock file beside it)."""
+    lock = path.with_name(f".{path.name}.lock")
+    deadline = time.monotonic() + LOCK_WAIT_S
+    while True:
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            break
+        except FileExistsError:
+            if time.monotonic() > deadline:
+                raise PiezopressError(f"{path}: another writer has held {lock} for over {LOCK_WAIT_S:g} s; "
+                                      "expected it to finish (remove the lock file if no piezopress is running)") from None
+            time.sleep(0.005)
+        except OSError as exc:
+            raise _unwritable(path.parent, exc) from None
+    try:
+        yield
+    finally:
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(lock)
+
+
+def kept_name(path: str | Path) -> Path:
+    """A new, unused name beside ``path`` for its old version: ``<name>.replaced-<UTC time>``
+    (no longer ending in ``.parquet`` or ``.json``: a folder's runs or sections are not
+    joined by their old versions)."""
+    path = Path(path)
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
+    for n in range(10_000):
+        cand = path.with_name(f"{path.name}.replaced-{stamp}{f'-{n}' if n else ''}")
+        if not os.path.lexists(cand):
+            return cand
+    raise OutputExistsError(f"{path}: no free name to keep its old version; expected fewer than 10000 kept versions")
+
+
+def _keep(path: Path) -> Path:
+    """Keep the file ``path``'s current version under :func:`kept_name` (the caller holds the lock)."""
+    kept = kept_name(path)
+    try:
+        os.link(path, kept)  # the same bytes under a second name: path itself stays until it is replaced
+    except OSError:
+        tmp = _partial(kept)
+        shutil.copy2(path, tmp)
+        os.replace(tmp, kept)
+    return kept
+
+
+def keep_previous(path: str | Path) -> Path | None:
+    """Move an existing output (a file or a directory) aside to a unique timestamped name,
+    under the lock; return that name (``None``: nothing was there)."""
+    path = Path(path)
+    with _lock(path):
+        if not os.path.lexists(path):
+            return None
+        kept = kept_name(path)
+        os.rename(path, kept)
+        return kept
+
+
+def write_output(path: str | Path, write: Callable[[Path], Any], *, replace: bool = False) -> Path | None:
+    """Write an output file atomically: ``write(tmp)`` writes the new content to a temporary
+    name beside ``path``, which then takes ``path``'s place. An existing ``path`` is refused
+    without ``replace``; with it, its old version is first kept under a unique timestamped name
+    (returned), and a concurrent writer waits its turn, so no version is ever lost."""
+    path = Path(path)
+    check_output(path, replace=replace)
+    tmp = _partial(path)
+    try:
+        try:
+            write(tmp)
+        except PermissionError as exc:
+            raise _unwritable(path.parent, exc) from None
+        with _lock(path):
+            previous = None
+            if os.path.lexists(path):
+                if not replace:  # appeared meanwhile
+                    raise OutputExistsError(f"{path}: appeared while it was being written; refusing to overwrite it (pass --replace)")
+                previous = _keep(path)
+            os.replace(tmp, path)
+        return previous
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def kept_note(previous: Path | None) -> str:
+    """`` (previous version kept as ...)`` for a printed line, or nothing."""
+    return f" (previous version kept as {previous})" if previous else ""
+
+
 __all__ = ["MANIFEST", "MANIFEST_VERSION", "utc_now", "software_versions", "write_json_atomic", "new_output_dir", "read_manifest", "run_files",
-           "check_output", "accept_incomplete", "status_notes", "check_status"]
+           "check_output", "writable_folder", "kept_name", "keep_previous", "write_output", "kept_note", "accept_incomplete", "status_notes",
+           "check_status"]

@@ -19,8 +19,9 @@ from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import mode_fit
 from piezopress.analysis import shaper as shaper_mod
+from piezopress.analysis.bundle import Bundle, creep_removed
 from piezopress.errors import CompensatorUnstableError, FitError
-from piezopress.pipelines.bundle import BundleError, collect_runs, inputs_digest, section
+from piezopress.pipelines.bundle import BundleError, assemble, collect_runs, inputs_digest, section
 
 #: Hysteresis is fitted on quasi-static sweeps: up to this drive frequency.
 STATIC_MAX_FREQ_HZ = 0.5
@@ -98,13 +99,8 @@ def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] 
     runs = select_hysteresis_runs(paths, names)
     out_col = _same_output(runs)
     stops, skips = fitted_rows(runs, skip_s, rows)
-    outputs = [r.output for r in runs]
-    if creep is not None:
-        cm = creep_mod.CreepModel.from_dict(creep["model"])
-        outputs = []
-        for r in runs:
-            _, rest = H.rest_offset(r.command_v, r.output)
-            outputs.append(rest + cm.compensate(r.output - rest, r.sample_rate_hz)[0])
+    cm = creep_mod.CreepModel.from_dict(creep["model"]) if creep is not None else None
+    outputs = [creep_removed(cm, r.command_v, r.output, r.sample_rate_hz) for r in runs]
     data = H.prepare([(r.name, r.command_v[:n], y[:n]) for r, y, n in zip(runs, outputs, stops)], holdout_fraction=holdout_fraction,
                      skip=skips)
     fit = H.fit_hysteresis(data, grid)
@@ -354,6 +350,11 @@ def creep_digest(run, hysteresis, holdout_fraction, forms=creep_mod.FORMS) -> st
     return inputs_digest("creep", [run], [hysteresis], holdout_fraction=holdout_fraction, forms=list(forms))
 
 
+def _same_output_unit(runs: list[runformat.Run]) -> str:
+    """The runs' one output unit (the shaper section records it: one unit across a bundle's sections)."""
+    return units.unit_of_column(_same_output(runs))
+
+
 def _sensor_lowpass(runs: list[runformat.Run]) -> float | None:
     """The load cell's analog low-pass, when the runs' rig configuration states it."""
     for r in runs:
@@ -391,6 +392,7 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
             "damping": fit.zeta,
             "drive_used": "monitor_v" if all(r.column("monitor_v") is not None for r in runs) else "command_v",
             "hold": fit.hold,
+            "output_unit": _same_output_unit(runs),
             "sensor_lowpass_hz": _sensor_lowpass(runs),
             "fit": {k: v for k, v in _plain(fit).items() if k not in ("wn", "zeta")},
         },
@@ -488,7 +490,8 @@ def _why_runs_unfit(section: str, runs: list[runformat.Run], unit: str) -> str |
 
 
 def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | None = None,
-            rows: tuple[int | None, int | None] | None = None, on_stage: Callable[[str], None] | None = None) -> FitAll:
+            rows: tuple[int | None, int | None] | None = None, on_stage: Callable[[str], None] | None = None,
+            shaper: bool = True) -> FitAll:
     """Fit every stage the runs allow: hysteresis (needed: a sweep), creep (a creep run),
     shaper (low-amplitude steps); the sections that cannot be fitted are named with the
     reason instead of stopping the fit. From sweeps alone the bundle holds the hysteresis
@@ -497,7 +500,8 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
     with ``base``). ``skip_s``/``rows``: the sweeps' fitted rows (:func:`fitted_rows`).
     ``on_stage`` is told each stage's name before it starts (progress).
 
-    ``base`` fits the thesis's structure (:data:`THESIS_GRID`, :data:`THESIS_CREEP_FORMS`).
+    ``base`` fits the thesis's structure (:data:`THESIS_GRID`, :data:`THESIS_CREEP_FORMS`);
+    ``shaper=False`` leaves the shaper out (not fitted, and said so).
     """
     paths = list(paths)
     stage = on_stage or (lambda name: None)
@@ -533,7 +537,7 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
         else:
             not_fitted["creep"] = f"{why}; from the sweeps: {found.creep_reason}"
     try:
-        why = _why_runs_unfit("shaper", select_shaper_runs(paths), unit)
+        why = _why_runs_unfit("shaper", select_shaper_runs(paths), unit) if shaper else "left out (shaper=False)"
     except BundleError as exc:
         why = str(exc)
     if why is None:
@@ -545,3 +549,33 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
     if why is not None:
         not_fitted["shaper"] = why
     return FitAll({k: sections[k] for k in ("hysteresis", "creep", "shaper") if k in sections}, fits, not_fitted, unit, drive)
+
+
+@dataclass
+class FittedBundle:
+    """A bundle fitted from runs: the document (checked: :class:`~piezopress.analysis.bundle.Bundle`)
+    and what :func:`fit_all` made of the runs."""
+
+    doc: dict[str, Any]
+    result: FitAll
+
+    @property
+    def bundle(self) -> Bundle:
+        return Bundle.from_dict(self.doc, "the fitted bundle")
+
+
+def fit_bundle(runs: Iterable[str | Path], limits: Any = None, *, base: bool = False, shaper: bool = True, skip_s: float | None = None,
+               rows: tuple[int | None, int | None] | None = None, max_rate_per_s: float | None = None,
+               on_stage: Callable[[str], None] | None = None) -> FittedBundle:
+    """``piezopress fit``: every stage the runs allow (:func:`fit_all`), assembled with the
+    compensation settings into a bundle, which is checked as any bundle read from a file.
+
+    ``limits``: the rig's drive range (``drive_min_v``, ``drive_max_v``; e.g.
+    :func:`piezopress.pipelines.characterize.rig_limits`), ``None``: 0 to 150 V. ``shaper=False``
+    leaves the shaper section out (a model of the press's static and slow behaviour only).
+    """
+    res = fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=on_stage, shaper=shaper)
+    drive = {} if limits is None else {"drive_min_v": float(limits.drive_min_v), "drive_max_v": float(limits.drive_max_v)}
+    doc = assemble(res.sections, compensation_settings(res.sections, max_rate_per_s=max_rate_per_s, **drive))
+    Bundle.from_dict(doc, "the fitted bundle")  # a bundle that would not be read back is never written
+    return FittedBundle(doc, res)

@@ -183,10 +183,7 @@ def fit_base(char_dir: str | Path, out_path: str | Path, cfg: RigConfig | None =
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import fit as F
 
-    res = F.fit_all([char_dir], base=True)
-    act = (cfg or RigConfig()).actuator
-    doc = B.assemble(res.sections, F.compensation_settings(res.sections, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v))
-    B.write_document(doc, out_path)
+    B.write_document(F.fit_bundle([char_dir], (cfg or RigConfig()).actuator, base=True).doc, out_path)
     return Path(out_path)
 
 

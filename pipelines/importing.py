@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from piezopress import __version__
-from piezopress.errors import ImportFormatError, OutputExistsError, output_error
+from piezopress.errors import ImportFormatError
 from piezopress.runformat import (
     KINDS,
     KNOWN_COLUMNS,
@@ -43,6 +43,7 @@ from piezopress.runformat import (
     sha256_file,
     write_run,
 )
+from piezopress.pipelines.files import check_output, write_output
 
 #: Delimiters by name; ``None`` (or ``"auto"``) picks one from the first line.
 DELIMITERS = {"comma": ",", "tab": "\t", "semicolon": ";", "whitespace": r"\s+"}
@@ -216,31 +217,26 @@ def import_table(
     return make_run(ordered, meta, label=label)
 
 
-def import_file(source: str | os.PathLike[str], out: str | os.PathLike[str], **options: Any) -> tuple[Run, str]:
-    """Import ``source`` (see :func:`import_table`) and write it to ``out``; never overwrite.
+def import_file(source: str | os.PathLike[str], out: str | os.PathLike[str], *, replace: bool = False,
+                **options: Any) -> tuple[Run, str, Path | None]:
+    """Import ``source`` (see :func:`import_table`) and write it to ``out``; an existing ``out``
+    is replaced only with ``replace``, its old version kept under a unique timestamped name.
 
-    Returns the run (with its ``path``) and the sha256 of the written file.
+    Returns the run (with its ``path``), the sha256 of the written file and where the
+    replaced file was kept (``None``: nothing replaced).
 
     Raises
     ------
     OutputExistsError
-        If ``out`` exists (checked before reading and again when writing).
+        If ``out`` exists without ``replace`` (checked before reading and again when writing).
     ImportFormatError
         As :func:`import_table`.
     """
     out = Path(out)
-    if out.exists():  # checked first so as not to spend time on the source
-        raise OutputExistsError(f"{out}: already exists; refusing to overwrite it (choose another name)")
-    try:  # the output's folder is made (or refused) before the source is read
-        out.parent.mkdir(parents=True, exist_ok=True)
-        probe = out.with_name(f".{out.name}.partial")
-        probe.touch()
-        probe.unlink()
-    except OSError as exc:
-        raise output_error(out, exc, "write it there") from None
+    check_output(out, replace=replace)  # checked first so as not to spend time on the source
     run = import_table(source, **options)
-    sha = write_run(run, out)
-    return Run(run.data, run.meta, out), sha
+    previous = write_output(out, lambda tmp: write_run(run, tmp), replace=replace)
+    return Run(run.data, run.meta, out), sha256_file(out), previous
 
 
 def parse_delimiter(text: str | None, label: str = "delimiter") -> tuple[str, str] | None:

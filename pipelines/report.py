@@ -30,7 +30,7 @@ import pandas as pd
 from piezopress.errors import OutputExistsError
 from piezopress.pipelines import summary
 from piezopress.pipelines.bundle import read_document
-from piezopress.pipelines.files import status_notes
+from piezopress.pipelines.files import keep_previous, status_notes, writable_folder
 from piezopress.pipelines import report_frequency
 from piezopress.pipelines.report_doc import (CSS, Block, Bullets, Contents, FigureBlock, Heading, Para, Table, _md_table,
                                              render_html, render_markdown)
@@ -178,32 +178,27 @@ def _is_report_dir(path: Path) -> bool:
     return path.is_dir() and any((path / f).is_file() for f in REPORT_FILES)
 
 
-def previous_dir(out_dir: str | Path) -> Path:
-    out = Path(out_dir)
-    return out.with_name(out.name + ".prev")
-
-
 def check_output_dir(out_dir: str | Path, replace: bool = False) -> None:
     """Refuse an output that exists and holds anything, unless ``replace`` and it is an old report."""
     out = Path(out_dir)
     if not out.exists():
+        writable_folder(out.parent)
         return
     if not out.is_dir():
         raise OutputExistsError(f"{out}: exists and is not a directory; expected a new or empty directory for the report")
+    writable_folder(out.parent)
     if not any(out.iterdir()):
         return
-    prev = previous_dir(out)
     if not replace:
         raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory, or pass --replace to replace "
-                                f"an old report (kept as {prev})")
+                                f"an old report (kept as {out.name}.replaced-<UTC time>)")
     if not _is_report_dir(out):
         raise OutputExistsError(f"{out}: is not a piezopress report (none of {', '.join(REPORT_FILES)}); refusing to replace it")
-    if prev.exists() and not (_is_report_dir(prev) or (prev.is_dir() and not any(prev.iterdir()))):
-        raise OutputExistsError(f"{prev}: exists and is not an old report; refusing to replace it (move it away first)")
 
 
 def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) -> ReportResult:
-    """Write the report into ``out_dir`` (new or empty; with ``replace`` an old report moves to ``<out_dir>.prev``).
+    """Write the report into ``out_dir`` (new or empty; with ``replace`` an old report moves to
+    ``<out_dir>.replaced-<UTC time>``, a new name each time: :func:`~piezopress.pipelines.files.keep_previous`).
 
     Files are written into a hidden staging directory beside ``out_dir`` and renamed into
     place, so a report is never half written and the old one is moved only once the new
@@ -211,8 +206,7 @@ def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) 
     """
     out = Path(out_dir)
     check_output_dir(out, replace)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = out.with_name(f".{out.name}.partial")
+    staging = out.with_name(f".{out.name}.{os.getpid()}-{id(report):x}.partial")
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir()
@@ -226,10 +220,7 @@ def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) 
     previous = None
     if out.exists():
         if any(out.iterdir()):
-            previous = previous_dir(out)
-            if previous.exists():
-                shutil.rmtree(previous)
-            os.replace(out, previous)
+            previous = keep_previous(out)
         else:
             out.rmdir()
     os.replace(staging, out)

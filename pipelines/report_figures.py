@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 
 from piezopress import plotting, runformat, units
-from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import metrics
+from piezopress.analysis.bundle import Bundle
 from piezopress.errors import PiezopressError
 from piezopress.pipelines import summary
 from piezopress.pipelines.report_doc import FigureBlock
@@ -77,7 +77,7 @@ def _hysteresis_model(bundle: dict[str, Any] | None, missing: list[str]) -> H.PI
     if bundle is None or "hysteresis" not in bundle:
         return None
     try:
-        return H.PIModel.from_dict(bundle["hysteresis"]["model"])
+        return Bundle.from_dict(bundle).hysteresis
     except (PiezopressError, KeyError, TypeError) as exc:
         missing.append(f"The bundle's hysteresis model is unreadable ({exc}): the model's loop is missing.")
         return None
@@ -295,10 +295,9 @@ def _rms(x: np.ndarray) -> float:
 def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: list[str]) -> FigureBlock | None:
     if bundle is None:
         return None
-    model = H.PIModel.from_dict(bundle["hysteresis"]["model"])
-    cm = None
-    if bundle["hysteresis"].get("creep_removed") and "creep" in bundle:
-        cm = creep_mod.CreepModel.from_dict(bundle["creep"]["model"])
+    checked = Bundle.from_dict(bundle)
+    model = checked.hysteresis
+    cm = checked.creep if bundle["hysteresis"].get("creep_removed") else None
     raw, other = [], []
     unit = units.label(bundle["hysteresis"]["model"].get("output_unit", units.FORCE))
     for r in _fitting_runs(bundle, char, missing):
@@ -307,8 +306,7 @@ def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missi
         raw.append(plotting.Curve(r.t_s, res, f"{r.name} (RMS {_rms(res):.2f} {unit})"))
         if cm is not None:
             # the fit saw the sweeps with the creep compensator applied (piezopress.pipelines.fit): the same here
-            _, rest = H.rest_offset(r.command_v, r.output)
-            no_creep = rest + cm.compensate(r.output - rest, r.sample_rate_hz)[0] - pred
+            no_creep = checked.remove_creep(r) - pred
             other.append(plotting.Curve(r.t_s, no_creep, f"{r.name} (RMS {_rms(no_creep):.2f} {unit})"))
         else:
             other.append(plotting.Curve(r.command_v, res, ""))

@@ -18,7 +18,7 @@ import numpy as np
 from piezopress import plotting, units
 from piezopress.analysis import lti
 from piezopress.analysis import shaper as S
-from piezopress.analysis.creep import CreepModel
+from piezopress.analysis.bundle import Bundle
 from piezopress.errors import PiezopressError
 from piezopress.pipelines.report_doc import FigureBlock
 from piezopress.pipelines.report_inputs import _Source
@@ -61,9 +61,11 @@ def mode_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: li
     """The mode's Bode plot (python-control) with the step runs' measured response as points."""
     if bundle is None or "shaper" not in bundle:
         return None, []
-    mode = bundle["shaper"].get("mode", {})
     try:
-        wn, zeta = float(mode["natural_freq_rad_s"]), float(mode["damping"])
+        mode = Bundle.from_dict(bundle).mode
+        if mode is None:
+            raise PiezopressError("the shaper section holds no mode")
+        wn, zeta = mode[0], mode[1]
         system = lti.mode_system(wn, zeta)
     except (KeyError, TypeError, ValueError, PiezopressError) as exc:
         missing.append(f"The bundle's mode is unreadable ({exc}): the mode's Bode plot is missing.")
@@ -105,19 +107,15 @@ def mode_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: li
     return _block("mode_bode", "The mode in the frequency domain", caption, fig), checks
 
 
-def _bundle_shaper(s: dict[str, Any]) -> S.Shaper:
-    sh = s["shaper"]
-    return S.Shaper(str(sh["name"]), tuple(sh["times_s"]), tuple(sh["amplitudes"]), float(sh["natural_freq_rad_s"]),
-                    float(sh["damping"]), sh.get("zv_power"))
-
-
 def shaper_figure(bundle: dict[str, Any] | None, missing: list[str]) -> FigureBlock | None:
     """Residual vibration of the chosen shaper and the other candidates over +/-30 % frequency error."""
     if bundle is None or "shaper" not in bundle:
         return None
     s = bundle["shaper"]
     try:
-        chosen = _bundle_shaper(s)
+        chosen = Bundle.from_dict(bundle).shaper
+        if chosen is None:
+            raise PiezopressError("the shaper section holds no shaper")
     except (KeyError, TypeError, ValueError, PiezopressError) as exc:
         missing.append(f"The bundle's shaper is unreadable ({exc}): its sensitivity curve is missing.")
         return None
@@ -148,7 +146,7 @@ def creep_figure(bundle: dict[str, Any] | None, missing: list[str]) -> FigureBlo
     if bundle is None or "creep" not in bundle:
         return None
     try:
-        model = CreepModel.from_dict(bundle["creep"]["model"])
+        model = Bundle.from_dict(bundle).creep
         plant, comp = lti.creep_system(model), lti.creep_compensator_system(model)
     except (KeyError, TypeError, ValueError, PiezopressError) as exc:
         missing.append(f"The bundle's creep model gives no LTI system ({exc}): its frequency response is missing.")

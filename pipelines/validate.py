@@ -17,7 +17,7 @@ from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.drive_check import check_drive
 from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
-from piezopress.pipelines.bundle import BundleError, compensator, read_document
+from piezopress.pipelines.bundle import BundleError, read_bundle
 from piezopress.pipelines.characterize import (
     DEFAULT_RIG,
     CharacterizeResult,
@@ -44,19 +44,23 @@ def validate(
     on_warning: Callable[[str], None] | None = None,
 ) -> CharacterizeResult:
     """Compensate every reference of the validation plan and run it; see the module docstring."""
-    bundle = read_document(bundle_path, "bundle")
-    unit = bundle["hysteresis"]["model"].get("output_unit", units.FORCE)
+    checked = read_bundle(bundle_path)
+    unit = checked.unit
     if not units.is_force(unit):
         raise BundleError(f"{bundle_path}: its model's output is {units.quantity(unit)} ({units.label(unit)}); validate plays the "
                           "validation plan's force references (N above the preload) on a press that measures force, "
                           "expected a force bundle (compensate takes references in the bundle's unit)")
-    comp = compensator(bundle, use_shaper=use_shaper, use_creep=use_creep)
+    comp = checked.compensator(use_shaper=use_shaper, use_creep=use_creep)
     backend = backend or make_backend(backend_name, rig_path)
     lim = backend.limits
+    checked.check_drive_range(lim.drive_min_v, lim.drive_max_v, str(rig_path))
     # references are forces above the preload: bounded by the stack's maximum load
     ref_limits = DriveLimits(drive_min_v=0.0, drive_max_v=lim.max_force_n, max_sample_rate_hz=lim.max_sample_rate_hz,
                              max_force_n=lim.max_force_n, max_duration_s=lim.max_duration_s, max_samples=lim.max_samples)
     plan = load_plan(plan_path, ref_limits, unit="N")
+    for proto in plan.protocols:  # every reference checked against the bundle before anything is played
+        checked.check_reference(int(round(proto.duration_s * proto.sample_rate_hz)) + 1, proto.sample_rate_hz,
+                                f"{plan_path}: protocol {proto.name}", use_creep=use_creep)
     bundle_sha = runformat.sha256_file(bundle_path)
 
     def compensated(proto: Protocol) -> Drive:

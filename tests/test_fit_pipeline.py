@@ -87,7 +87,8 @@ def test_outputs_are_never_overwritten_silently(runs, tmp_path):
     assert res.exit_code == 1 and "already exists" in res.output and out.read_text() == "precious"
     res = invoke("fit-hysteresis", runs / "char", "--out", out, "--replace")
     assert res.exit_code == 0 and "previous version kept as" in res.output
-    assert (tmp_path / "h.prev.json").read_text() == "precious"
+    kept = list(tmp_path.glob("h.json.replaced-*"))
+    assert [k.read_text() for k in kept] == ["precious"] and str(kept[0]) in res.output  # the line names where
 
 
 def test_clear_errors_for_unsuitable_runs(runs, tmp_path):

@@ -245,14 +245,16 @@ def test_refuses_a_non_empty_out_with_one_line(inputs, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
 
 
-def test_replace_keeps_the_old_report_as_prev(inputs, tmp_path):
+def test_replace_keeps_the_old_report_under_a_timestamped_name(inputs, tmp_path):
     out = tmp_path / "r"
     assert invoke("report", "--bundle", inputs["bundle"], "--out", out).exit_code == 0
     res = invoke("report", "--bundle", inputs["bundle"], "--out", out)
     assert res.exit_code == 1  # never overwritten without --replace
     res = invoke("report", "--characterization", inputs["char"], "--bundle", inputs["bundle"], "--out", out, "--replace")
     assert res.exit_code == 0, res.output
-    assert (tmp_path / "r.prev" / "report.md").is_file() and "No characterization runs given" in (tmp_path / "r.prev" / "report.md").read_text()
+    kept = list(tmp_path.glob("r.replaced-*"))  # a new timestamped name each time: nothing is lost
+    assert len(kept) == 1 and str(kept[0]) in res.output
+    assert "No characterization runs given" in (kept[0] / "report.md").read_text()
     assert "No characterization runs given" not in (out / "report.md").read_text()
     assert not list(tmp_path.glob(".*partial"))
 

@@ -113,7 +113,7 @@ def test_fit_from_a_sweep_alone_carries_um(fitted, name, base):
     if base:
         assert h["fit"]["chosen"].startswith("n=12 ")  # the thesis's structure
     # the bundle is usable by the compensator with the hysteresis section alone
-    comp = B.compensator(B.read_document(path, "bundle"))
+    comp = B.read_bundle(path).compensator()
     assert (comp.creep is None) == ("creep" not in doc) and comp.shaper is None and comp.max_rate_per_s is None
 
 

@@ -413,6 +413,13 @@ _UNIT_WORDS = {"N": [(" V,", " N,"), (" V ", " N "), (" V)", " N)"), ("drive rea
                       ("the actuator's range", "the allowed reference range"), ("voltages", "forces"), ("maximum drive", "maximum force")]}
 
 
+def _keys(obj: Any) -> list[str]:
+    """Every key of a nested mapping (tables in tables, as ``random_peaks = {min_v = ...}``)."""
+    if not isinstance(obj, Mapping):
+        return []
+    return [k for k in obj if isinstance(k, str)] + [k for v in obj.values() for k in _keys(v)]
+
+
 def _rename_keys(obj: Any, old: str, new: str) -> Any:
     """Rename keys ending in ``old`` (recursively in tables): ``level_n`` <-> ``level_v``."""
     if isinstance(obj, dict):
@@ -436,6 +443,11 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
     if unit not in ("V", "N"):
         raise ValueError(f"unit = {unit!r}; expected 'V' or 'N'")
     if unit == "N":
+        volts = sorted({f"{p.get('name', i)}: {k}" for i, p in enumerate(doc.get("protocol") or []) if isinstance(p, Mapping)
+                        for k in _keys(p) if k.endswith("_v")})
+        if volts:  # a drive plan (characterize's) read as references: volts would be played as newtons
+            raise PlanError(source, [f"protocol {volts[0]} is in volts (_v); a reference plan's keys end in _n (N above the preload); "
+                                     f"expected a validation plan, not a characterization plan ({len(volts)} key(s) in V)"])
         translated = {k: (_rename_keys(v, "_n", "_v") if k == "protocol" else v) for k, v in doc.items()}
         try:
             plan = parse_plan(translated, limits, source, "V")

@@ -1,0 +1,564 @@
+"""The parameter bundle in memory: one checked home for the models a bundle describes.
+
+A bundle document (JSON: a ``hysteresis`` section, optionally ``creep`` and ``shaper``, and
+the ``compensation`` settings) is read once, by :meth:`Bundle.from_dict`, which checks it as
+a run is checked: schema version, required sections, every model number finite and inside
+its physical range, an invertible hysteresis model, a creep compensator with ``K_c > 0``,
+shaper impulses summing to 1, sane compensation settings and one output unit across the
+sections. Every problem is one line naming the file, the section and key, and what was
+expected. The models are then built from it here, and nowhere else:
+:meth:`Bundle.compensator`, :meth:`Bundle.forward_model`, :meth:`Bundle.remove_creep`,
+:meth:`Bundle.extended`. What depends on where the bundle is used (the sample rate the
+creep compensator runs at, a reference's length, the rig's drive range, a run's unit) is
+checked there: :meth:`Bundle.check_reference`, :meth:`Bundle.check_drive_range`,
+:meth:`Bundle.check_unit`. Files and digests are the pipeline's
+(:mod:`piezopress.pipelines.bundle`).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from piezopress import units
+from piezopress.analysis.compensation import RATE_TAU_S, Compensator, RateDependence
+from piezopress.analysis.creep import CreepModel
+from piezopress.analysis.hysteresis import PIModel, rest_offset
+from piezopress.analysis.shaper import Shaper, design_shaper
+from piezopress.errors import CompensatorUnstableError, FitError, PiezopressError
+
+BUNDLE_VERSION = 1
+SECTIONS = ("hysteresis", "creep", "shaper")
+
+#: Physical ranges every bundle number is checked against (anything beyond is a corrupted
+#: file, not a press): drive voltages (V) ...
+MAX_DRIVE_V = 2000.0
+#: ... outputs and dead-zone thresholds, in the output unit (N or µm) ...
+MAX_OUTPUT = 1e7
+#: ... play and dead-zone weights (output unit per V, and per output unit) ...
+MAX_WEIGHT = 1e6
+#: ... creep gains (dimensionless) and time constants (s) ...
+MAX_CREEP_GAIN = 1e3
+CREEP_TAU_S = (1e-7, 1e9)
+#: ... a mode's natural frequency (rad/s) and a shaper's span (s) ...
+MAX_WN_RAD_S = 1e8
+MAX_SHAPER_S = 1.0
+#: ... reference rate limits (output unit per s) and slew limits (V/s).
+MAX_RATE = 1e12
+#: The drive's lead (s): the mode's delay and an input delay, milliseconds on any press.
+MAX_LEAD_S = 1.0
+#: Where a reference is known, the lead must be shorter than this fraction of its duration
+#: (a longer lead plays the reference's end from the start: a constant drive).
+LEAD_MAX_FRACTION = 0.1
+#: The shaper's impulses sum to 1 within this.
+SHAPER_SUM_TOL = 1e-6
+#: A stored inverse model agrees with the one computed from the forward parameters within this (relative).
+INVERSE_RTOL = 1e-6
+#: The most operators a model may have.
+MAX_OPERATORS = 10_000
+
+
+class BundleError(PiezopressError, ValueError):
+    """A bundle or section file is missing, unreadable or inconsistent."""
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
+
+class _Checker:
+    """Checks a document's values; every failure is one line ``source: section.key = value; expected ...``."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, where: str, value: Any, expected: str) -> None:
+        shown = repr(value)
+        if len(shown) > 60:
+            shown = shown[:57] + "..."
+        raise BundleError(f"{self.source}: {where} = {shown}; expected {expected}")
+
+    def mapping(self, doc: Any, where: str, what: str) -> Mapping[str, Any]:
+        if not isinstance(doc, Mapping):
+            kind = {list: "a JSON list", str: "a string", type(None): "null"}.get(type(doc), type(doc).__name__)
+            raise BundleError(f"{self.source}: {where} is {kind}; expected {what}")
+        return doc
+
+    def get(self, d: Mapping[str, Any], where: str, key: str) -> Any:
+        if key not in d:
+            raise BundleError(f"{self.source}: {where} has no key {key!r}; expected it (a bundle made by `piezopress fit` or `bundle`)")
+        return d[key]
+
+    def number(self, value: Any, where: str, lo: float, hi: float, what: str, *, lo_open: bool = False, hi_open: bool = False) -> float:
+        if not _is_number(value) or not math.isfinite(float(value)):
+            self.fail(where, value, f"a finite number ({what})")
+        v = float(value)
+        if (v <= lo if lo_open else v < lo) or (v >= hi if hi_open else v > hi):
+            self.fail(where, value, f"{what} within {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}")
+        return v
+
+    def optional(self, value: Any, where: str, lo: float, hi: float, what: str, **kw) -> float | None:
+        return None if value is None else self.number(value, where, lo, hi, what, **kw)
+
+    def numbers(self, value: Any, where: str, lo: float, hi: float, what: str, *, min_len: int = 1) -> tuple[float, ...]:
+        if not isinstance(value, (list, tuple)) or not min_len <= len(value) <= MAX_OPERATORS:
+            self.fail(where, value, f"a list of {min_len} to {MAX_OPERATORS} numbers ({what})")
+        return tuple(self.number(v, f"{where}[{i}]", lo, hi, what) for i, v in enumerate(value))
+
+
+def _unit(c: _Checker, value: Any, where: str) -> str:
+    if value not in units.LABELS:
+        c.fail(where, value, f"an output unit code, one of {', '.join(units.LABELS)}")
+    return str(value)
+
+
+def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
+    """The hysteresis section's model, checked: ranges, the model's structure, invertibility."""
+    m = c.mapping(c.get(sec, "hysteresis", "model"), "hysteresis.model", "a mapping (the PI model)")
+    w = "hysteresis.model"
+    if c.get(m, w, "input_unit") != "V":
+        c.fail(f"{w}.input_unit", m["input_unit"], "'V' (the drive is in volts)")
+    ou = _unit(c, c.get(m, w, "output_unit"), f"{w}.output_unit")
+    col = sec.get("output_column")
+    if col is not None and units.COLUMN_UNITS.get(col) != ou:
+        c.fail("hysteresis.output_column", col, f"the column of the model's unit {ou!r} "
+               f"({', '.join(k for k, v in units.COLUMN_UNITS.items() if v == ou)}): one unit across the section")
+    r = c.numbers(c.get(m, w, "play_thresholds"), f"{w}.play_thresholds", 0.0, MAX_DRIVE_V, "thresholds in V")
+    pw = c.numbers(c.get(m, w, "play_weights"), f"{w}.play_weights", -MAX_WEIGHT, MAX_WEIGHT, f"weights in {units.label(ou)}/V")
+    d = c.numbers(c.get(m, w, "dead_zone_thresholds"), f"{w}.dead_zone_thresholds", -MAX_OUTPUT, MAX_OUTPUT, f"thresholds in {units.label(ou)}")
+    s = c.numbers(c.get(m, w, "dead_zone_weights"), f"{w}.dead_zone_weights", -MAX_WEIGHT, MAX_WEIGHT, "dimensionless weights")
+    if len(r) != len(pw):
+        c.fail(f"{w}.play_weights", list(pw), f"one weight per play threshold ({len(r)})")
+    if len(d) != len(s):
+        c.fail(f"{w}.dead_zone_weights", list(s), f"one weight per dead-zone threshold ({len(d)})")
+    if r[0] != 0.0 or any(b <= a for a, b in zip(r, r[1:])):
+        c.fail(f"{w}.play_thresholds", list(r), "thresholds starting at 0 and increasing")
+    if 0.0 not in d or any(b <= a for a, b in zip(d, d[1:])):
+        c.fail(f"{w}.dead_zone_thresholds", list(d), "increasing thresholds that contain 0")
+    x0 = c.number(c.get(m, w, "x0_v"), f"{w}.x0_v", -MAX_DRIVE_V, MAX_DRIVE_V, "the rest drive in V")
+    yk = f"y0_{units.key(ou)}"
+    y0 = c.number(c.get(m, w, yk), f"{w}.{yk}", -MAX_OUTPUT, MAX_OUTPUT, f"the rest output in {units.label(ou)}")
+    partial = np.cumsum(pw)
+    if pw[0] <= 0 or np.any(partial <= 0):
+        c.fail(f"{w}.play_weights", list(pw), "an invertible model: the first weight and every partial sum > 0")
+    i0 = d.index(0.0)
+    slopes_up = np.cumsum(s[i0:])
+    slopes_down = np.cumsum(s[i0::-1])
+    if s[i0] <= 0 or np.any(slopes_up <= 0) or np.any(slopes_down <= 0):
+        c.fail(f"{w}.dead_zone_weights", list(s), "an invertible model: the weight at threshold 0 and every slope outward from it > 0")
+    model = PIModel(r, pw, d, s, x0, y0, "V", ou)
+    inv = model.inverse_parameters()
+    if not all(np.all(np.isfinite(v)) for v in inv.values()):
+        c.fail(f"{w}.play_weights", list(pw), "weights whose inverse is finite")
+    stored = m.get("inverse")
+    if stored is not None:  # written for people to read; the compensator recomputes it, so it must agree
+        stored = c.mapping(stored, f"{w}.inverse", "a mapping (the inverse model's thresholds and weights)")
+        for key, value in inv.items():
+            got = c.numbers(c.get(stored, f"{w}.inverse", key), f"{w}.inverse.{key}", -MAX_OUTPUT * MAX_WEIGHT, MAX_OUTPUT * MAX_WEIGHT,
+                            "a number of the inverse model")
+            if len(got) != len(value) or not np.allclose(got, value, rtol=INVERSE_RTOL, atol=INVERSE_RTOL * float(np.max(np.abs(value)))):
+                c.fail(f"{w}.inverse.{key}", list(got), f"the inverse of the forward model's parameters (within {INVERSE_RTOL:g}: "
+                       f"{', '.join(f'{v:.6g}' for v in value[:4])}{', ...' if len(value) > 4 else ''}); the file was edited or corrupted")
+    # the model maps the rest drive and the drive range's ends to finite outputs, and back
+    y, _ = model.forward(np.array([x0, x0 + r[-1] + 1.0, x0]))
+    if not np.all(np.isfinite(y)) or not np.all(np.isfinite(model.inverse(y)[0])):
+        c.fail(w, "...", "a model whose forward and inverse outputs are finite")
+    return model
+
+
+def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:
+    m = c.mapping(c.get(sec, "creep", "model"), "creep.model", "a mapping (the creep model)")
+    w = "creep.model"
+    form = c.get(m, w, "form")
+    kc = c.number(c.get(m, w, "static_gain"), f"{w}.static_gain", 0.0, MAX_CREEP_GAIN, "K_c > 0 (a stable creep compensator)", lo_open=True)
+    taus = c.numbers(c.get(m, w, "taus_s"), f"{w}.taus_s", *CREEP_TAU_S, "time constants in s", min_len=0)
+    gains = c.numbers(c.get(m, w, "gains"), f"{w}.gains", -MAX_CREEP_GAIN, MAX_CREEP_GAIN, "dimensionless gains", min_len=0)
+    if len(taus) != len(gains):
+        c.fail(f"{w}.gains", list(gains), f"one gain per time constant ({len(taus)})")
+    params = m.get("params") or {}
+    c.mapping(params, f"{w}.params", "a mapping of names to numbers")
+    for k, v in params.items():
+        c.number(v, f"{w}.params.{k}", -MAX_OUTPUT, MAX_OUTPUT, "a finite parameter")
+    if kc + sum(gains) <= 0:
+        c.fail(f"{w}.gains", list(gains), f"a positive long-time gain K_c + sum(gains) (K_c = {kc:g})")
+    fit = sec.get("fit") if isinstance(sec.get("fit"), Mapping) else {}
+    fit_unit = fit.get("output_unit")
+    if fit_unit is not None and units.normalise(fit_unit) != unit:
+        c.fail("creep.fit.output_unit", fit_unit, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
+    for other in units.LABELS:  # a section written before the unit was recorded: its figures' keys say it
+        key = f"rms_{units.key(other)}"
+        if fit_unit is None and other != unit and key in fit:
+            c.fail(f"creep.fit.{key}", fit[key], f"a creep fitted in {units.label(unit)} (rms_{units.key(unit)}), the hysteresis "
+                   "model's output unit (one unit across the sections)")
+    try:
+        return CreepModel.from_dict(m)
+    except FitError as exc:
+        raise BundleError(f"{c.source}: creep.model: {exc}") from None
+
+
+def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
+    s = c.mapping(s, where, "a mapping (the input shaper)")
+    name = c.get(s, where, "name")
+    if not isinstance(name, str):
+        c.fail(f"{where}.name", name, "the shaper's name (text)")
+    t = c.numbers(c.get(s, where, "times_s"), f"{where}.times_s", 0.0, MAX_SHAPER_S, "impulse times in s")
+    a = c.numbers(c.get(s, where, "amplitudes"), f"{where}.amplitudes", 0.0, 1.0, "impulse amplitudes")
+    if len(t) != len(a):
+        c.fail(f"{where}.amplitudes", list(a), f"one amplitude per impulse time ({len(t)})")
+    if min(a) <= 0 or abs(sum(a) - 1.0) > SHAPER_SUM_TOL:
+        c.fail(f"{where}.amplitudes", list(a), f"positive impulses summing to 1 (within {SHAPER_SUM_TOL:g}; they sum to {sum(a):.9g})")
+    if any(t1 < t0 for t0, t1 in zip(t, t[1:])):
+        c.fail(f"{where}.times_s", list(t), "non-decreasing impulse times")
+    wn = c.number(c.get(s, where, "natural_freq_rad_s"), f"{where}.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
+    zeta = c.number(c.get(s, where, "damping"), f"{where}.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
+    zp = s.get("zv_power")
+    if zp is not None and not (isinstance(zp, int) and not isinstance(zp, bool) and 1 <= zp <= 20):
+        c.fail(f"{where}.zv_power", zp, "null or an integer 1 to 20")
+    try:
+        return Shaper(name=name, times_s=t, amplitudes=a, wn=wn, zeta=zeta, zv_power=zp)
+    except FitError as exc:
+        raise BundleError(f"{c.source}: {where}: {exc}") from None
+
+
+def check_shaper(c: _Checker, sec: Mapping[str, Any], unit: str) -> tuple[Shaper, Shaper | None, tuple[float, float, float | None]]:
+    mode = c.mapping(c.get(sec, "shaper", "mode"), "shaper.mode", "a mapping (the identified mode)")
+    wn = c.number(c.get(mode, "shaper.mode", "natural_freq_rad_s"), "shaper.mode.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
+    zeta = c.number(c.get(mode, "shaper.mode", "damping"), "shaper.mode.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
+    lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 1.0, 1e9, "null or a cut-off in Hz")
+    mu = mode.get("output_unit")
+    if mu is not None and units.normalise(mu) != unit:
+        c.fail("shaper.mode.output_unit", mu, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
+    sh = _check_shaper(c, c.get(sec, "shaper", "shaper"), "shaper.shaper")
+    sh2 = _check_shaper(c, sec["shaper2"], "shaper.shaper2") if sec.get("shaper2") else None
+    return sh, sh2, (wn, zeta, lp)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The bundle's ``compensation`` section, checked."""
+
+    drive_min_v: float = 0.0
+    drive_max_v: float = 150.0
+    max_rate_per_s: float | None = None
+    lead_s: float = 0.0
+    delay_lead_s: float = 0.0
+    slew_v_per_s: float | None = None
+    rate: RateDependence | None = None
+
+
+def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
+    comp = c.mapping(comp, "compensation", "a mapping (drive range, rate limit, lead)")
+    w = "compensation"
+    lo = c.number(comp.get("drive_min_v", 0.0), f"{w}.drive_min_v", -MAX_DRIVE_V, MAX_DRIVE_V, "a drive limit in V")
+    hi = c.number(comp.get("drive_max_v", 150.0), f"{w}.drive_max_v", -MAX_DRIVE_V, MAX_DRIVE_V, "a drive limit in V")
+    if hi <= lo:
+        c.fail(f"{w}.drive_max_v", hi, f"more than drive_min_v ({lo:g} V)")
+    k = units.key(unit)
+    for other in units.LABELS:
+        ok = f"max_rate_{units.key(other)}_per_s"
+        if other != unit and comp.get(ok) is not None:
+            c.fail(f"{w}.{ok}", comp[ok], f"no rate limit in {units.label(other)}/s: the hysteresis model's output is in "
+                   f"{units.label(unit)} (max_rate_{k}_per_s; one unit across the sections)")
+    rate_limit = c.optional(comp.get(f"max_rate_{k}_per_s"), f"{w}.max_rate_{k}_per_s", 0.0, MAX_RATE,
+                            f"null (no limit) or a positive rate in {units.label(unit)}/s", lo_open=True)
+    lead = c.number(comp.get("lead_s", 0.0), f"{w}.lead_s", 0.0, MAX_LEAD_S, "the drive's lead in s", hi_open=True)
+    delay = c.number(comp.get("delay_lead_s", 0.0), f"{w}.delay_lead_s", 0.0, MAX_LEAD_S, "the input delay's lead in s", hi_open=True)
+    slew = c.optional(comp.get("slew_v_per_s"), f"{w}.slew_v_per_s", 0.0, MAX_RATE, "null or a positive slew limit in V/s", lo_open=True)
+    rd = comp.get("rate_dependence")
+    rate = None
+    if rd:
+        rd = c.mapping(rd, f"{w}.rate_dependence", "a mapping (the rate-dependent hysteresis)")
+        q = f"{w}.rate_dependence"
+        sat = c.optional(rd.get("saturation_v_per_s") or None, f"{q}.saturation_v_per_s", 0.0, MAX_RATE, "null or V/s", lo_open=True)
+        rate = RateDependence(widen_v_per_kv_s=c.number(rd.get("widen_v_per_kv_s", 0.0), f"{q}.widen_v_per_kv_s", 0.0, MAX_DRIVE_V, "V per kV/s"),
+                              loss_per_kv_s=c.number(rd.get("loss_per_kv_s", 0.0), f"{q}.loss_per_kv_s", 0.0, 1e3, "per kV/s"),
+                              saturation_v_per_s=sat,
+                              tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True))
+    return Settings(lo, hi, rate_limit, lead, delay, slew, rate)
+
+
+def check_section(kind: str, doc: Any, source: str) -> None:
+    """Check a section file (``fit-hysteresis``'s, ``fit-creep``'s, ``fit-shaper``'s) as a bundle's section."""
+    c = _Checker(source)
+    doc = c.mapping(doc, "the document", f"a JSON object (a {kind} section)")
+    if doc.get("bundle_version") != BUNDLE_VERSION:
+        c.fail("bundle_version", doc.get("bundle_version"), f"{BUNDLE_VERSION} (this software's schema)")
+    if doc.get("section") != kind:
+        c.fail("section", doc.get("section"), f"{kind!r}")
+    if kind == "hysteresis":
+        check_hysteresis(c, doc)
+    elif kind == "creep":
+        check_creep(c, doc, units.normalise(doc.get("fit", {}).get("output_unit") if isinstance(doc.get("fit"), Mapping) else None))
+    elif kind == "shaper":
+        mode = doc.get("mode")
+        unit = units.normalise(mode.get("output_unit")) if isinstance(mode, Mapping) else units.FORCE
+        check_shaper(c, doc, unit)
+
+
+@dataclass(frozen=True)
+class Bundle:
+    """A checked parameter bundle: the document and the models it describes.
+
+    Build it with :meth:`from_dict` (which checks everything that does not depend on where
+    the bundle is used); :meth:`to_dict` gives the document back unchanged.
+    """
+
+    hysteresis: PIModel
+    creep: CreepModel | None
+    shaper: Shaper | None
+    shaper2: Shaper | None
+    mode: tuple[float, float, float | None] | None  # (wn rad/s, zeta, sensor low-pass Hz)
+    settings: Settings
+    source: str = "bundle"
+    doc: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
+
+    # ------------------------------------------------------------------ reading and writing
+
+    @classmethod
+    def from_dict(cls, doc: Any, source: str = "bundle") -> "Bundle":
+        """The bundle a document describes, checked; :class:`BundleError` (one line naming
+        ``source``, the section and key, and what was expected) otherwise."""
+        c = _Checker(str(source))
+        doc = c.mapping(doc, "the document", "a JSON object (a bundle made by `piezopress fit` or `bundle`)")
+        if doc.get("bundle_version") != BUNDLE_VERSION:
+            c.fail("bundle_version", doc.get("bundle_version"), f"{BUNDLE_VERSION} (this software's bundle schema)")
+        if "hysteresis" not in doc:
+            raise BundleError(f"{source}: has no hysteresis section; expected a bundle made by `piezopress fit` or `bundle`")
+        for name in SECTIONS:
+            if name in doc:
+                sec = c.mapping(doc[name], name, f"a mapping (the {name} section)")
+                if "bundle_version" in sec and sec["bundle_version"] != BUNDLE_VERSION:
+                    c.fail(f"{name}.bundle_version", sec["bundle_version"], f"{BUNDLE_VERSION} (this software's schema)")
+        hyst = check_hysteresis(c, doc["hysteresis"])
+        unit = hyst.output_unit
+        creep = check_creep(c, doc["creep"], unit) if "creep" in doc else None
+        sh = sh2 = mode = None
+        if "shaper" in doc:
+            sh, sh2, mode = check_shaper(c, doc["shaper"], unit)
+        settings = check_compensation(c, doc.get("compensation", {}), unit)
+        return cls(hyst, creep, sh, sh2, mode, settings, str(source), copy.deepcopy(dict(doc)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The document (a copy: changing it does not change the bundle)."""
+        return copy.deepcopy(self.doc)
+
+    @property
+    def unit(self) -> str:
+        """The output unit code (``N`` or ``um``) of every section."""
+        return self.hysteresis.output_unit
+
+    # ------------------------------------------------------------------ checks where it is used
+
+    def check_unit(self, unit: str, what: str, expected: str | None = None) -> None:
+        """Refuse a run or reference in another unit than the bundle's (``what`` names it,
+        ``expected`` says what would do)."""
+        if units.normalise(unit) != self.unit:
+            expected = expected or f"a {units.quantity(self.unit)} run for this bundle"
+            raise BundleError(f"{what}: is in {units.label(unit)} ({units.quantity(unit)}), the bundle {self.source} in "
+                              f"{units.label(self.unit)} ({units.quantity(self.unit)}); expected one unit: {expected}")
+
+    def check_reference(self, n_samples: int, fs_hz: float, what: str, *, use_creep: bool = True) -> None:
+        """What the compensator needs of a reference of ``n_samples`` at ``fs_hz``: a lead
+        shorter than :data:`LEAD_MAX_FRACTION` of it, and a creep compensator stable at its rate."""
+        duration = (n_samples - 1) / fs_hz if n_samples > 1 else 0.0
+        for key, lead in (("lead_s", self.settings.lead_s), ("delay_lead_s", self.settings.delay_lead_s)):
+            if lead > LEAD_MAX_FRACTION * duration:
+                raise BundleError(f"{self.source}: compensation.{key} = {lead:.6g} s; expected less than "
+                                  f"{LEAD_MAX_FRACTION:g} of the reference's {duration:.6g} s ({what})")
+        if use_creep and self.creep is not None:
+            try:
+                self.creep.check_stable(fs_hz)
+            except CompensatorUnstableError as exc:
+                raise BundleError(f"{self.source}: creep.model: {exc}; at {what}'s rate {fs_hz:g} Hz") from None
+
+    def check_drive_range(self, drive_min_v: float, drive_max_v: float, rig: str) -> None:
+        """Refuse a compensation drive range outside the rig's."""
+        s = self.settings
+        if s.drive_min_v < drive_min_v - 1e-9 or s.drive_max_v > drive_max_v + 1e-9:
+            raise BundleError(f"{self.source}: compensation drive range {s.drive_min_v:g} to {s.drive_max_v:g} V; expected inside "
+                              f"the rig's {drive_min_v:g} to {drive_max_v:g} V ({rig})")
+
+    # ------------------------------------------------------------------ the models
+
+    def compensator(self, *, use_shaper: bool = True, use_creep: bool = True) -> Compensator:
+        """The compensator the bundle describes (without the shaper, only a pure input
+        delay is led, not the mode's)."""
+        s = self.settings
+        return Compensator(
+            hysteresis=self.hysteresis,
+            creep=self.creep if use_creep else None,
+            shaper=self.shaper if use_shaper else None,
+            drive_min_v=s.drive_min_v,
+            drive_max_v=s.drive_max_v,
+            max_rate_per_s=s.max_rate_per_s,
+            lead_s=s.lead_s if use_shaper else s.delay_lead_s,
+            shaper2=self.shaper2 if use_shaper else None,
+            rate=s.rate,
+            slew_v_per_s=s.slew_v_per_s,
+        )
+
+    def forward_model(self):
+        """The forward model (:class:`piezopress.analysis.diagnosis.Model`): hysteresis, and
+        creep and mode when present."""
+        from piezopress.analysis import diagnosis as dg
+
+        wn, zeta, lp = self.mode if self.mode is not None else (None, None, None)
+        return dg.Model(self.hysteresis, self.creep, wn, zeta, lp)
+
+    def remove_creep(self, run) -> np.ndarray:
+        """A run's measured output with the creep taken out (the creep compensator applied
+        to it above the rest level): what the hysteresis model alone should predict. Without
+        a creep model, the output as measured. ``run`` has ``command_v``, ``output`` and
+        ``sample_rate_hz`` (a :class:`piezopress.runformat.Run`)."""
+        return creep_removed(self.creep, run.command_v, run.output, run.sample_rate_hz)
+
+    def extended(self, findings: Iterable[Any], model: Any = None) -> "Bundle":
+        """The bundle with every diagnosis finding recorded; those the compensator applies change
+        it (:func:`extend_document`)."""
+        return Bundle.from_dict(extend_document(self.doc, list(findings), model), self.source)
+
+
+def creep_removed(creep: CreepModel | None, command_v: np.ndarray, output: np.ndarray, fs_hz: float) -> np.ndarray:
+    """``output`` with ``creep`` removed: the creep compensator applied above the output at rest."""
+    output = np.asarray(output, float)
+    if creep is None:
+        return output
+    _, rest = rest_offset(command_v, output)
+    return rest + creep.compensate(output - rest, fs_hz)[0]
+
+
+# ---------------------------------------------------------------------- diagnosis extensions
+
+
+def second_shaper(parameters: Mapping[str, float]) -> dict[str, Any]:
+    """A ZVD shaper for a second mode (``natural_freq_rad_s``, ``damping``), as a bundle's
+    ``shaper.shaper2`` (the compensator applies it after the first shaper)."""
+    sh = design_shaper("zvd", float(parameters["natural_freq_rad_s"]), float(parameters["damping"]))
+    return {"name": sh.name, "times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes), "natural_freq_rad_s": sh.wn,
+            "damping": sh.zeta, "zv_power": sh.zv_power, "delay_ms": 1e3 * sh.delay_s, "centroid_ms": 1e3 * sh.centroid_s,
+            "for": "diagnose: second_resonance"}
+
+
+#: Findings whose fit refits the main mode freely because the effect distorts its
+#: identification (a delay is read as damping, and the base lead ``2 zeta / wn`` then holds
+#: part of the delay): with one of them, the extended bundle's shaper and lead are designed
+#: for the diagnosis model's mode. (A second mode is not among them: its joint refit moves
+#: the main mode little, and the base lead, which the refit would shorten, also stands for
+#: the delays the lead formula leaves out - the load cell's low-pass, the DAC's hold - so a
+#: shorter lead loses more at 50 Hz than the better shaper gains.)
+MODE_REFIT_CAUSES = ("input_delay",)
+
+
+def rate_dependence(model: Any) -> dict[str, Any]:
+    """A model's rate dependence as the bundle's ``compensation.rate_dependence``."""
+    sat = getattr(model, "rate_saturation_v_per_s", None)
+    return {"widen_v_per_kv_s": float(model.rate_v_per_kv_s), "loss_per_kv_s": float(getattr(model, "rate_loss_per_kv_s", 0.0)),
+            "saturation_v_per_s": float(sat) if sat and np.isfinite(sat) else None, "tau_s": float(getattr(model, "rate_tau_s", 5e-4))}
+
+
+#: Creep elements (not the log tail) faster than this are folded into the compensator's
+#: instantaneous gain (see :func:`creep_for_compensator`).
+FAST_CREEP_S = 1.0
+
+
+def creep_for_compensator(model: CreepModel) -> CreepModel:
+    """The found creep model as the compensator inverts it.
+
+    The log-creep finding fits a few Kelvin-Voigt elements and a log tail (equal gains, two
+    per decade from 0.05 s) on the hold read at 50 Hz. An element faster than
+    :data:`FAST_CREEP_S` there is not told apart from the step's own transient and the tail's
+    first terms (it lands on the grid's floor, 0.2 s, taking what the tail's fit left): as
+    a dynamic term its compensator drives every step too hard for a fraction of a second
+    (an overshoot the press does not have). It is folded into the instantaneous gain: the
+    creep at long times is kept, the fast part is the tail's.
+    """
+    gamma = model.params.get("per_decade")
+    if model.form != "kv" or gamma is None:
+        return model
+    tail_gain = 0.5 * float(gamma)
+    fast = [i for i, (t, g) in enumerate(zip(model.taus_s, model.gains)) if t < FAST_CREEP_S and not np.isclose(g, tail_gain, rtol=1e-9)]
+    if not fast:
+        return model
+    keep = [i for i in range(len(model.taus_s)) if i not in fast]
+    return CreepModel("kv", model.static_gain + sum(model.gains[i] for i in fast), tuple(model.taus_s[i] for i in keep),
+                      tuple(model.gains[i] for i in keep), dict(model.params))
+
+
+def modal_delay_s(model: Any) -> float:
+    """The low-frequency delay of a model's mode(s): ``2 zeta / wn``, each mode weighted by its share."""
+    share2 = model.mode2[0] if model.mode2 else 0.0
+    d = (1.0 - share2) * 2.0 * float(model.zeta) / float(model.wn)
+    if model.mode2:
+        d += share2 * 2.0 * float(model.mode2[2]) / float(model.mode2[1])
+    return d
+
+
+def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = None) -> dict[str, Any]:
+    """The bundle document with every finding's extension recorded; those that belong in the
+    compensator change it (creep form, lead, slew, rate-aware inverse, second shaper).
+
+    ``model`` is the diagnosis's final model (all findings applied): when a finding refitted
+    the main mode (:data:`MODE_REFIT_CAUSES`), the main shaper is designed again for it and
+    the lead is its low-frequency delay plus the input delay found (the base bundle's lead
+    had absorbed part of that delay into the mode's damping; adding the delay to it would
+    lead twice)."""
+    from piezopress.analysis import diagnosis as dg
+
+    ext = copy.deepcopy(bundle)
+    ext["extensions"] = {f.cause: f.parameters for f in findings}
+    # what the compensator applies of them, and what it only records: the catalogue says
+    # (Cause.in_compensator, the one place; a branch below must change the compensator for exactly those)
+    applied = {c.id for c in dg.CAUSES.values() if c.in_compensator}
+    ext["extensions_applied_by_compensator"] = sorted(f.cause for f in findings if f.cause in applied)
+    ext["extensions_recorded_only"] = sorted(f.cause for f in findings if f.cause not in applied)
+    comp = ext.setdefault("compensation", {})
+    for f in findings:
+        if f.cause == "amplifier_slew_limit":
+            # the compensator keeps its drive below the slew (slowing the reference where the drive would outrun it)
+            comp["slew_v_per_s"] = float(f.parameters["slew_rate_v_per_s"])
+        elif f.cause == "input_delay":
+            comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
+            if f.parameters.get("operators_refitted"):  # found on slow sweeps: the lag had widened the fitted loop
+                ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
+                ext["hysteresis"]["extended_by"] = "diagnose: input_delay (operators refitted on the delayed drive)"
+            comp["delay_lead_s"] = comp.get("delay_lead_s", 0.0) + f.parameters["delay_s"]
+        elif f.cause == "rate_dependent_hysteresis":
+            comp["rate_dependence"] = rate_dependence(f.model)  # the inverse at the drive's own rate
+        elif f.cause == "second_resonance" and "shaper" in ext:
+            ext["shaper"]["shaper2"] = second_shaper(f.parameters)
+        elif f.cause == "hysteresis_order":
+            ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
+            ext["hysteresis"]["extended_by"] = "diagnose: hysteresis_order"
+        elif f.cause == "logarithmic_creep" and "creep" in ext:
+            # the creep model the finding fitted and judged (its elements and log tail), not a log form rebuilt
+            # from two of its numbers: the compensator inverts what was found
+            log = f.model.creep if f.model.creep is not None else CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
+            ext["creep"]["model"] = creep_for_compensator(log).to_dict()
+            ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
+    refit_by = [f.cause for f in findings if f.cause in MODE_REFIT_CAUSES]
+    if model is not None and model.wn and model.zeta and refit_by and "shaper" in ext:
+        sh = ext["shaper"]
+        try:
+            new = design_shaper(sh["shaper"]["name"], float(model.wn), float(model.zeta))
+        except FitError:
+            new = None  # the design does not hold at the refitted damping: the base shaper stays
+        if new is not None:
+            sh["shaper"] = {**sh["shaper"], "times_s": list(new.times_s), "amplitudes": list(new.amplitudes),
+                            "natural_freq_rad_s": new.wn, "damping": new.zeta, "zv_power": new.zv_power,
+                            "delay_ms": 1e3 * new.delay_s, "centroid_ms": 1e3 * new.centroid_s}
+            sh["mode"] = {**sh["mode"], "natural_freq_rad_s": float(model.wn), "damping": float(model.zeta)}
+            sh["extended_by"] = f"diagnose: the mode refitted with {', '.join(refit_by)}"
+            # the lead's modal part (2 zeta / wn of the base mode) replaced by the refitted modes' low-frequency delay
+            old_modal = 2.0 * float(bundle["shaper"]["mode"]["damping"]) / float(bundle["shaper"]["mode"]["natural_freq_rad_s"])
+            comp["lead_s"] = float(bundle.get("compensation", {}).get("lead_s", old_modal)) - old_modal + modal_delay_s(model) \
+                + comp.get("delay_lead_s", 0.0)
+    return ext
+
+
+__all__ = ["Bundle", "BundleError", "Settings", "BUNDLE_VERSION", "SECTIONS", "LEAD_MAX_FRACTION", "creep_removed", "check_section",
+           "extend_document", "second_shaper", "rate_dependence", "creep_for_compensator", "modal_delay_s", "MODE_REFIT_CAUSES",
+           "FAST_CREEP_S"]
