@@ -86,7 +86,7 @@ def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Pa
     column = reference_column(bundle)
     t, r, fs = read_reference(ref_path, column)
     limits = rig_limits if rig_limits is not None else limits_of_rig(DEFAULT_RIG)
-    check_sample_rate(fs, limits, f"{ref_path} ({rig or 'the virtual rig; pass --rig for another'})")
+    check_sample_rate(fs, limits, str(ref_path))
     bundle.check_reference(t.size, fs, str(ref_path))
     result = bundle.compensator(use_shaper=use_shaper).drive(r, fs)
     if not np.all(np.isfinite(result.command_v)):

@@ -87,6 +87,12 @@ def writable_folder(folder: str | Path) -> Path:
         raise _unwritable(folder, exc) from None
     if not os.access(folder, os.W_OK | os.X_OK):
         raise _unwritable(folder)
+    probe = folder / f".piezopress-write-test-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    try:  # os.access says yes to root on a read-only mount: a real file says what will happen
+        os.close(os.open(probe, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        os.unlink(probe)
+    except OSError as exc:
+        raise _unwritable(folder, exc) from None
     return folder
 
 

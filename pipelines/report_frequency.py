@@ -62,10 +62,11 @@ def mode_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: li
     if bundle is None or "shaper" not in bundle:
         return None, []
     try:
-        mode = Bundle.from_dict(bundle).mode
-        if mode is None:
+        checked = Bundle.from_dict(bundle).mode
+        if checked is None:
             raise PiezopressError("the shaper section holds no mode")
-        wn, zeta = mode[0], mode[1]
+        wn, zeta = checked[0], checked[1]
+        mode = bundle["shaper"].get("mode", {})  # how it was identified (the drive used)
         system = lti.mode_system(wn, zeta)
     except (KeyError, TypeError, ValueError, PiezopressError) as exc:
         missing.append(f"The bundle's mode is unreadable ({exc}): the mode's Bode plot is missing.")

@@ -243,7 +243,7 @@ def test_a_reference_faster_than_the_rig_is_refused_at_once(fs, tmp_path):
     t = np.arange(100) / fs
     pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 100, t.size)}).to_csv(tmp_path / "fast.csv", index=False)
     line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "fast.csv", "--out", tmp_path / "d.csv"))
-    assert f"sampled at {fs:.6g} Hz; expected at most the rig's 100000 Hz (the virtual rig; pass --rig for another)" in line
+    assert f"sample rate {fs:.6g} Hz is above the rig's maximum sample rate of 100000 Hz; expected at most 100000 Hz" in line
 
 
 def test_a_long_lead_is_refused_by_validate_before_anything_runs(tmp_path):

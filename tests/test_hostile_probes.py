@@ -230,18 +230,19 @@ def test_simulate_refuses_an_extra_string_column(extra_string_column, tmp_path):
     assert "extra column 'note'" in line
 
 
-def test_simulate_under_a_missing_folder_is_one_line(tmp_path):
+def test_simulate_under_a_missing_folder_creates_it(tmp_path):
+    """Like every writer, simulate creates its output's folder (or refuses it in one line) before any work."""
     out = tmp_path / "missing" / "dir" / "s.parquet"
-    line = one_error_line(invoke("simulate", str(STEP), "--bundle", str(BUNDLE), "--out", str(out)))
-    assert line.startswith(f"Error: {out}: cannot write it (No such file or directory)")
-    assert not out.parent.exists()
+    res = invoke("simulate", str(STEP), "--bundle", str(BUNDLE), "--out", str(out))
+    assert res.exit_code == 0, res.output
+    assert out.is_file() and res.output.startswith(f"Wrote {out}")
 
 
 def test_characterize_into_a_read_only_folder_is_one_line_before_the_rig_is_touched(readonly_dir):
     out = readonly_dir / "runs"
     line = one_error_line(invoke("characterize", "--out", str(out)))
-    assert line.startswith(f"Error: {out}: cannot create this run directory (")
-    assert "expected a folder that exists and that you may write to" in line
+    assert line.startswith(f"Error: {out}: cannot write there (")
+    assert "expected a folder you may write to" in line
 
 
 def test_import_into_a_read_only_folder_is_one_line_before_the_source_is_read(readonly_dir, tmp_path):
@@ -249,7 +250,7 @@ def test_import_into_a_read_only_folder_is_one_line_before_the_source_is_read(re
     src.write_text("0,0\n1,1\n2,2\n")
     out = readonly_dir / "run.parquet"
     line = one_error_line(invoke("import", str(src), "--out", str(out), "--col", "command_v=1", "--col", "force_n=2", "--sample-rate-hz", "10"))
-    assert line.startswith(f"Error: {out}: cannot write it there (")
+    assert line.startswith(f"Error: {readonly_dir}: cannot write there (")
 
 
 def test_rig_seed_minus_one_is_one_line(tmp_path):
@@ -261,7 +262,7 @@ def test_rig_seed_minus_one_is_one_line(tmp_path):
 def test_diagnose_with_an_unknown_cause_is_one_line_exit_2(tmp_path):
     res = invoke("diagnose", str(ROOT / "sample_runs" / "characterization"), "--bundle", str(BUNDLE), "--cause", "bogus", "--out", str(tmp_path / "d"))
     line = one_error_line(res, code=2)
-    assert "'bogus' is not a cause of the catalogue; expected one of" in line
+    assert "Invalid value for '--cause': 'bogus' is not one of 'amplifier_slew_limit'" in line
     assert not (tmp_path / "d").exists()
 
 
@@ -345,9 +346,10 @@ def test_an_error_after_a_progress_line_starts_a_line_of_its_own(tmp_path, monke
     assert "\nError: rig on fire" in res.output and res.output.rstrip().endswith("Error: rig on fire")
 
 
-def test_validate_checks_every_compensated_drive_before_the_directory_is_made(tmp_path):
-    """A rig whose actuator stops at 10 V: the compensated drives of a 50 N reference need
-    more, so validate refuses in one line and creates nothing."""
+def test_validate_refuses_a_bundle_drive_range_outside_the_rig_before_the_directory_is_made(tmp_path):
+    """A rig whose actuator stops at 10 V: the bundle's drive range (-30 to 150 V) is not inside
+    it, so validate refuses in one line, before any drive is made, and creates nothing (the
+    compensator clips to the bundle's range, which the bundle check holds inside the rig's)."""
     rig = tmp_path / "rig.toml"
     rig.write_text((ROOT / "rigs" / "thesis-press.toml").read_text().replace("drive_max_v = 150.0", "drive_max_v = 10.0"))
     plan = tmp_path / "v.toml"
@@ -356,7 +358,7 @@ def test_validate_checks_every_compensated_drive_before_the_directory_is_made(tm
     out = tmp_path / "val"
     res = invoke("validate", "--bundle", str(BUNDLE), "--plan", str(plan), "--rig", str(rig), "--out", str(out))
     line = one_error_line(res)
-    assert f"{plan}: protocol 'tri' through {BUNDLE}: drive refused: drive spans" in line and "outside the actuator's range -30 to 10 V" in line
+    assert line == f"Error: {BUNDLE}: compensation drive range -30 to 150 V; expected inside the rig's -30 to 10 V ({rig})"
     assert not out.exists()
 
 

@@ -69,7 +69,6 @@ def test_report_refuses_a_validation_directory_given_as_the_characterization(tmp
                                      ["fit-hysteresis", "--out", "{tmp}/h.json"], ["fit", "--out", "{tmp}/b.json"], ["diagnose", "--bundle", str(ROOT / "sample_runs" / "bundle.json"), "--out", "{tmp}/d"]])
 def test_stages_refuse_an_interrupted_directory_in_one_line(tmp_path, command):
     d = copy_with_status(CHAR, tmp_path / "c", "interrupted")
-    (tmp_path / "h.json").write_text("{}")
     args = [a.replace("{tmp}", str(tmp_path)) for a in command]
     res = CliRunner().invoke(cli, [args[0], str(d), *args[1:]])
     assert res.exit_code == 1, res.output
