@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -14,7 +14,7 @@ from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import design_shaper
-from piezopress.errors import FitError
+from piezopress.errors import ConfigError, FitError
 from piezopress import plotting
 from piezopress.pipelines.bundle import collect_runs, read_document, write_document
 from piezopress.pipelines import next_plan
@@ -199,11 +199,23 @@ def diagnosis_runs(loaded: list[runformat.Run]) -> list[dg.RunData]:
     return out
 
 
+def check_causes(causes: Iterable[str] | None) -> list[str] | None:
+    """The cause ids asked for, each checked against the catalogue (``None``: all of them)."""
+    causes = list(causes) if causes else None
+    unknown = [c for c in causes or () if c not in dg.CAUSES]
+    if unknown:
+        raise ConfigError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(dg.CAUSES)}")
+    return causes
+
+
 def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str | Path,
-             causes: Iterable[str] | None = None) -> tuple[dg.Diagnosis, Path]:
+             causes: Iterable[str] | None = None,
+             on_progress: Callable[[dg.CauseProgress], None] | None = None) -> tuple[dg.Diagnosis, Path]:
     """Diagnose the runs (files or run directories, several at once) against the bundle;
     write ``diagnosis.json``, ``extended_bundle.json``, the residual figures and, when some
-    causes could not be tested, ``next-plan.toml``: the experiment that would test them."""
+    causes could not be tested, ``next-plan.toml``: the experiment that would test them.
+    ``on_progress`` hears of every cause tried (:class:`~piezopress.analysis.diagnosis.CauseProgress`)."""
+    causes = check_causes(causes)
     paths = list(paths)
     bundle = read_document(bundle_path, "bundle")
     loaded = collect_runs(paths)
@@ -212,7 +224,7 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
         raise dg.H.HysteresisFitError("no runs to diagnose")
     base = base_model(bundle)
     fitted = fitted_run_keys(bundle)
-    result = dg.diagnose(base, runs, fitted, list(causes) if causes else None)
+    result = dg.diagnose(base, runs, fitted, causes, on_progress)
     out = new_output_dir(out_dir)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])

@@ -435,10 +435,14 @@ def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.nda
 
 
 def _judge(ctx: Context, cause: str, evidence: str, fit: list[Segment], held: list[Segment], extended: Model,
-           params: dict[str, float], baseline: Model | None = None) -> Finding:
+           params: dict[str, float], baseline: Model | None = None,
+           cost: Callable[[list[Segment], Model], float] | None = None) -> Finding:
+    """The finding of ``cause``: ``extended`` against ``baseline`` (the current model) by
+    ``cost`` (default :func:`_cost`, the held-out RMS) on the held-out segments."""
+    cost = cost or _cost
     base = baseline or ctx.model
-    b = _cost(held, base)
-    e = _cost(held, extended)
+    b = cost(held, base)
+    e = cost(held, extended)
     runs = [r for r, _ in fit + held]
     return Finding(cause, evidence, b, e, 100.0 * (b - e) / b if b > 0 else 0.0, params,
                    sorted({r.name for r in runs}), sorted({r.name for r, _ in held}),
@@ -849,12 +853,7 @@ def _judge_dynamics(ctx: Context, cause: str, evidence: str, fit: list[Segment],
                     params: dict[str, float], baseline: Model) -> Finding:
     """:func:`_judge` with each held-out segment's static levels taken out of both models'
     residuals (:func:`_level_free`): for the causes of the fast dynamics."""
-    b = _level_free(held, baseline)
-    e = _level_free(held, extended)
-    runs = [r for r, _ in fit + held]
-    return Finding(cause, evidence, b, e, 100.0 * (b - e) / b if b > 0 else 0.0, params,
-                   sorted({r.name for r in runs}), sorted({r.name for r, _ in held}),
-                   max(float(np.ptp(r.y)) for r in runs), float(np.median([ctx.floor[r.name] for r, _ in held])), extended)
+    return _judge(ctx, cause, evidence, fit, held, extended, params, baseline, cost=_level_free)
 
 
 #: A second mode carrying less than this share of the response is none.
@@ -1430,14 +1429,35 @@ def _base_fit(ctx: Context, floor: float) -> dict[str, Any]:
             "worst_at_s": float(worst.t_s[int(np.argmax(np.abs(res[worst.name])))])}
 
 
-def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = (), causes: Sequence[str] | None = None) -> Diagnosis:
+@dataclass(frozen=True)
+class CauseProgress:
+    """Reported before a cause is tried (``done`` false) and after it (``done``, with its
+    held-out gain in percent when it had something to fit, and whether it is a finding so
+    far). ``round`` counts the search's passes (each accepted finding starts another);
+    ``index`` of ``total`` counts the causes of this pass."""
+
+    round: int
+    index: int
+    total: int
+    cause: str
+    done: bool
+    gain_pct: float | None = None
+    accepted: bool = False
+
+
+def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = (), causes: Sequence[str] | None = None,
+             on_progress: Callable[[CauseProgress], None] | None = None) -> Diagnosis:
     """Simulate every run with ``base``, analyse the residuals, extend the model cause by cause.
 
     ``fitted_runs`` names the runs the base model was fitted on (their keys or names);
     causes judge their gain on the others where they can. A cause whose needs the runs do not
     meet (:func:`testability`) is not tried: it is listed in ``not_tested`` with what it
-    needs and what the runs offer.
+    needs and what the runs offer. ``on_progress`` hears of every cause tried
+    (:class:`CauseProgress`). An id not in :data:`CAUSES` raises ``ValueError``.
     """
+    unknown = [c for c in (causes or ()) if c not in CAUSES]
+    if unknown:
+        raise ValueError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(CAUSES)}")
     runs = _unique_names(list(runs))
     floor = {r.name: noise_floor(r.y) for r in runs}
     ctx = Context(runs, base, frozenset(fitted_runs), floor)
@@ -1450,9 +1470,13 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
     asked = list(causes or CAUSES)
     checks = {cid: testability(CAUSES[cid], ctx) for cid in asked}
     todo = [cid for cid in asked if checks[cid].testable]
+    rnd = 0
     while todo and len(findings) < MAX_FINDINGS:
         tried = []
-        for cid in todo:
+        rnd += 1
+        for i, cid in enumerate(todo, 1):
+            if on_progress:
+                on_progress(CauseProgress(rnd, i, len(todo), cid, False))
             try:
                 f = CAUSES[cid].run(ctx)
             except (ValueError, np.linalg.LinAlgError, H.HysteresisFitError, creep_mod.FitError):
@@ -1460,6 +1484,10 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
             if f is not None and np.isfinite(f.gain_pct):
                 tried.append(f)
                 last_try[cid] = f
+            else:
+                f = None
+            if on_progress:
+                on_progress(CauseProgress(rnd, i, len(todo), cid, True, None if f is None else f.gain_pct, f is not None and f.accepted))
         ok = [f for f in tried if f.accepted]
         if not ok:
             break
