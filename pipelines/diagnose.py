@@ -14,7 +14,7 @@ from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel
 from piezopress.analysis.shaper import design_shaper
-from piezopress.errors import ConfigError, FitError
+from piezopress.errors import FitError, PiezopressError
 from piezopress import plotting
 from piezopress.pipelines.bundle import collect_runs, read_document, write_document
 from piezopress.pipelines import next_plan
@@ -199,12 +199,16 @@ def diagnosis_runs(loaded: list[runformat.Run]) -> list[dg.RunData]:
     return out
 
 
+class UnknownCauseError(PiezopressError, ValueError):
+    """A cause asked for is not in the catalogue (:data:`piezopress.analysis.diagnosis.CAUSES`)."""
+
+
 def check_causes(causes: Iterable[str] | None) -> list[str] | None:
     """The cause ids asked for, each checked against the catalogue (``None``: all of them)."""
     causes = list(causes) if causes else None
     unknown = [c for c in causes or () if c not in dg.CAUSES]
     if unknown:
-        raise ConfigError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(dg.CAUSES)}")
+        raise UnknownCauseError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(dg.CAUSES)}")
     return causes
 
 

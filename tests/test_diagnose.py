@@ -26,7 +26,6 @@ from piezopress.pipelines import bundle as B
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import diagnose as D
 from piezopress.pipelines import fit as F
-from piezopress.errors import ConfigError
 
 #: The held-out gain a test demands of the named cause (the finding threshold is 20 %).
 MIN_TEST_GAIN_PCT = 20.0
@@ -99,27 +98,26 @@ def test_unexplained_structure_is_listed_not_named():
 
 def test_cli_diagnose_json_progress_and_simulate(tmp_path):
     """The representative hidden effect of this rig in the fast suite: a 0.3 ms delay named
-    alone, its value recovered, through the CLI (the human text, then --json)."""
+    alone, its value recovered, through the CLI (--json: the document on stdout, the human
+    text on stderr)."""
     runner = CliRunner()
     char.characterize(tmp_path / "char", backend=VirtualRig(RigConfig.only("input_delay", delay_s=3e-4)))
     assert runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
-    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d")])
-    assert res.exit_code == 0, res.output
-    assert "input_delay" in res.output and "held-out" in res.output
-    assert "[pass " not in res.output  # progress is for a terminal only
-    ext = json.loads((tmp_path / "d" / "extended_bundle.json").read_text())
-    assert "input_delay" in ext["extensions"] and ext["compensation"]["lead_s"] > 2e-4  # the delay belongs in the compensator
-    assert (tmp_path / "d" / "residuals.png").stat().st_size > 10_000
-    # --json: one document on stdout (the human lines on stderr), the same as diagnosis.json plus the files
-    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d2"), "--json"])
+    # --json: one document on stdout, the human lines on stderr
+    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"), "--json"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
-    assert "Diagnosis:" in res.stderr and "Diagnosis:" not in res.stdout
+    assert "Diagnosis: input_delay" in res.stderr and "held-out" in res.stderr and "Diagnosis:" not in res.stdout
+    assert "[pass " not in res.stderr  # progress is for a terminal only
     assert [f["cause"] for f in doc["findings"]] == ["input_delay"]  # named, and nothing else
     assert doc["findings"][0]["parameters"]["delay_s"] == pytest.approx(3e-4, rel=0.1)
     assert doc["findings"][0]["gain_pct"] >= MIN_TEST_GAIN_PCT
-    assert doc["files"]["diagnosis"] == str(tmp_path / "d2" / "diagnosis.json")
-    assert {k: v for k, v in doc.items() if k not in ("out_dir", "files")} == json.loads((tmp_path / "d2" / "diagnosis.json").read_text())
+    assert doc["files"]["diagnosis"] == str(tmp_path / "d" / "diagnosis.json")
+    written = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert set(doc) == set(written) | {"out_dir", "files"} and doc["findings"] == written["findings"]
+    ext = json.loads((tmp_path / "d" / "extended_bundle.json").read_text())
+    assert "input_delay" in ext["extensions"] and ext["compensation"]["lead_s"] > 2e-4  # the delay belongs in the compensator
+    assert (tmp_path / "d" / "residuals.png").stat().st_size > 10_000
     res = runner.invoke(cli, ["simulate", str(tmp_path / "char" / "step-50v.parquet"), "--bundle", str(tmp_path / "b.json"),
                               "--out", str(tmp_path / "sim.parquet")])
     assert res.exit_code == 0, res.output
@@ -137,7 +135,7 @@ def test_an_unknown_cause_is_one_clear_line_before_anything_is_read(tmp_path):
     lines = [ln for ln in res.output.splitlines() if ln.startswith("Error")]
     assert len(lines) == 1 and "'bogus'" in lines[0] and "input_delay" in lines[0], res.output
     assert not (tmp_path / "d").exists()
-    with pytest.raises(ConfigError, match="'bogus' is not in the catalogue; expected one of rate_dependent_hysteresis"):
+    with pytest.raises(D.UnknownCauseError, match="'bogus' is not in the catalogue; expected one of rate_dependent_hysteresis"):
         D.diagnose([tmp_path], tmp_path / "b.json", tmp_path / "d", causes=["bogus"])
     with pytest.raises(ValueError, match="'bogus'"):
         dg.diagnose(dg.Model(dg.H.PIModel((0.0,), (1.0,), (0.0,), (1.0,))), [], causes=["input_delay", "bogus"])
@@ -189,6 +187,7 @@ DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "s
 DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
 
 
+@pytest.mark.slow  # test_diagnose_coverage.py diagnoses both shared data sets in the fast suite
 @pytest.mark.skipif(not (DATASETS / "smarthysteresis").is_dir(), reason="shared data sets not found")
 def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
     runner = CliRunner()

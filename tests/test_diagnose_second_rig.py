@@ -63,6 +63,7 @@ def test_the_plan_without_rest_is_the_default_plan_less_its_rest_run():
     assert rests and no_rest["protocol"] == [p for p in default["protocol"] if p not in rests]
 
 
+@pytest.mark.slow
 def test_the_clean_second_press_gives_no_finding(tmp_path):
     result = run_diagnosis(tmp_path, ip.clean_press(np.random.default_rng([SEED, 99])))
     assert result.findings == [], result.summary
