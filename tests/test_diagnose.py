@@ -74,6 +74,16 @@ def test_two_hidden_effects_are_both_found(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_delay_of_half_the_modes_period_is_named_alone(tmp_path):
+    # 0.5 ms, half the 1 kHz mode's period: the steps' identification finds the mode at under
+    # half its frequency, heavily damped; the delay's refit must reach the mode again (once a
+    # spurious rate dependence, then a spurious interference, took up what it could not)
+    result = run_diagnosis(tmp_path, RigConfig.only("input_delay", delay_s=5e-4).replace(rig={"seed": 1}))
+    assert [f.cause for f in result.findings] == ["input_delay"], result.summary
+    assert result.findings[0].parameters["delay_s"] == pytest.approx(5e-4, rel=0.05)
+
+
+@pytest.mark.slow
 def test_found_parameters_match_the_rig(tmp_path):
     # the extension recovers the hidden physics, not just a better fit: delay and second mode
     result = run_diagnosis(tmp_path, RigConfig.only("input_delay", delay_s=2.5e-4))
