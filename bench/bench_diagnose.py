@@ -18,13 +18,15 @@ compensator (``pipelines/gain.py``): the table per cause, base bundle against ex
 validation row, with each row's noise, beside the finding's prediction gain; ``--gain-out``
 writes it as ``compensated_gain.csv``.
 
-Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second] [--seeds 20] [--workers 2]
-     .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
+Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second] [--seeds 20] [--workers 2] [--record results.jsonl]
+     .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl   (the matrix of what was recorded)
+     .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv] [--slew-capacitance-uf 8]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 import time
@@ -85,23 +87,62 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--effects", nargs="*", help="only these rows (effect ids, or none)")
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
+    ap.add_argument("--record", type=Path, default=None, help="append every diagnosis to this JSON-lines file as it ends")
+    ap.add_argument("--matrix-from", type=Path, default=None, help="print the matrix of a --record file (for --rig) instead of running")
     ap.add_argument("--gain", action="store_true", help="the gain on the press instead: compensated performance, base bundle "
                     "against extended, per cause whose extension enters the compensator (pipelines/gain.py)")
     ap.add_argument("--gain-seeds", type=int, default=3, help="with --gain: passes of the whole chain per cause (noise seeds)")
+    ap.add_argument("--slew-capacitance-uf", type=float, default=None,
+                    help="with --gain: the stack's capacitance for the slew limit instead of the gain magnitude's (documented: 3-8 uF)")
     ap.add_argument("--gain-out", type=Path, default=None, help="with --gain: write the table here (compensated_gain.csv)")
     a = ap.parse_args()
     if a.gain:
         return gain_main(a)
     hidden = a.effects or (list(EFFECTS) + ["none"])
-    jobs = [(a.rig, e, s) for e in hidden for s in range(a.seeds)]
+    if a.matrix_from:  # the matrix of results recorded earlier (a run stopped part way, or several joined)
+        results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig]
+        seeds = sorted({r[4] for r in results})
+        print_matrix(a.rig, hidden, [r[:3] for r in results], f"{len(seeds)} seeds ({_ranges(seeds)})", None)
+        return
+    # seed by seed over every row, so that a run stopped part way has every row at (nearly) the same count
+    jobs = [(a.rig, e, s) for s in range(a.first_seed, a.first_seed + a.seeds) for e in hidden]
     start = time.perf_counter()
+    results = []
     with ProcessPoolExecutor(a.workers) as pool:
-        results = list(pool.map(one, jobs))
+        for job, r in zip(jobs, pool.map(one, jobs)):
+            results.append(r)
+            if a.record:
+                with open(a.record, "a", encoding="utf-8") as fh:
+                    fh.write(json.dumps({"rig": job[0], "effect": r[0], "seed": job[2], "named": list(r[1]),
+                                         "gain_pct": None if not np.isfinite(r[2]) else r[2]}) + "\n")
     wall = time.perf_counter() - start
+    print_matrix(a.rig, hidden, results, f"{a.seeds} seeds per row", (wall, len(jobs), a.workers))
+
+
+def _read_results(path: Path) -> list[tuple]:
+    rows = [json.loads(line) for line in Path(path).read_text(encoding="utf-8").splitlines() if line.strip()]
+    return [(r["effect"], tuple(r["named"]), float("nan") if r["gain_pct"] is None else r["gain_pct"], r["rig"], r["seed"]) for r in rows]
+
+
+def _ranges(seeds: list[int]) -> str:
+    """``0-11, 14`` for seeds 0 to 11 and 14."""
+    out, i = [], 0
+    while i < len(seeds):
+        j = i
+        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
+            j += 1
+        out.append(f"{seeds[i]}-{seeds[j]}" if j > i else f"{seeds[i]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def print_matrix(rig_id: str, hidden: list[str], results: list[tuple], over: str, timing: tuple | None) -> None:
+    """The confusion matrix of ``results`` ((hidden effect, causes named, gain of the hidden cause))."""
     named = sorted({n for r in results for n in r[1]} | set(hidden), key=lambda n: (n not in hidden, hidden.index(n) if n in hidden else 0, n))
     width = max(len(n) for n in named)
-    rig = "the virtual rig" if a.rig == "ours" else "the second test press (tests/independent_press.py)"
-    print(f"Confusion matrix on {rig} over {a.seeds} seeds per row: hidden effect (rows) against the causes named "
+    rig = "the virtual rig" if rig_id == "ours" else "the second test press (tests/independent_press.py)"
+    print(f"Confusion matrix on {rig} over {over}: hidden effect (rows) against the causes named "
           f"(columns; a seed counts in every column it names, 'none': no finding). 'alone %': the hidden cause named "
           f"and nothing else (clean: nothing named)")
     short = {n: n[:10] for n in named}
@@ -110,21 +151,31 @@ def main() -> None:
     for h in hidden:
         rows = [r for r in results if r[0] == h]
         counts = [sum(1 for r in rows if n in r[1]) for n in named]
-        found = 100.0 * sum(1 for r in rows if r[1] == (h,)) / len(rows)
+        if not rows:
+            print(f"{h:<{width}}  (no seed)")
+            ok = False
+            continue
+        alone = (h,) if h != "none" else ("none",)
+        found = 100.0 * sum(1 for r in rows if r[1] == alone) / len(rows)
         gains = [r[2] for r in rows if np.isfinite(r[2])]
         med = f"{np.median(gains):14.0f}" if gains and h != "none" else f"{'-':>14}"
-        print(f"{h:<{width}}  " + " ".join(f"{c:>10}" for c in counts) + f" {found:8.0f} {med}")
+        print(f"{h:<{width}}  " + " ".join(f"{c:>10}" for c in counts) + f" {found:8.0f} {med}   ({len(rows)} seeds)")
         ok &= found >= 95.0
     print("targets met" if ok else "targets NOT met (see rows below 95 %)")
-    print(f"wall time {wall / 60:.1f} min ({len(jobs)} diagnoses, {a.workers} workers)")
+    if timing:
+        wall, n, workers = timing
+        print(f"wall time {wall / 60:.1f} min ({n} diagnoses, {workers} workers)")
 
 
 def gain_one(args: tuple[str, int]):
     from piezopress.pipelines import gain as G
 
-    cause, seeds = args
+    cause, seeds, capacitance_uf = args
+    cfg = G.effect_rig(cause, seed=0)
+    if capacitance_uf and cause == "amplifier_slew_limit":
+        cfg = cfg.replace(actuator={"capacitance_uf": float(capacitance_uf)})
     with tempfile.TemporaryDirectory() as tmp:
-        return G.compensated_gain(G.effect_rig(cause, seed=0), Path(tmp) / "gain", cause=cause, seeds=seeds)
+        return G.compensated_gain(cfg, Path(tmp) / "gain", cause=cause, seeds=seeds)
 
 
 def gain_main(a) -> None:
@@ -139,11 +190,12 @@ def gain_main(a) -> None:
     causes = [c for c in (a.effects or list(CAUSES)) if c in CAUSES and CAUSES[c].in_compensator]
     start = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
-        results = list(pool.map(gain_one, [(c, a.gain_seeds) for c in causes]))
+        results = list(pool.map(gain_one, [(c, a.gain_seeds, a.slew_capacitance_uf) for c in causes]))
     wall = time.perf_counter() - start
     out = a.gain_out or Path(tempfile.gettempdir()) / G.GAIN_CSV
     G.write_csv(results, out)
-    print(f"The gain on the press: validation on the virtual rig with each effect on (gain magnitudes: pipelines/gain.py), "
+    slew = f"; the slew limit with a {a.slew_capacitance_uf:g} uF stack" if a.slew_capacitance_uf else ""
+    print(f"The gain on the press: validation on the virtual rig with each effect on (gain magnitudes: pipelines/gain.py{slew}), "
           f"base bundle (fit --base) against diagnose's extended bundle; {a.gain_seeds} passes of the whole chain per cause\n")
     print(G.format_table(G.read_csv(out)))
     met = [r.verdict()[0] for r in results]

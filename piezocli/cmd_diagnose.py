@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, reports_errors
+from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress import units
 from piezopress.pipelines import diagnose as diag
 
@@ -34,6 +35,27 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
     click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column}){kept}")
 
 
+def _progress_printer(err: bool):
+    """Progress per cause for a terminal (stdout, or stderr under ``--json``): a line per
+    cause tried, redrawn in place while it runs; nothing when the stream is not a terminal."""
+    stream = sys.stderr if err else sys.stdout
+    if not stream.isatty():
+        return None
+
+    def show(ev: diag.dg.CauseProgress) -> None:
+        head = f"[pass {ev.round}, {ev.index:>{len(str(ev.total))}}/{ev.total}] {ev.cause:<28}"
+        if not ev.done:
+            click.echo(f"\r{head} ...", nl=False, err=err)
+            return
+        if ev.gain_pct is None:
+            what = "nothing to fit"
+        else:
+            what = f"held-out gain {ev.gain_pct:.0f} %" + (" (a finding)" if ev.accepted else "")
+        click.echo(f"\r{head} {what}", err=err)
+
+    return show
+
+
 @cli.command("diagnose")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 @click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle whose model is judged.")
@@ -44,8 +66,9 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
               "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).")
 @click.option("--gain-seeds", type=click.IntRange(1, 10), default=2, show_default=True,
               help="With --gain: passes of the whole chain (the runs', and more with other noise seeds) for each row's noise.")
+@json_option
 @reports_errors
-def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds) -> None:
+def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) -> None:
     """Find what the model gets wrong, name the physical cause, extend the model, measure the gain.
 
     Every run is simulated with the bundle's model; the residuals are analysed against the
@@ -55,6 +78,8 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds) -> None:
     the runs cannot test (each declares the runs it needs) is listed with what it needs and
     what the runs offer, and next-plan.toml in the output directory is the experiment that
     would test it. Several run directories may be given (the first runs and the next plan's).
+    On a terminal a line per cause tried shows the progress. With --json, one document on
+    stdout: diagnosis.json's content and the files written (the usual lines go to stderr).
 
     \b
     Example:
@@ -64,22 +89,29 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds) -> None:
       piezopress diagnose runs/char runs/more --bundle build/base.json --out runs/diagnosis-2
       piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis-3 --gain
     """
-    from piezopress.analysis.diagnosis import CAUSES
+    def say(text: str) -> None:
+        click.echo(text, err=as_json)
 
-    unknown = [c for c in causes if c not in CAUSES]
-    if unknown:  # before any work, one line with the catalogue
-        raise click.BadParameter(f"{', '.join(map(repr, unknown))} is not a cause of the catalogue; expected one of {', '.join(CAUSES)}",
-                                 param_hint="'--cause'")
-    result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None)
+    result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None, on_progress=_progress_printer(as_json))
     plan = diag.next_plan_info(out)
-    click.echo(diag.format_summary(result, plan))
-    extra = f" and {plan['file']}" if plan and plan.get("file") else ""
-    click.echo(f"\nWrote {out / 'diagnosis.json'}, {out / 'extended_bundle.json'}, {out / 'residuals.png'}, "
-               f"{out / 'residual_traces.png'}{extra}")
+    say(diag.format_summary(result, plan))
+    files = {"diagnosis": out / "diagnosis.json", "extended_bundle": out / "extended_bundle.json",
+             "residuals_figure": out / "residuals.png", "residual_traces_figure": out / "residual_traces.png"}
+    if plan and plan.get("file"):
+        files["next_plan"] = Path(plan["file"])
+    say(f"\nWrote {', '.join(str(f) for f in files.values())}")
+    gain_rows = None
     if gain:
         from piezopress.pipelines import gain as gain_mod
 
         _, csv = gain_mod.gain_for_runs(runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None)
-        click.echo("\nThe gain on the press (validation on the runs' virtual rig, base bundle against extended):\n")
-        click.echo(gain_mod.format_table(gain_mod.read_csv(csv), {f.cause: f.gain_pct for f in result.findings}))
-        click.echo(f"\nWrote {csv}")
+        gain_rows = gain_mod.read_csv(csv)
+        say("\nThe gain on the press (validation on the runs' virtual rig, base bundle against extended):\n")
+        say(gain_mod.format_table(gain_rows, {f.cause: f.gain_pct for f in result.findings}))
+        say(f"\nWrote {csv}")
+        files["compensated_gain"] = csv
+    if as_json:
+        import json
+
+        doc = json.loads(files["diagnosis"].read_text(encoding="utf-8"))
+        emit_json({"out_dir": out, "files": files, **doc, **({"compensated_gain": gain_rows.to_dict(orient="records")} if gain_rows is not None else {})})

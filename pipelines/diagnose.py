@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
 from piezopress import runformat, units
 from piezopress.analysis import diagnosis as dg
+from piezopress.errors import PiezopressError
 from piezopress import plotting
 from piezopress.analysis.bundle import (FAST_CREEP_S, MODE_REFIT_CAUSES, Bundle, creep_for_compensator,  # noqa: F401 (moved there)
                                        extend_document, modal_delay_s, rate_dependence, second_shaper)
@@ -79,11 +80,27 @@ def diagnosis_runs(loaded: list[runformat.Run]) -> list[dg.RunData]:
     return out
 
 
+class UnknownCauseError(PiezopressError, ValueError):
+    """A cause asked for is not in the catalogue (:data:`piezopress.analysis.diagnosis.CAUSES`)."""
+
+
+def check_causes(causes: Iterable[str] | None) -> list[str] | None:
+    """The cause ids asked for, each checked against the catalogue (``None``: all of them)."""
+    causes = list(causes) if causes else None
+    unknown = [c for c in causes or () if c not in dg.CAUSES]
+    if unknown:
+        raise UnknownCauseError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(dg.CAUSES)}")
+    return causes
+
+
 def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str | Path,
-             causes: Iterable[str] | None = None) -> tuple[dg.Diagnosis, Path]:
+             causes: Iterable[str] | None = None,
+             on_progress: Callable[[dg.CauseProgress], None] | None = None) -> tuple[dg.Diagnosis, Path]:
     """Diagnose the runs (files or run directories, several at once) against the bundle;
     write ``diagnosis.json``, ``extended_bundle.json``, the residual figures and, when some
-    causes could not be tested, ``next-plan.toml``: the experiment that would test them."""
+    causes could not be tested, ``next-plan.toml``: the experiment that would test them.
+    ``on_progress`` hears of every cause tried (:class:`~piezopress.analysis.diagnosis.CauseProgress`)."""
+    causes = check_causes(causes)
     paths = list(paths)
     checked = read_bundle(bundle_path)
     bundle = checked.to_dict()
@@ -96,7 +113,7 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
     base = checked.forward_model()
     fitted = fitted_run_keys(bundle)
     out = new_output_dir(out_dir)  # refused (or created) before the diagnosis's minutes of work
-    result = dg.diagnose(base, runs, fitted, list(causes) if causes else None)
+    result = dg.diagnose(base, runs, fitted, causes, on_progress)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
     doc = {"bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},

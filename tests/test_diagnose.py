@@ -5,6 +5,11 @@ Each test characterizes a clean rig with one effect switched on at a magnitude d
 base model, runs diagnose, and asserts that the top finding names the hidden cause with a
 held-out gain above `MIN_TEST_GAIN_PCT`. The clean rig must give no findings; two hidden
 effects at once must both be found.
+
+Each diagnosis takes 15-45 s: the fast suite keeps one hidden effect on this rig (the delay,
+through the CLI: :func:`test_cli_diagnose_json_progress_and_simulate`) and one on the second
+press (``tests/test_diagnose_second_rig.py``); the rest are marked slow (``make test-all``),
+and ``bench/bench_diagnose.py`` is the full measurement over 20 seeds.
 """
 
 import json
@@ -37,6 +42,7 @@ def run_diagnosis(tmp, cfg):
     return result
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect", list(EFFECTS))
 def test_a_hidden_effect_is_found_and_named(tmp_path, effect):
     rng = np.random.default_rng([SEED, list(EFFECTS).index(effect)])
@@ -50,6 +56,7 @@ def test_a_hidden_effect_is_found_and_named(tmp_path, effect):
     assert doc["findings"][0]["cause"] == effect and doc["findings"][0]["heldout"]
 
 
+@pytest.mark.slow
 def test_clean_rig_gives_no_findings_and_says_so(tmp_path):
     result = run_diagnosis(tmp_path, RigConfig.clean())
     assert result.findings == [], result.summary
@@ -57,6 +64,7 @@ def test_clean_rig_gives_no_findings_and_says_so(tmp_path):
     assert f"{result.noise_floor:.3g} N" in result.summary  # the two numbers: residual and noise floor
 
 
+@pytest.mark.slow
 def test_two_hidden_effects_are_both_found(tmp_path):
     cfg = RigConfig.only("input_delay", delay_s=3e-4).replace(mode2={"enabled": True}, rig={"seed": 7})
     result = run_diagnosis(tmp_path, cfg)
@@ -65,6 +73,17 @@ def test_two_hidden_effects_are_both_found(tmp_path):
     assert all(f.gain_pct >= MIN_TEST_GAIN_PCT for f in result.findings if f.cause in ("input_delay", "second_resonance"))
 
 
+@pytest.mark.slow
+def test_a_delay_of_half_the_modes_period_is_named_alone(tmp_path):
+    # 0.5 ms, half the 1 kHz mode's period: the steps' identification finds the mode at under
+    # half its frequency, heavily damped; the delay's refit must reach the mode again (once a
+    # spurious rate dependence, then a spurious interference, took up what it could not)
+    result = run_diagnosis(tmp_path, RigConfig.only("input_delay", delay_s=5e-4).replace(rig={"seed": 1}))
+    assert [f.cause for f in result.findings] == ["input_delay"], result.summary
+    assert result.findings[0].parameters["delay_s"] == pytest.approx(5e-4, rel=0.05)
+
+
+@pytest.mark.slow
 def test_found_parameters_match_the_rig(tmp_path):
     # the extension recovers the hidden physics, not just a better fit: delay and second mode
     result = run_diagnosis(tmp_path, RigConfig.only("input_delay", delay_s=2.5e-4))
@@ -87,13 +106,25 @@ def test_unexplained_structure_is_listed_not_named():
     assert result.unexplained[0]["dominant_freq_hz"] == pytest.approx(37.0, abs=0.5)
 
 
-def test_cli_diagnose_and_simulate(tmp_path):
+def test_cli_diagnose_json_progress_and_simulate(tmp_path):
+    """The representative hidden effect of this rig in the fast suite: a 0.3 ms delay named
+    alone, its value recovered, through the CLI (--json: the document on stdout, the human
+    text on stderr)."""
     runner = CliRunner()
     char.characterize(tmp_path / "char", backend=VirtualRig(RigConfig.only("input_delay", delay_s=3e-4)))
     assert runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
-    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d")])
+    # --json: one document on stdout, the human lines on stderr
+    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"), "--json"])
     assert res.exit_code == 0, res.output
-    assert "input_delay" in res.output and "held-out" in res.output
+    doc = json.loads(res.stdout)
+    assert "Diagnosis: input_delay" in res.stderr and "held-out" in res.stderr and "Diagnosis:" not in res.stdout
+    assert "[pass " not in res.stderr  # progress is for a terminal only
+    assert [f["cause"] for f in doc["findings"]] == ["input_delay"]  # named, and nothing else
+    assert doc["findings"][0]["parameters"]["delay_s"] == pytest.approx(3e-4, rel=0.1)
+    assert doc["findings"][0]["gain_pct"] >= MIN_TEST_GAIN_PCT
+    assert doc["files"]["diagnosis"] == str(tmp_path / "d" / "diagnosis.json")
+    written = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert set(doc) == set(written) | {"out_dir", "files"} and doc["findings"] == written["findings"]
     ext = json.loads((tmp_path / "d" / "extended_bundle.json").read_text())
     assert "input_delay" in ext["extensions"] and ext["compensation"]["lead_s"] > 2e-4  # the delay belongs in the compensator
     assert (tmp_path / "d" / "residuals.png").stat().st_size > 10_000
@@ -106,9 +137,67 @@ def test_cli_diagnose_and_simulate(tmp_path):
     np.testing.assert_allclose(sim.data["residual"], sim.data["force_n"] - sim.data["predicted"])
 
 
+def test_an_unknown_cause_is_one_clear_line_before_anything_is_read(tmp_path):
+    (tmp_path / "b.json").write_text("{}")
+    res = CliRunner().invoke(cli, ["diagnose", str(tmp_path), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"),
+                                   "--cause", "bogus"])
+    assert res.exit_code == 2
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("Error")]
+    assert len(lines) == 1 and "'bogus'" in lines[0] and "input_delay" in lines[0], res.output
+    assert not (tmp_path / "d").exists()
+    with pytest.raises(D.UnknownCauseError, match="'bogus' is not in the catalogue; expected one of rate_dependent_hysteresis"):
+        D.diagnose([tmp_path], tmp_path / "b.json", tmp_path / "d", causes=["bogus"])
+    with pytest.raises(ValueError, match="'bogus'"):
+        dg.diagnose(dg.Model(dg.H.PIModel((0.0,), (1.0,), (0.0,), (1.0,))), [], causes=["input_delay", "bogus"])
+
+
+def test_progress_is_reported_for_every_cause_tried_in_every_pass():
+    """The analysis layer reports each cause before and after it is tried; the CLI's printer
+    draws a line per cause on a terminal."""
+    from piezopress.analysis.hysteresis import PIModel
+    from piezopress.piezocli import cmd_diagnose
+
+    t = np.arange(4000) / 1000.0
+    x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    y = model.predict(dg.RunData("r", "triangle", t, x, np.zeros_like(t), 1000.0)) + np.random.default_rng(0).normal(0, 0.1, t.size)
+    events = []
+    result = dg.diagnose(model, [dg.RunData("slow", "custom", t, x, y, 1000.0)], on_progress=events.append)
+    tried = [t_["cause"] for t_ in result.tested]
+    assert tried and [e.cause for e in events if not e.done] == tried  # one pass: nothing found
+    assert [e.cause for e in events if e.done] == tried
+    assert all(e.round == 1 and e.total == len(tried) for e in events)
+    assert [e.index for e in events if e.done] == list(range(1, len(tried) + 1))
+    assert not any(e.accepted for e in events)
+    assert cmd_diagnose._progress_printer(err=False) is None  # pytest's stdout is not a terminal
+
+
+def test_the_progress_printer_draws_a_line_per_cause_on_a_terminal(monkeypatch):
+    import io
+    import sys
+
+    from piezopress.piezocli import cmd_diagnose
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    out = Tty()
+    monkeypatch.setattr(sys, "stderr", out)
+    show = cmd_diagnose._progress_printer(err=True)
+    for ev in (dg.CauseProgress(1, 1, 2, "input_delay", False), dg.CauseProgress(1, 1, 2, "input_delay", True, 91.6, True),
+               dg.CauseProgress(1, 2, 2, "second_resonance", False), dg.CauseProgress(1, 2, 2, "second_resonance", True)):
+        show(ev)
+    lines = out.getvalue().split("\n")
+    assert lines[0].endswith("held-out gain 92 % (a finding)") and "[pass 1, 1/2] input_delay" in lines[0]
+    assert lines[1].endswith("nothing to fit") and "[pass 1, 2/2] second_resonance" in lines[1] and lines[2] == ""
+
+
+DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
 DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
 
 
+@pytest.mark.slow  # test_diagnose_coverage.py diagnoses both shared data sets in the fast suite
 @pytest.mark.skipif(not (DATASETS / "smarthysteresis").is_dir(), reason="shared data sets not found")
 def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
     runner = CliRunner()

@@ -175,6 +175,7 @@ def test_a_delay_is_found_on_a_slow_sine_the_base_was_fitted_on():
 # --------------------------------------------------------------------------- the next experiment
 
 
+@pytest.mark.slow  # two characterizations and two diagnoses each
 @pytest.mark.parametrize("effect", ["rate_dependent_hysteresis", "second_resonance"])
 def test_the_next_plan_reveals_an_effect_the_first_plan_could_not(tmp_path, effect):
     """The loop as a technician runs it, on the CLI: characterize a slow-only plan, fit, diagnose
@@ -300,6 +301,7 @@ def test_the_catalogue_is_the_one_source_of_what_the_compensator_applies(tmp_pat
         assert ext["extensions_recorded_only"] == ([] if dg.CAUSES[cid].in_compensator else [cid])
 
 
+@pytest.mark.slow  # a characterization and a diagnosis
 def test_diagnosis_json_and_the_report_read_the_catalogue(tmp_path):
     cfg = RigConfig.only("input_delay", delay_s=3e-4)
     char.characterize(tmp_path / "char", backend=VirtualRig(cfg))
