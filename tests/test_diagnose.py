@@ -34,10 +34,7 @@ SEED = 20261121
 
 def run_diagnosis(tmp, cfg):
     char.characterize(tmp / "char", backend=VirtualRig(cfg))
-    h, _, c, _ = F.fit_hysteresis_and_creep([tmp / "char"], base=True)
-    s, _ = F.fit_shaper_section([tmp / "char"])
-    secs = {"hysteresis": h, "creep": c, "shaper": s}
-    B.write_document(B.assemble(secs, F.compensation_settings(secs)), tmp / "base.json")
+    B.write_document(F.fit_bundle([tmp / "char"], base=True).doc, tmp / "base.json")  # `fit --base`
     result, _ = D.diagnose([tmp / "char"], tmp / "base.json", tmp / "diag")
     return result
 

@@ -35,12 +35,7 @@ FAST = ("rate_dependent_hysteresis",)
 
 def run_diagnosis(tmp: Path, press: ip.IndependentPress, plan: Path | None = None) -> dg.Diagnosis:
     char.characterize(tmp / "char", backend=press, **({"plan_path": plan} if plan else {}))
-    h, _, c, _ = F.fit_hysteresis_and_creep([tmp / "char"], base=True)
-    s, _ = F.fit_shaper_section([tmp / "char"])
-    secs = {"hysteresis": h, "creep": c, "shaper": s}
-    lim = press.limits
-    B.write_document(B.assemble(secs, F.compensation_settings(secs, drive_min_v=lim.drive_min_v, drive_max_v=lim.drive_max_v)),
-                     tmp / "base.json")
+    B.write_document(F.fit_bundle([tmp / "char"], press.limits, base=True).doc, tmp / "base.json")  # `fit --base`
     result, _ = D.diagnose([tmp / "char"], tmp / "base.json", tmp / "diag")
     return result
 

@@ -77,11 +77,9 @@ def test_the_press_creeps_and_rings_near_1_khz():
 def _chain(press: IndependentPress, tmp: Path) -> tuple[dict[str, float], dict[str, float]]:
     """Uncompensated and compensated 0.1 Hz max hysteresis (%), by run name."""
     char.characterize(tmp / "char", backend=press)
-    res = fit_mod.fit_all([tmp / "char"])  # what `piezopress fit` does
-    assert set(res.sections) == {"hysteresis", "creep", "shaper"}, res.not_fitted
-    lim = press.limits
-    doc = bundle_mod.assemble(res.sections, fit_mod.compensation_settings(res.sections, drive_min_v=lim.drive_min_v, drive_max_v=lim.drive_max_v))
-    bundle_mod.write_document(doc, tmp / "bundle.json")
+    fitted = fit_mod.fit_bundle([tmp / "char"], press.limits)  # what `piezopress fit` does
+    assert set(fitted.result.sections) == {"hysteresis", "creep", "shaper"}, fitted.result.not_fitted
+    bundle_mod.write_document(fitted.doc, tmp / "bundle.json")
     val_mod.validate(tmp / "val", tmp / "bundle.json", backend=press)
 
     def static(table):
