@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from piezopress.acquisition import drive_check, waveforms
-from piezopress.acquisition.backend import Backend
+from piezopress.acquisition.backend import Backend, stop_signals_interrupt
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.analysis.rigcheck import RigCheck, rig_check
 from piezopress.errors import BackendError, PiezopressError
@@ -100,7 +100,12 @@ def check_rig(
     backend = backend or make_backend(backend_name, rig_path)
     command_v, rest_samples = check_drive(amplitude_v, freq_hz, duration_s, rest_s, sample_rate_hz, backend.limits)
     drive_check.check_drive(command_v, sample_rate_hz, backend.limits, f"check-rig ({backend.name})")
-    m = backend.run(command_v, sample_rate_hz, preload_n=preload_n, label="check-rig")
+    try:
+        with stop_signals_interrupt():  # SIGTERM/SIGHUP as Ctrl-C: the drive back to 0 V, then the CLI's exit 128 + signal
+            m = backend.run(command_v, sample_rate_hz, preload_n=preload_n, label="check-rig")
+    except KeyboardInterrupt:
+        backend.zero_output()
+        raise
     if not m.complete:
         raise BackendError(f"check-rig: the run was cut short after {min(map(len, m.channels.values()), default=0)} samples: {m.reason}")
     if "force_n" not in m.channels:

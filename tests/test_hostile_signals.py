@@ -146,3 +146,16 @@ def test_the_handlers_are_only_installed_in_the_main_thread():
     t.join()
     assert seen["handler"] == signal.getsignal(signal.SIGTERM)
     assert set(STOP_SIGNALS) >= {signal.SIGTERM}
+
+
+@pytest.mark.parametrize("signum", SIGNALS, ids=lambda s: signal.Signals(s).name)
+def test_a_stop_signal_during_check_rig_zeroes_the_drive(signum):
+    from piezopress.pipelines.check_rig import check_rig
+
+    before = signal.getsignal(signum)
+    rig = SignalledRig(1, signum)
+    with pytest.raises(Terminated) as err:
+        check_rig(None, backend=rig)
+    assert err.value.signum == signum
+    assert rig.output_v == 0.0 and rig.zeroed >= 1
+    assert signal.getsignal(signum) == before
