@@ -326,3 +326,18 @@ def test_a_creep_compensator_unstable_at_the_references_rate_is_refused(tmp_path
     assert "is unstable at fs_hz=5000" in line and "protocol step-30n's rate 5000 Hz" in line
     code, out = invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v2", "--no-creep")
     assert code == 0, out  # without the creep compensator nothing diverges
+
+
+def test_creep_elements_may_cancel_with_large_gains_but_not_absurd_ones():
+    """A fit of the thesis's "poles" creep form can set an element's gain in the thousands,
+    cancelled by its neighbour (seen on a slew-limited press: 1.8e3): such a bundle is read;
+    a gain beyond MAX_CREEP_ELEMENT_GAIN is one line."""
+    from piezopress.analysis.bundle import MAX_CREEP_ELEMENT_GAIN
+
+    doc = base_doc()
+    doc["creep"]["model"] = {"form": "poles", "static_gain": 1.0, "taus_s": [0.5, 0.6], "gains": [1797.5, -1797.49], "params": {}}
+    b = Bundle.from_dict(doc, "b.json")
+    assert b.creep.gains == (1797.5, -1797.49)
+    doc["creep"]["model"]["gains"] = [10 * MAX_CREEP_ELEMENT_GAIN, 0.01]
+    with pytest.raises(BundleError, match=r"b.json: creep.model.gains\[0\] = 10000000.0; expected dimensionless gains within \[-1e\+06, 1e\+06\]"):
+        Bundle.from_dict(doc, "b.json")
