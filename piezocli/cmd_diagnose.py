@@ -10,6 +10,7 @@ import click
 from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress import units
 from piezopress.pipelines import diagnose as diag
+from piezopress.pipelines.files import kept_note
 
 
 @cli.command("simulate")
@@ -31,8 +32,8 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
     sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace)
     res = sim.data["residual"].to_numpy()
     u = units.label(sim.output_unit)
-    kept = f" (previous version kept as {previous})" if previous else ""
-    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column}){kept}")
+    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column})"
+               f"{kept_note(previous)}")
 
 
 def _progress_printer(err: bool):
