@@ -142,6 +142,26 @@ def accept_incomplete_option() -> click.Option:
                              "(the output says so); without it such a directory is refused.")
 
 
+def _trust_metadata(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    """Prefer recorded run kinds (or not); at the end print what the runs' measured profiles found."""
+    from piezopress.pipelines import profiles
+
+    profiles.trust_metadata(value)
+
+    def close() -> None:
+        for note in profiles.profile_notes():
+            click.echo(f"Note: {note}", err=True)
+        profiles.trust_metadata(False)
+
+    ctx.call_on_close(close)
+
+
+def trust_metadata_option() -> click.Option:
+    return click.Option(["--trust-metadata"], is_flag=True, expose_value=False, is_eager=True, callback=_trust_metadata,
+                        help="Where a run's recorded kind disagrees with what its signals show, use the record "
+                             "(default: the measured kind; every disagreement is named on stderr).")
+
+
 class LazyGroup(click.Group):
     """A group whose commands are imported on first use (see :data:`COMMANDS`)."""
 
@@ -156,6 +176,7 @@ class LazyGroup(click.Group):
         cmd = self.commands.get(name)
         if cmd is not None and name in READS_RUN_DIRECTORIES and not any(p.name == "accept_incomplete" for p in cmd.params):
             cmd.params.append(accept_incomplete_option())
+            cmd.params.append(trust_metadata_option())
         return cmd
 
     def format_commands(self, ctx, formatter):

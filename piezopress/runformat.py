@@ -73,6 +73,9 @@ class Run:
     data: pd.DataFrame
     meta: dict[str, Any] = field(default_factory=dict)
     path: Path | None = None
+    #: What the signals say the run is (:class:`piezopress.analysis.profile.RunProfile`),
+    #: attached by the stage that reads it; ``None`` until measured.
+    profile: Any = field(default=None, compare=False, repr=False)
 
     @property
     def name(self) -> str:

@@ -15,6 +15,7 @@ from typing import Any, Iterable
 
 import piezopress
 from piezopress import runformat
+from piezopress.pipelines.profiles import read_measured
 from piezopress.analysis.bundle import BUNDLE_VERSION, SECTIONS, Bundle, BundleError, check_section
 from piezopress.pipelines.files import run_files, utc_now, write_json_atomic, write_output
 
@@ -30,7 +31,7 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
             files.append(p)
         else:
             raise BundleError(f"{p}: no such file or directory; expected run files or a run directory")
-    runs = [runformat.read_run(f) for f in files]
+    runs = [read_measured(f) for f in files]
     wanted = list(names)
     if wanted:
         have = {r.name for r in runs}

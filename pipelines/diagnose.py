@@ -14,6 +14,7 @@ from piezopress.errors import PiezopressError
 from piezopress import plotting
 from piezopress.analysis.bundle import (FAST_CREEP_S, MODE_REFIT_CAUSES, Bundle, creep_for_compensator,  # noqa: F401 (moved there)
                                        extend_document, modal_delay_s, rate_dependence, second_shaper)
+from piezopress.pipelines.profiles import read_measured
 from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
 from piezopress.pipelines import next_plan
 from piezopress.pipelines.files import check_output, new_output_dir, write_json_atomic, write_output
@@ -39,7 +40,7 @@ def simulate_file(bundle_path: str | Path, run_path: str | Path, out: str | Path
     run and where a replaced file was kept."""
     check_output(out, replace=replace)
     bundle = read_bundle(bundle_path)
-    run = runformat.read_run(run_path)
+    run = read_measured(run_path)
     bundle.check_unit(run.output_unit, f"{run_path} ({run.output_column})")
     pred = bundle.forward_model().predict(run_data(run))
     cols = {c: run.data[c].to_numpy() for c in run.data.columns}

@@ -17,10 +17,11 @@ import numpy as np
 from piezopress import runformat, units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
-from piezopress.analysis import mode_fit
+from piezopress.analysis import mode_fit, profile
 from piezopress.analysis import shaper as shaper_mod
 from piezopress.analysis.bundle import Bundle, creep_removed
 from piezopress.errors import CompensatorUnstableError, FitError
+from piezopress.pipelines import profiles
 from piezopress.pipelines.bundle import BundleError, assemble, collect_runs, inputs_digest, section
 
 #: Hysteresis is fitted on quasi-static sweeps: up to this drive frequency.
@@ -30,18 +31,33 @@ LOW_STEP_FRACTION = 0.25
 
 
 def _freq(run: runformat.Run) -> float | None:
-    f = run.meta.get("protocol", {}).get("freq_hz")
-    return float(f) if f is not None else None
+    """The run's sweep frequency measured from its drive (None: not a sweep)."""
+    return profile.of(run).freq_hz
+
+
+#: Without a sweep at up to STATIC_MAX_FREQ_HZ, the slowest sweeps are fitted if they are at
+#: most this fast (a record measured elsewhere often has one 1 Hz sine): hysteresis of a stack
+#: changes by a few tenths of a percent per decade of rate.
+SLOWEST_SWEEP_MAX_HZ = 2.0
 
 
 def hysteresis_runs(runs: list[runformat.Run], named: bool) -> list[runformat.Run]:
+    """The quasi-static sweeps: sweeps at a measured frequency of at most STATIC_MAX_FREQ_HZ,
+    else the slowest sweeps up to SLOWEST_SWEEP_MAX_HZ (said on stderr)."""
     if named:
         return runs
-    chosen = [r for r in runs if r.kind in ("triangle", "sine", "custom") and (_freq(r) is None or _freq(r) <= STATIC_MAX_FREQ_HZ)
-              and np.ptp(r.command_v) > 0]  # a rest run (no drive) shows no hysteresis
+    sweeps = [r for r in runs if profile.of(r).is_sweep]
+    chosen = [r for r in sweeps if _freq(r) <= STATIC_MAX_FREQ_HZ]
+    if not chosen and sweeps:
+        slowest = min(_freq(r) for r in sweeps)
+        if slowest <= SLOWEST_SWEEP_MAX_HZ:
+            chosen = [r for r in sweeps if _freq(r) <= 1.1 * slowest]
+            profiles.note(f"no sweep at <= {STATIC_MAX_FREQ_HZ:g} Hz among the runs; hysteresis is fitted on the slowest, "
+                          f"{', '.join(f'{r.name} ({_freq(r):.3g} Hz)' for r in chosen)}")
     if not chosen:
-        kinds = ", ".join(sorted({f"{r.name} ({r.kind})" for r in runs})) or "none"
-        raise BundleError(f"no quasi-static sweep among the runs (triangle/sine at <= {STATIC_MAX_FREQ_HZ:g} Hz); runs given: {kinds}")
+        kinds = ", ".join(sorted({f"{r.name} ({profile.of(r).describe()})" for r in runs})) or "none"
+        raise BundleError(f"no quasi-static sweep among the runs (a triangle or sine at <= {STATIC_MAX_FREQ_HZ:g} Hz, "
+                          f"measured from the drive); runs given: {kinds}")
     return chosen
 
 

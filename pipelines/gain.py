@@ -50,6 +50,8 @@ import pandas as pd
 from piezopress.pipelines.files import new_output_dir
 from piezopress.resources import shipped
 from piezopress import runformat
+from piezopress.analysis import profile
+from piezopress.pipelines.profiles import read_measured
 from piezopress.acquisition.rig_config import RigConfig, _effect_values, parse_rig
 
 TRACKING_PLAN = shipped("protocols", "tracking.toml")
@@ -137,12 +139,11 @@ def with_seed(cfg: RigConfig, seed: int) -> RigConfig:
 
 
 def _row_id(run: runformat.Run, metric: str) -> str | None:
-    p = run.meta.get("protocol", {})
     if metric == "max_hysteresis" and run.kind == "triangle":
-        f = p.get("freq_hz")
+        f = profile.of(run).freq_hz  # measured from the reference, never read from the metadata
         if f is None:
             return None
-        return "static_hysteresis" if f <= 0.1 + 1e-9 else f"hysteresis_{f:g}hz"
+        return "static_hysteresis" if f <= 0.1 * 1.02 else f"hysteresis_{float(f'{f:.2g}'):g}hz"
     return {("creep", "creep"): "creep", ("step", "overshoot"): "overshoot", ("staircase", "tracking_relative"): "tracking_staircase",
             ("staircase", "tracking_absolute"): "tracking_staircase_abs", ("custom", "tracking_rms"): "tracking_random"}.get((run.kind, metric))
 
@@ -156,7 +157,7 @@ def row_values(run_dirs: Iterable[str | Path]) -> dict[str, float]:
     out: dict[str, float] = {}
     for d in run_dirs:
         for f in run_files(d):
-            run = runformat.read_run(f)
+            run = read_measured(f)
             for m in validation_metrics(run):
                 rid = _row_id(run, m["metric"])
                 v = float(m["value"])

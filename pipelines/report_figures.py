@@ -11,10 +11,11 @@ import numpy as np
 
 from piezopress import plotting, runformat, units
 from piezopress.analysis import hysteresis as H
-from piezopress.analysis import metrics
+from piezopress.analysis import metrics, profile
 from piezopress.analysis.bundle import Bundle
 from piezopress.errors import PiezopressError
 from piezopress.pipelines import summary
+from piezopress.pipelines.profiles import read_measured
 from piezopress.pipelines.report_doc import FigureBlock
 from piezopress.pipelines.report_inputs import _freq, _is_static_triangle, _Source
 
@@ -57,9 +58,15 @@ def _figure_block(name: str, title: str, caption: str, fig) -> FigureBlock:
     return FigureBlock(name, title, caption, plotting.to_png(fig))
 
 
+def _span(run: runformat.Run) -> float:
+    """The measured span of a run's reference (or drive): the size of its test."""
+    p = profile.of(run)
+    return p.high - p.low
+
+
 def _pick_loop_before(char: _Source) -> runformat.Run | None:
     static = [r for r in char.runs.values() if _is_static_triangle(r)]
-    plain = [r for r in static if not r.meta.get("protocol", {}).get("peaks_v") and not r.meta.get("protocol", {}).get("random_peaks")]
+    plain = [r for r in static if not profile.of(r).varying_amplitude]
     return (plain or static or [None])[0]
 
 
@@ -68,8 +75,8 @@ def _pick_loop_after(val: _Source) -> runformat.Run | None:
     preferred = val.runs.get("tri-300n-0.1hz")
     if preferred is not None and any(r is preferred for r in static):
         return preferred
-    plain = [r for r in static if r.meta.get("protocol", {}).get("peaks_n") is None and r.meta.get("protocol", {}).get("random_peaks") is None]
-    plain.sort(key=lambda r: -float(r.meta.get("protocol", {}).get("peak_n") or 0.0))
+    plain = [r for r in static if not profile.of(r).varying_amplitude]
+    plain.sort(key=lambda r: -_span(r))
     return (plain or static or [None])[0]
 
 
@@ -145,13 +152,12 @@ def _frequency_loops_figure(val: _Source | None, missing: list[str]) -> FigureBl
         return None
     by_freq: dict[float, runformat.Run] = {}
     for r in val.runs.values():
-        p = r.meta.get("protocol", {})
         f = _freq(r)
-        if r.kind != "triangle" or f is None or r.column("reference_n") is None or p.get("peaks_n") is not None \
-                or p.get("random_peaks") is not None:
+        if r.kind != "triangle" or f is None or r.column("reference_n") is None or profile.of(r).varying_amplitude:
             continue
+        f = float(f"{f:.3g}")  # one panel per frequency, measured to three digits
         best = by_freq.get(f)
-        if best is None or float(p.get("peak_n") or 0) > float(best.meta["protocol"].get("peak_n") or 0):
+        if best is None or _span(r) > _span(best):
             by_freq[f] = r
     if len(by_freq) < 2:
         missing.append("Fewer than two triangle frequencies in the validation: the loops across frequencies are missing.")
@@ -281,7 +287,7 @@ def _fitting_runs(bundle: dict[str, Any], char: _Source | None, missing: list[st
             continue
         f = Path(entry.get("file") or "")
         if entry.get("file") and f.is_file() and runformat.sha256_file(f) == entry.get("sha256"):
-            runs.append(runformat.read_run(f))
+            runs.append(read_measured(f))
         else:
             missing.append(f"Hysteresis fitting run {name!r} is neither in the characterization given nor at {entry.get('file')} "
                            "(unchanged): its model residuals are missing.")
@@ -366,7 +372,7 @@ def _drive_figure(val: _Source | None, missing: list[str]) -> FigureBlock | None
         return None
     tri = _pick_loop_after(val)
     steps = [r for r in val.runs.values() if r.kind == "step" and r.column("reference_n") is not None]
-    steps.sort(key=lambda r: -float(r.meta.get("protocol", {}).get("level_n") or 0.0))
+    steps.sort(key=lambda r: -(profile.of(r).step_size or 0.0))
     panels = []
     if tri is not None:
         panels.append(plotting.DrivePanel(f"{tri.name}: triangle", tri.t_s, tri.column("reference_n"), tri.command_v,

@@ -12,9 +12,11 @@ import numpy as np
 import pandas as pd
 
 from piezopress import runformat
+from piezopress.analysis import profile
 from piezopress.errors import PiezopressError
 from piezopress.pipelines import summary
 from piezopress.pipelines.files import MANIFEST, read_manifest, run_files
+from piezopress.pipelines.profiles import read_measured
 
 #: The quasi-static triangles of Table 6.13 (and the hysteresis loops) are those at this frequency (Hz).
 STATIC_FREQ_HZ = 0.1
@@ -47,7 +49,7 @@ def _load_dir(path: str | Path, what: str, command: str, table_of: Callable[[Pat
     files = run_files(path, expect_kind=what if what in ("characterization", "validation") else None)
     runs: dict[str, runformat.Run] = {}
     for f in files:
-        r = runformat.read_run(f)
+        r = read_measured(f)
         runs[r.name] = r
     table = table_of(path) if files else pd.DataFrame(columns=summary.COLUMNS)
     shaper = True
@@ -57,13 +59,13 @@ def _load_dir(path: str | Path, what: str, command: str, table_of: Callable[[Pat
 
 
 def _freq(run: runformat.Run | None) -> float | None:
-    f = run.meta.get("protocol", {}).get("freq_hz") if run is not None else None
-    return float(f) if f is not None else None
+    """The run's sweep frequency, measured from its signals (None: not a sweep)."""
+    return profile.of(run).freq_hz if run is not None else None
 
 
 def _is_static_triangle(run: runformat.Run | None) -> bool:
     f = _freq(run)
-    return run is not None and run.kind in ("triangle", "sine") and f is not None and math.isclose(f, STATIC_FREQ_HZ, rel_tol=1e-6)
+    return run is not None and run.kind in ("triangle", "sine") and f is not None and math.isclose(f, STATIC_FREQ_HZ, rel_tol=0.01)
 
 
 def _is_uncontrolled_step(run: runformat.Run | None) -> bool:

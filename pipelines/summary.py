@@ -14,22 +14,31 @@ import numpy as np
 import pandas as pd
 
 from piezopress import runformat, thesis, units
-from piezopress.analysis import metrics
+from piezopress.analysis import metrics, profile
 from piezopress.errors import MetricError
 from piezopress.pipelines.files import read_manifest, run_files
+from piezopress.pipelines.profiles import read_measured
 
 COLUMNS = ["run", "kind", "metric", "value", "unit", "thesis", "thesis_source", "note"]
 
 
+def _snap(value: float | None, keys, rtol: float = 0.02):
+    """The key of a thesis table that ``value`` (measured) stands for, within ``rtol``."""
+    if value is None:
+        return None
+    return next((k for k in keys if math.isclose(value, float(k), rel_tol=rtol)), None)
+
+
 def _thesis_for(run: runformat.Run, metric: str) -> tuple[float, str]:
-    """The thesis figure a run should be compared with, if the thesis measured that test."""
-    p = run.meta.get("protocol", {})
+    """The thesis figure a run should be compared with, if the thesis measured that test
+    (the test recognised from the run's measured profile, never from its metadata)."""
+    prof = profile.of(run)
     full = math.isclose(float(np.max(run.command_v)), 150.0, abs_tol=0.5)
     if metric == "max_hysteresis":
-        if p.get("peaks_v") is not None or p.get("random_peaks") is not None:
+        if prof.varying_amplitude:
             return thesis.HYSTERESIS_VARYING_0P1HZ_PCT, "Sec. 6.2.1 (varying amplitude)"
-        f = p.get("freq_hz")
-        if full and f in thesis.HYSTERESIS_BY_FREQ_PCT:
+        f = _snap(prof.freq_hz, thesis.HYSTERESIS_BY_FREQ_PCT)
+        if full and f is not None:
             return thesis.HYSTERESIS_BY_FREQ_PCT[f], f"Table 5.1 ({f:g} Hz)"
     if metric == "creep" and full and math.isclose(run.t_s[-1], 120.0, rel_tol=0.05, abs_tol=2.0):
         return thesis.CREEP_120S_PCT, "Sec. 5.2 (120 s)"
@@ -79,7 +88,7 @@ def characterization_table(run_dir: str | Path) -> pd.DataFrame:
     """Metrics of every run listed in a run directory's manifest (or every ``*.parquet``)."""
     rows: list[dict] = []
     for f in run_files(run_dir):
-        rows.extend(run_metrics(runformat.read_run(f)))
+        rows.extend(run_metrics(read_measured(f)))
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -99,22 +108,23 @@ def format_table(table: pd.DataFrame, title: str = "Characterization") -> str:
 
 
 def _validation_thesis(run: runformat.Run, metric: str, shaper: bool) -> tuple[float, str]:
-    p = run.meta.get("protocol", {})
-    f = p.get("freq_hz")
+    prof = profile.of(run)  # the test recognised from the reference's measured profile
+    f = prof.freq_hz
     if metric == "max_hysteresis":
-        if p.get("peaks_n") is not None:
-            return thesis.HYSTERESIS_COMPENSATED_PCT["increasing"], "Table 6.6 (test 5)"
-        if p.get("random_peaks") is not None:
-            return thesis.HYSTERESIS_COMPENSATED_PCT["random"], "Table 6.6 (test 6)"
-        peak = p.get("peak_n")
-        if f == 0.1 and peak is not None and f"{peak:g}N" in thesis.HYSTERESIS_COMPENSATED_PCT:
+        if prof.varying_amplitude:
+            rising = len(prof.peaks) > 1 and bool(np.all(np.diff(prof.peaks) > 0))
+            key = "increasing" if rising else "random"
+            return thesis.HYSTERESIS_COMPENSATED_PCT[key], f"Table 6.6 (test {5 if rising else 6})"
+        peak = round(prof.high - prof.low)
+        if _snap(f, (0.1,)) is not None and f"{peak:g}N" in thesis.HYSTERESIS_COMPENSATED_PCT:
             return thesis.HYSTERESIS_COMPENSATED_PCT[f"{peak:g}N"], f"Table 6.6 ({peak:g} N)"
         table = thesis.HYSTERESIS_COMPENSATED_BY_FREQ_WITH_SHAPER_PCT if shaper else thesis.HYSTERESIS_COMPENSATED_BY_FREQ_NO_SHAPER_PCT
-        if f in table:
+        f = _snap(f, table)
+        if f is not None:
             return table[f], f"Table {'6.11' if shaper else '6.12'} ({f:g} Hz)"
     if metric == "creep":
         return thesis.TABLE_6_13["creep_pct"]["controlled"][0], "Sec. 6.5 (0.63 %; 0.96 % in 6.3.2)"
-    level = p.get("level_n")
+    level = None if prof.step_size is None else round(prof.step_size)
     if metric == "overshoot" and level is not None and int(level) in thesis.OVERSHOOT_SHAPED_PCT:
         return thesis.OVERSHOOT_SHAPED_PCT[int(level)], f"Table 6.9 ({level:g} N)"
     if metric == "settling_time" and level is not None and int(level) in thesis.SETTLING_SHAPED_MS:
@@ -188,7 +198,7 @@ def validation_table(run_dir: str | Path) -> pd.DataFrame:
     shaper = manifest.get("compensation_options", {}).get("shaper", True)
     rows: list[dict] = []
     for f in run_files(run_dir):
-        rows.extend(validation_metrics(runformat.read_run(f), shaper))
+        rows.extend(validation_metrics(read_measured(f), shaper))
     return pd.DataFrame(rows, columns=COLUMNS)
 
 

@@ -32,6 +32,7 @@ Pure math on arrays: runs come in as :class:`RunData`, models as analysis object
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from dataclasses import dataclass, field, replace
@@ -42,6 +43,7 @@ from scipy import optimize, signal
 
 from piezopress import operators, signals, units
 from piezopress.analysis import creep as creep_mod
+from piezopress.analysis import profile
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis.mode import mode_response
 
@@ -80,18 +82,20 @@ class RunData:
         """The run's identity: its key, else its name."""
         return self.key or self.name
 
-    @property
+    @functools.cached_property
     def freq_hz(self) -> float | None:
-        f = self.meta.get("protocol", {}).get("freq_hz")
-        return None if f is None else float(f)
+        """The sweep frequency measured from the drive's reversals (None: the drive is no
+        regular sweep); what the run's metadata records is never used for a decision."""
+        p = profile.profile_signals(self.t_s, self.x)
+        return p.freq_hz if p.is_sweep else None
 
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0]) + 1.0 / self.fs_hz if self.t_s.size else 0.0
 
     def estimated_freq_hz(self) -> float:
-        """The drive's frequency: the protocol's, else estimated from the drive's reversals
-        (for texts; the search treats an unrecorded frequency as a slow sweep)."""
+        """The drive's frequency: the measured sweep frequency, else estimated from the
+        drive's crossings of its middle band (for texts, on drives that are no regular sweep)."""
         if self.freq_hz is not None:
             return self.freq_hz
         x = np.asarray(self.x, float)
@@ -343,8 +347,8 @@ class Context:
         return sorted([r for r in self.runs if r.kind == "step" and r.fs_hz >= 5000], key=lambda r: r.step_v)
 
     def sweeps(self, lo_hz: float = 0.0, hi_hz: float = np.inf) -> list[RunData]:
-        """Swept runs between two drive frequencies; a run of unknown frequency (imported)
-        counts as a slow sweep."""
+        """Swept runs between two measured drive frequencies; a moving drive that is no
+        regular sweep counts as a slow sweep."""
         def freq(r):
             return r.freq_hz if r.freq_hz is not None else 0.0
 
@@ -1190,9 +1194,9 @@ class RunSpec:
     """Which runs serve a need: their kind and the least each must offer.
 
     ``kind``: ``sweep`` (triangle, sine or custom with a moving drive), ``step`` (step runs),
-    ``creep``, ``rest`` (a drive that does not move) or ``any``. A sweep's frequency is its
-    protocol's; a run that does not record one (imported) counts as a slow sweep, as
-    :meth:`Context.sweeps` takes it.
+    ``creep``, ``rest`` (a drive that does not move) or ``any``. A sweep's frequency is
+    measured from its drive; a moving drive that is no regular sweep counts as a slow sweep,
+    as :meth:`Context.sweeps` takes it.
     """
 
     kind: str
@@ -1302,7 +1306,7 @@ def describe_runs(runs: Sequence[RunData], ctx: "Context | None" = None, limit: 
         moving = bool(np.ptp(r.x) > 0)
         if r.kind in SWEEP_KINDS and moving:
             f = r.estimated_freq_hz()
-            freq = f"at {_hz(r.freq_hz)}" if r.freq_hz is not None else f"at ~{f:.2g} Hz (frequency not recorded)"
+            freq = f"at {_hz(r.freq_hz)}" if r.freq_hz is not None else f"at ~{f:.2g} Hz (irregular)"
             label = r.kind
         elif not moving:
             freq, label = "", "rest"
