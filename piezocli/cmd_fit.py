@@ -210,6 +210,12 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     if "shaper" in res.sections:
         s = res.sections["shaper"]
         say(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
+        chain = s["mode"].get("drive_chain")
+        if chain:  # the applied drive was not recorded: say which chain the steps showed
+            what = {"none": "none (the command reaches the stack as it is)",
+                    "slew": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms",
+                    "first_order": f"a first-order lag of {(chain.get('tau_s') or 0) * 1e6:.3g} us"}.get(chain.get("form"), "?")
+            say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")
     lo, hi = res.drive_v

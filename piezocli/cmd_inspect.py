@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from piezopress.pipelines import profiles
 from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress.errors import PiezopressError
 from piezopress.runformat import REQUIRED_METADATA, Run, read_run
@@ -35,6 +36,10 @@ def _describe(run: Run) -> list[str]:
     for col in data.columns:
         lo, hi, mean = stats[col]
         lines.append(f"  {col:<16} {lo:>12.6g} {hi:>12.6g} {mean:>12.6g}")
+    prof, disagreements = profiles.examine(run)
+    glitches = f"; {len(prof.glitches)} glitched sample(s) of {run.output_column}" if prof.glitches else ""
+    lines.append(f"  measured: {prof.describe()} (kind {prof.kind}, from {prof.signal}){glitches}")
+    lines.extend(f"  disagrees: {line}" for line in disagreements)
     for key, value in meta.items():
         if key in REQUIRED_METADATA or key in ("status", "import"):
             continue
@@ -52,7 +57,7 @@ def _as_dict(run: Run) -> dict:
     return {"path": run.path, "kind": run.kind, "name": run.name, "samples": len(run.data), "sample_rate_hz": run.sample_rate_hz,
             "duration_s": float(t[-1] - t[0]), "status": run.meta.get("status", "complete"),
             "columns": {c: {"min": float(stats[c]["min"]), "max": float(stats[c]["max"]), "mean": float(stats[c]["mean"])} for c in run.data.columns},
-            "meta": run.meta}
+            "meta": run.meta, "profile": profiles.examine(run)[0].as_dict(), "disagreements": profiles.examine(run)[1]}
 
 
 @cli.command("inspect")

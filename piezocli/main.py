@@ -37,6 +37,8 @@ def reports_errors(func):
             if _PROGRESS_LINE["open"]:  # the error on a line of its own, not after "... "
                 click.echo()
             progress_line(False)
+            if kwargs.get("as_json"):  # a script reading --json gets a document on failure too
+                emit_json({"error": str(exc), "type": type(exc).__name__})
             raise click.ClickException(str(exc)) from None
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP during a plan (signum: which)
             signum = getattr(exc, "signum", 2)

@@ -139,7 +139,7 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
     if missing_meta:
         raise _problem(label, f"metadata lacks {', '.join(missing_meta)}; expected keys {', '.join(REQUIRED_METADATA)}")
     version = meta["schema_version"]
-    if version != SCHEMA_VERSION:
+    if isinstance(version, bool) or version != SCHEMA_VERSION:  # true == 1 in Python, not in a schema
         raise _problem(label, f"schema_version is {version!r}, expected {SCHEMA_VERSION}")
     if meta["kind"] not in KINDS:
         raise _problem(label, f"kind is {meta['kind']!r}, expected one of {', '.join(KINDS)}")
@@ -149,6 +149,8 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
     if status != STATUS_COMPLETE and not allow_incomplete:
         reason = meta.get("status_reason", "no reason recorded")
         raise _problem(label, f"run is marked {status!r} ({reason}), expected a complete run")
+    if isinstance(meta["sample_rate_hz"], bool):
+        raise _problem(label, f"sample_rate_hz is {meta['sample_rate_hz']!r}, expected a positive number")
     try:
         fs = float(meta["sample_rate_hz"])
     except (TypeError, ValueError):
@@ -206,6 +208,50 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
     fs_from_t = 1.0 / dt_nominal
     if abs(fs_from_t - fs) > 1e-3 * fs:
         raise _problem(label, f"sample_rate_hz is {fs:g} but t_s is sampled at {fs_from_t:.6g} Hz; expected them to agree within 0.1 %")
+
+
+def meta_get(meta: Any, *keys: str, default: Any = None) -> Any:
+    """``meta[k1][k2]...``, or ``default`` where a key is missing or a level is not a JSON
+    object: metadata written by other programs may hold any type at any key (a ``rig`` that
+    is a string, a ``protocol`` that is a list), and reading it must never raise."""
+    cur = meta
+    for k in keys:
+        if not isinstance(cur, Mapping) or k not in cur:
+            return default
+        cur = cur[k]
+    return cur
+
+
+def meta_number(meta: Any, *keys: str) -> float | None:
+    """A finite number at ``keys`` in ``meta`` (booleans and text are not numbers), else None."""
+    v = meta_get(meta, *keys)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    return float(v) if np.isfinite(v) else None
+
+
+def as_float64(data: pd.DataFrame) -> pd.DataFrame:
+    """Columns as other programs write them, read as the run format's float64: float32 and
+    integer columns are widened (booleans and text are left for :func:`validate` to refuse).
+    A ``t_s`` stored in single precision is rebuilt as the uniform axis it rounds: float32
+    holds a 1 kHz time stamp to about 1e-5 s after 120 s, a hundredth of a step, which
+    :func:`validate`'s uniformity check would otherwise refuse."""
+    out = data
+    for col in data.columns:
+        dt = data[col].dtype
+        if dt == np.float64 or pd.api.types.is_bool_dtype(dt) or not pd.api.types.is_numeric_dtype(dt):
+            continue
+        if out is data:
+            out = data.copy()
+        values = data[col].to_numpy().astype(np.float64)
+        if col == "t_s" and dt == np.float32 and values.size > 1:
+            step = (values[-1] - values[0]) / (values.size - 1)
+            uniform = values[0] + step * np.arange(values.size)
+            resolution = 4.0 * np.finfo(np.float32).eps * max(abs(values[0]), abs(values[-1]))
+            if step > 0 and np.max(np.abs(values - uniform)) <= max(resolution, UNIFORM_RTOL * step):
+                values = uniform
+        out[col] = values
+    return out
 
 
 def make_meta(kind: str, name: str, sample_rate_hz: float, **extra: Any) -> dict[str, Any]:
@@ -293,6 +339,7 @@ def read_run(path: str | os.PathLike[str], *, allow_incomplete: bool = False) ->
         data = table.to_pandas()
     except Exception as exc:  # pyarrow raises many types for columns it cannot convert
         raise _problem(label, f"columns cannot be read ({type(exc).__name__}); expected float64 columns") from None
+    data = as_float64(data)
     validate(data, meta, label, allow_incomplete=allow_incomplete)
     return Run(data, meta, path)
 

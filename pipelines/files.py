@@ -111,9 +111,36 @@ def read_manifest(run_dir: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise PiezopressError(f"{run_dir}: no {MANIFEST}; expected a directory written by `piezopress characterize`")
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise PiezopressError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except UnicodeDecodeError as exc:
+        raise PiezopressError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at {exc.start}); expected a JSON manifest") from None
+    _check_manifest(path, doc)
+    return doc
+
+
+def _check_manifest(path: Path, doc: Any) -> None:
+    """A manifest as other programs may have edited it: a JSON object whose ``runs`` is a
+    list of objects, each naming a ``file`` inside the manifest's own folder."""
+    what = "expected a JSON object with a list `runs` of {\"file\": ..., \"sha256\": ...}"
+    if not isinstance(doc, dict):
+        raise PiezopressError(f"{path}: holds a JSON {type(doc).__name__}; {what}")
+    if "runs" not in doc:
+        raise PiezopressError(f"{path}: has no `runs`; {what}")
+    runs = doc["runs"]
+    if not isinstance(runs, list):
+        raise PiezopressError(f"{path}: `runs` is a JSON {type(runs).__name__}; {what}")
+    folder = path.parent.resolve()
+    for i, r in enumerate(runs):
+        if not isinstance(r, dict):
+            raise PiezopressError(f"{path}: runs[{i}] is {json.dumps(r)[:60]}; {what}")
+        f = r.get("file")
+        if not isinstance(f, str) or not f:
+            raise PiezopressError(f"{path}: runs[{i}] has file = {json.dumps(f)[:60]}; expected the run file's name (text)")
+        target = (folder / f).resolve()
+        if folder not in target.parents:
+            raise PiezopressError(f"{path}: runs[{i}] names {f!r}, outside the manifest's folder {folder}; expected a file beside the manifest")
 
 
 def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Path]:
@@ -125,7 +152,8 @@ def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Pa
     run_dir = Path(run_dir)
     if (run_dir / MANIFEST).is_file():
         check_status(run_dir, expect_kind=expect_kind)
-        return [run_dir / r["file"] for r in read_manifest(run_dir)["runs"] if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE]
+        return [run_dir / r["file"] for r in read_manifest(run_dir).get("runs", [])
+                if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE]
     return sorted(run_dir.glob("*.parquet"))
 
 

@@ -35,23 +35,17 @@ def _freq(run: runformat.Run) -> float | None:
     return profile.of(run).freq_hz
 
 
-#: Without a sweep at up to STATIC_MAX_FREQ_HZ, the slowest sweeps are fitted if they are at
-#: most this fast (a record measured elsewhere often has one 1 Hz sine): hysteresis of a stack
-#: changes by a few tenths of a percent per decade of rate.
-SLOWEST_SWEEP_MAX_HZ = 2.0
-
-
 def hysteresis_runs(runs: list[runformat.Run], named: bool) -> list[runformat.Run]:
     """The quasi-static sweeps: sweeps at a measured frequency of at most STATIC_MAX_FREQ_HZ,
-    else the slowest sweeps up to SLOWEST_SWEEP_MAX_HZ (said on stderr)."""
+    else the slowest sweeps up to :data:`piezopress.analysis.profile.SLOWEST_SWEEP_MAX_HZ` (said on stderr)."""
     if named:
         return runs
     sweeps = [r for r in runs if profile.of(r).is_sweep]
-    chosen = [r for r in sweeps if _freq(r) <= STATIC_MAX_FREQ_HZ]
+    chosen = [r for r in sweeps if profile.of(r).quasi_static]
     if not chosen and sweeps:
-        slowest = min(_freq(r) for r in sweeps)
-        if slowest <= SLOWEST_SWEEP_MAX_HZ:
-            chosen = [r for r in sweeps if _freq(r) <= 1.1 * slowest]
+        limit = profile.slow_limit_hz([_freq(r) for r in sweeps])
+        chosen = [r for r in sweeps if _freq(r) <= limit]
+        if chosen:
             profiles.note(f"no sweep at <= {STATIC_MAX_FREQ_HZ:g} Hz among the runs; hysteresis is fitted on the slowest, "
                           f"{', '.join(f'{r.name} ({_freq(r):.3g} Hz)' for r in chosen)}")
     if not chosen:
@@ -374,7 +368,7 @@ def _same_output_unit(runs: list[runformat.Run]) -> str:
 def _sensor_lowpass(runs: list[runformat.Run]) -> float | None:
     """The load cell's analog low-pass, when the runs' rig configuration states it."""
     for r in runs:
-        f = r.meta.get("rig", {}).get("config", {}).get("load_cell", {}).get("lowpass_hz")
+        f = runformat.meta_number(r.meta, "rig", "config", "load_cell", "lowpass_hz")
         if f:
             return float(f)
     return None
@@ -391,12 +385,19 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
     (the amplifier monitor when recorded), then design and choose the input shaper."""
     runs = select_shaper_runs(paths, names)
     cuts = [_first_hold_end(r.command_v) for r in runs]
-    drives = [(r.column("monitor_v") if r.column("monitor_v") is not None else r.command_v)[:n] for r, n in zip(runs, cuts)]
-    args = ([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
-    # a DAC command is held between samples, a sampled amplifier monitor is closer to linear
-    # between them; both discretisations are exact for their kind of drive: keep the better fit
-    fits = [mode_fit.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
-    fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
+    monitored = all(r.column("monitor_v") is not None for r in runs)
+    chain = None
+    if monitored:
+        drives = [r.column("monitor_v")[:n] for r, n in zip(runs, cuts)]
+        args = ([r.t_s[:n] for r, n in zip(runs, cuts)], drives, [r.output[:n] for r, n in zip(runs, cuts)])
+        # a DAC command is held between samples, a sampled amplifier monitor is closer to linear
+        # between them; both discretisations are exact for their kind of drive: keep the better fit
+        fits = [mode_fit.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
+        fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
+    else:  # the applied drive is not recorded: the chain from command to stack is identified with the mode
+        chain = mode_fit.identify_mode_chain([r.t_s[:n] for r, n in zip(runs, cuts)], [r.command_v[:n] for r, n in zip(runs, cuts)],
+                                             [r.output[:n] for r, n in zip(runs, cuts)])
+        fit = chain.mode
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
     # only the designs valid at the identified damping (EI's closed form stops at 0.5)
     usable = tuple(n for n in ("zv", "zvd", "zvdd", "ei") if fit.zeta < shaper_mod.SHAPERS[n].zeta_range[1])
@@ -406,7 +407,9 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
         "mode": {
             "natural_freq_rad_s": fit.wn,
             "damping": fit.zeta,
-            "drive_used": "monitor_v" if all(r.column("monitor_v") is not None for r in runs) else "command_v",
+            "drive_used": "monitor_v" if monitored else "command_v",
+            "drive_chain": None if chain is None else {"form": chain.chain, "slew_v_per_s": chain.slew_v_per_s, "tau_s": chain.tau_s,
+                                                       "rms_by_chain": chain.candidates},
             "hold": fit.hold,
             "output_unit": _same_output_unit(runs),
             "sensor_lowpass_hz": _sensor_lowpass(runs),
@@ -427,7 +430,7 @@ def select_shaper_runs(paths: Iterable[str | Path], names: Iterable[str] = ()) -
     if not names:
         steps = [r for r in runs if r.kind == "step"]
         top = max((float(np.max(r.command_v)) for r in steps), default=0.0)
-        drive_max = max([top] + [float(r.meta.get("rig", {}).get("config", {}).get("actuator", {}).get("drive_max_v", 0.0)) for r in steps])
+        drive_max = max([top] + [runformat.meta_number(r.meta, "rig", "config", "actuator", "drive_max_v") or 0.0 for r in steps])
         runs = [r for r in steps if float(np.max(r.command_v)) <= LOW_STEP_FRACTION * drive_max + 1e-9]
     if not runs:
         raise BundleError(f"no low-amplitude step run (kind 'step', at most {100 * LOW_STEP_FRACTION:g} % of the largest drive) among the runs given")

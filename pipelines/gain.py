@@ -455,7 +455,7 @@ def rig_of_runs(paths: Sequence[str | Path]) -> tuple[RigConfig, Path | None]:
     from piezopress.pipelines.files import read_manifest
 
     runs = collect_runs(paths)
-    rigs = [r.meta.get("rig", {}) for r in runs]
+    rigs = [r.meta.get("rig") if isinstance(r.meta.get("rig"), dict) else {} for r in runs]
     if not runs or any(g.get("backend") != "virtual" or not isinstance(g.get("config"), dict) for g in rigs):
         raise PiezopressError("the compensated gain is measured on the virtual rig the runs came from; these runs do not all come "
                               "from the virtual rig (their metadata names no virtual rig configuration)")

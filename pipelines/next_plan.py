@@ -25,6 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from piezopress.analysis import profile
 from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.daq_config import parse_daq_rig
@@ -180,7 +181,7 @@ def choose(ctx: dg.Context, not_tested: Sequence[str], rig: RigInfo, drive: tupl
     def refit_would_fit(r: dg.RunData) -> bool:
         """A run ``fit --base`` would fit on, so no longer independent after a refit: a creep
         run, a low-amplitude step (the shaper's), a slow sweep (the hysteresis's)."""
-        slow = r.kind in dg.SWEEP_KINDS and (r.freq_hz or 0.0) <= 0.5
+        slow = r.kind in dg.SWEEP_KINDS and profile.freq_within(r.freq_hz or 0.0, 0.0, profile.QUASI_STATIC_MAX_HZ)
         return r.kind == "creep" or slow or (r.kind == "step" and float(np.max(r.x)) - rest <= 0.25 * (top - rest))
 
     def testable(cid: str, groups: list[Group]) -> tuple[bool, bool]:

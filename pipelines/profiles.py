@@ -66,6 +66,12 @@ def measured(run: runformat.Run) -> runformat.Run:
     return runformat.Run(data, meta, run.path, profile=p)
 
 
+def examine(run: runformat.Run) -> tuple[prof_mod.RunProfile, list[str]]:
+    """The run's profile and where its metadata disagrees with it (``inspect`` prints both)."""
+    p = prof_mod.profile_run(run)
+    return p, prof_mod.crosscheck(run.meta, p, run.path.name if run.path is not None else run.name)
+
+
 def read_measured(path: str | os.PathLike[str] | Path, *, allow_incomplete: bool = False) -> runformat.Run:
     """:func:`piezopress.runformat.read_run`, then :func:`measured`."""
     return measured(runformat.read_run(path, allow_incomplete=allow_incomplete))

@@ -207,7 +207,7 @@ def consistency_warnings(bundle_path: Path | None, char: _Source | None, val: _S
                                 "quality shown is not that of these runs", tuple(other), len(other)))
     rigs: dict[str, list[str]] = defaultdict(list)
     for r in _all_runs(char, val):
-        rigs[config_digest(r.meta.get("rig", {}).get("config"))[:DIGEST_CHARS]].append(r.name)
+        rigs[config_digest(runformat.meta_get(r.meta, "rig", "config"))[:DIGEST_CHARS]].append(r.name)
     if len(rigs) > 1:
         out.append(Warning_(f"the runs come from {len(rigs)} rig configurations", tuple(f"{d}: {', '.join(n[:3])}"
                                                                                           + (" ..." if len(n) > 3 else "") for d, n in rigs.items()),
@@ -229,9 +229,9 @@ def _manifest_date(src: _Source | None) -> str:
 def provenance(char: _Source | None, val: _Source | None, bundle_path: Path | None, bundle: dict[str, Any] | None) -> str:
     """One line: rig (name, file, configuration digest), backend, dates, software, bundle digest."""
     runs = _all_runs(char, val)
-    rig_names = sorted({str(r.meta.get("rig", {}).get("config", {}).get("rig", {}).get("name", "?")) for r in runs})
-    sources = sorted({str(r.meta.get("rig", {}).get("source", "?")) for r in runs})
-    digests = sorted({config_digest(r.meta.get("rig", {}).get("config"))[:DIGEST_CHARS] for r in runs})
+    rig_names = sorted({str(runformat.meta_get(r.meta, "rig", "config", "rig", "name", default="?")) for r in runs})
+    sources = sorted({str(runformat.meta_get(r.meta, "rig", "source", default="?")) for r in runs})
+    digests = sorted({config_digest(runformat.meta_get(r.meta, "rig", "config"))[:DIGEST_CHARS] for r in runs})
     backends = sorted({str(r.meta.get("backend", "?")) for r in runs})
     versions = sorted({str(r.meta.get("software_version")) for r in runs if r.meta.get("software_version")}
                       | ({str(bundle["software_version"])} if bundle and bundle.get("software_version") else set()))

@@ -343,6 +343,13 @@ class Context:
     def independent(self, runs: list[RunData]) -> list[RunData]:
         return [r for r in runs if not self.is_fitted(r)]
 
+    @property
+    def slow_hz(self) -> float:
+        """Up to which measured frequency a sweep is slow (the hysteresis model's, as ``fit``
+        chooses them): 0.5 Hz, or where no sweep is that slow, the slowest sweeps up to 2 Hz
+        (a record from elsewhere often holds one 1 Hz sine)."""
+        return profile.slow_limit_hz([r.freq_hz for r in self.runs if r.freq_hz is not None])
+
     def steps(self) -> list[RunData]:
         return sorted([r for r in self.runs if r.kind == "step" and r.fs_hz >= 5000], key=lambda r: r.step_v)
 
@@ -352,7 +359,8 @@ class Context:
         def freq(r):
             return r.freq_hz if r.freq_hz is not None else 0.0
 
-        return [r for r in self.runs if r.kind in ("triangle", "sine", "custom") and np.ptp(r.x) > 0 and lo_hz <= freq(r) <= hi_hz]
+        return [r for r in self.runs if r.kind in ("triangle", "sine", "custom") and np.ptp(r.x) > 0
+                and profile.freq_within(freq(r), lo_hz, hi_hz)]
 
     def rests(self) -> list[RunData]:
         return [r for r in self.runs if np.ptp(r.x) == 0]
@@ -1131,7 +1139,7 @@ _ORDER_MEMO: dict[tuple, tuple[list[RunData], tuple]] = {}
 
 
 def cause_hysteresis_order(ctx: Context) -> Finding | None:
-    sweeps = ctx.sweeps(0.0, 0.5)
+    sweeps = ctx.sweeps(0.0, ctx.slow_hz)
     if not sweeps:
         return None
     m = ctx.model.hysteresis
@@ -1186,7 +1194,8 @@ _KIND_WORDS = {"sweep": ("a sweep (triangle/sine)", "sweeps (triangle/sine)"), "
 
 
 def _hz(f: float) -> str:
-    return f"{f / 1e3:g} kHz" if f >= 1e3 else f"{f:g} Hz"
+    """A frequency for a person, to three digits (a measured one carries more)."""
+    return f"{f / 1e3:.3g} kHz" if f >= 1e3 else f"{f:.3g} Hz"
 
 
 @dataclass(frozen=True)
@@ -1212,7 +1221,8 @@ class RunSpec:
         if self.kind == "sweep":
             ok = run.kind in SWEEP_KINDS and moving
             f = run.freq_hz if run.freq_hz is not None else 0.0
-            ok = ok and self.min_freq_hz <= f <= self.max_freq_hz
+            hi = ctx.slow_hz if self.max_freq_hz == profile.QUASI_STATIC_MAX_HZ else self.max_freq_hz  # "slow", as fit takes it
+            ok = ok and profile.freq_within(f, self.min_freq_hz, hi)
         elif self.kind == "rest":
             ok = not moving
         elif self.kind == "any":
@@ -1422,7 +1432,7 @@ CAUSES: dict[str, Cause] = {c.id: c for c in (
                  Need((RunSpec("sweep", lag_visible=True),), 1))),
     Cause("hysteresis_order", "asymmetry or saturation the fitted operator set cannot represent",
           "more play and dead-zone operators, chosen on held-out data", cause_hysteresis_order, True,
-          needs=(Need((RunSpec("sweep", max_freq_hz=0.5),), 1),)),
+          needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1),)),
 )}
 
 
@@ -1488,10 +1498,11 @@ def _unique_names(runs: list[RunData]) -> list[RunData]:
 
 
 def _base_fit(ctx: Context, floor: float) -> dict[str, Any]:
-    """How well the base model fits the slow sweeps it was fitted on (any slow sweep when the
-    fitted runs are not known): RMS, its ratio to the noise floor, where it is largest."""
-    slow = ctx.sweeps(0.0, 0.5)
-    runs = [r for r in slow if ctx.is_fitted(r)] or ([] if ctx.fitted_runs else slow)
+    """How well the base model fits the sweeps it was fitted on, at whatever frequency they
+    were measured (any slow sweep when the fitted runs are not known): RMS, its ratio to the
+    noise floor, where it is largest."""
+    fitted = [r for r in ctx.sweeps() if ctx.is_fitted(r)]
+    runs = fitted or ([] if ctx.fitted_runs else ctx.sweeps(0.0, ctx.slow_hz))
     if not runs:
         return {}
     res = {r.name: r.y - ctx.pred(r) for r in runs}

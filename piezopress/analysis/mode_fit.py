@@ -248,3 +248,109 @@ def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold:
         size = abs(g * r.step)
         pct.append(100.0 * rms[-1] / size if size > 0 else math.inf)
     return ModeFit(wn, zeta, gains, offsets, tuple(rms), tuple(pct), wn0, zeta0, hold, int(sol.nfev))
+
+
+# --------------------------------------------------------------------------- the drive chain
+
+#: Drive chains tried when the applied drive is not recorded: the command as it is, a slew
+#: limit (an amplifier's current limit into the stack's capacitance: dV/dt <= I/C), a
+#: first-order amplifier bandwidth.
+CHAINS = ("none", "slew", "first_order")
+
+
+@dataclass(frozen=True)
+class ChainFit:
+    """The mode identified through an identified drive chain (:func:`identify_mode_chain`).
+
+    ``chain`` is one of :data:`CHAINS`; ``slew_v_per_s`` (``slew``) or ``tau_s``
+    (``first_order``) its parameter; ``candidates`` the mean RMS residual of every chain tried.
+    """
+
+    mode: ModeFit
+    chain: str
+    slew_v_per_s: float | None
+    tau_s: float | None
+    candidates: dict[str, float]
+
+
+def slew_limited(command: np.ndarray, fs_hz: float, slew_v_per_s: float) -> np.ndarray:
+    """The command as an amplifier that slews at most ``slew_v_per_s`` delivers it, sampled
+    (starting from the command's first value)."""
+    c = np.asarray(command, float)
+    out = np.empty_like(c)
+    step = slew_v_per_s / fs_hz
+    v = c[0]
+    for k, target in enumerate(c):
+        v += min(max(target - v, -step), step)
+        out[k] = v
+    return out
+
+
+def first_order(command: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
+    """The held command through a first-order lag of time constant ``tau_s`` (exact for a held input)."""
+    from scipy.signal import lfilter
+
+    c = np.asarray(command, float)
+    a = math.exp(-1.0 / (fs_hz * tau_s))
+    return c[0] + lfilter([1.0 - a], [1.0, -a], c - c[0])
+
+
+def identify_mode_chain(t_s_list, command_list, y_list) -> ChainFit:
+    """The mode from steps whose applied drive was not recorded: the drive chain between the
+    command and the stack (a slew limit or a first-order bandwidth) is identified with it.
+
+    For each chain of :data:`CHAINS`, its parameter is searched (bounded, on a log scale) for
+    the lowest mean RMS residual of :func:`identify_mode_runs` on the drive that chain makes
+    of the command (sampled, so modelled as linear between samples); the chain with the
+    lowest residual wins, the plain command unless another lowers it by 10 % or more (so a
+    chain is named only where the steps show it).
+    """
+    from scipy.optimize import minimize_scalar
+
+    t_s_list, command_list, y_list = list(t_s_list), list(command_list), list(y_list)
+    fs = [1.0 / float(np.mean(np.diff(np.asarray(t, float)))) for t in t_s_list]
+    steps = [float(np.ptp(c)) for c in command_list]
+
+    def fit(drives, hold):
+        return identify_mode_runs(t_s_list, drives, y_list, hold=hold)
+
+    def cost(f: ModeFit) -> float:
+        return float(np.mean(f.rms_residual))
+
+    plain = fit(command_list, "zoh")
+    results: dict[str, tuple[float, ModeFit, float | None]] = {"none": (cost(plain), plain, None)}
+    period = 2.0 * math.pi / plain.wn
+    # a slew that takes from a twentieth of a sample to ten mode periods for the smallest step
+    lo_slew, hi_slew = min(steps) / (10.0 * period), min(steps) * 20.0 * max(fs)
+
+    def slew_cost(log_r: float) -> float:
+        r = math.exp(log_r)
+        try:
+            return cost(fit([slew_limited(c, f, r) for c, f in zip(command_list, fs)], "foh"))
+        except FitError:
+            return math.inf
+
+    def tau_cost(log_tau: float) -> float:
+        tau = math.exp(log_tau)
+        try:
+            return cost(fit([first_order(c, f, tau) for c, f in zip(command_list, fs)], "foh"))
+        except FitError:
+            return math.inf
+
+    for name, func, lo, hi in (("slew", slew_cost, lo_slew, hi_slew), ("first_order", tau_cost, 0.05 / max(fs), 2.0 * period)):
+        grid = np.linspace(math.log(lo), math.log(hi), 9)
+        costs = [func(g) for g in grid]
+        i = int(np.argmin(costs))
+        a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+        sol = minimize_scalar(func, bounds=(a, b), method="bounded", options={"xatol": 0.01})
+        best = float(sol.x) if sol.fun <= costs[i] else float(grid[i])
+        p = math.exp(best)
+        drives = [slew_limited(c, f, p) if name == "slew" else first_order(c, f, p) for c, f in zip(command_list, fs)]
+        m = fit(drives, "foh")
+        results[name] = (cost(m), m, p)
+    best_name = min(results, key=lambda k: results[k][0])
+    if results[best_name][0] > 0.9 * results["none"][0]:
+        best_name = "none"
+    c, m, p = results[best_name]
+    return ChainFit(m, best_name, p if best_name == "slew" else None, p if best_name == "first_order" else None,
+                    {k: v[0] for k, v in results.items()})

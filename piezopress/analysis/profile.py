@@ -34,6 +34,9 @@ import numpy as np
 
 #: Sweeps at up to this measured frequency are quasi-static (hysteresis is fitted on them).
 QUASI_STATIC_MAX_HZ = 0.5
+#: How closely a measured frequency is compared with a bound (a sweep of a few cycles is
+#: measured to about a sample of its half-period): 0.5 Hz measured as 0.503 Hz is 0.5 Hz.
+FREQ_RTOL = 0.02
 #: A level held at least this long is a creep hold, shorter a step.
 HOLD_MIN_S = 5.0
 #: A reversal counts when the signal turns back by more than this share of its span.
@@ -85,7 +88,7 @@ class RunProfile:
     @property
     def quasi_static(self) -> bool:
         """A sweep at a measured frequency of at most :data:`QUASI_STATIC_MAX_HZ`."""
-        return self.shape == "sweep" and self.freq_hz is not None and self.freq_hz <= QUASI_STATIC_MAX_HZ
+        return self.shape == "sweep" and self.freq_hz is not None and freq_within(self.freq_hz, 0.0, QUASI_STATIC_MAX_HZ)
 
     @property
     def is_sweep(self) -> bool:
@@ -119,6 +122,28 @@ class RunProfile:
 
 
 # --------------------------------------------------------------------------- primitives
+
+
+def freq_within(f: float, lo_hz: float, hi_hz: float) -> bool:
+    """A measured frequency within ``[lo_hz, hi_hz]``, to :data:`FREQ_RTOL`."""
+    return lo_hz * (1.0 - FREQ_RTOL) <= f <= hi_hz * (1.0 + FREQ_RTOL)
+
+
+#: Without a sweep at up to QUASI_STATIC_MAX_HZ, the slowest sweeps count as quasi-static if
+#: they are at most this fast (a record measured elsewhere often has one 1 Hz sine: a stack's
+#: hysteresis changes by a few tenths of a percent per decade of rate).
+SLOWEST_SWEEP_MAX_HZ = 2.0
+
+
+def slow_limit_hz(freqs) -> float:
+    """Up to which frequency sweeps are quasi-static among sweeps at ``freqs``:
+    :data:`QUASI_STATIC_MAX_HZ`, or where none is that slow, the slowest ones (within 10 %)
+    up to :data:`SLOWEST_SWEEP_MAX_HZ`."""
+    freqs = [float(f) for f in freqs]
+    if not freqs or any(freq_within(f, 0.0, QUASI_STATIC_MAX_HZ) for f in freqs):
+        return QUASI_STATIC_MAX_HZ
+    slowest = min(freqs)
+    return 1.1 * slowest if slowest <= SLOWEST_SWEEP_MAX_HZ else QUASI_STATIC_MAX_HZ
 
 
 def measured_sample_rate(t_s: np.ndarray) -> float:
@@ -207,16 +232,17 @@ def turning_points(x: np.ndarray, band: float) -> np.ndarray:
     tp = np.asarray(tps, int)
     if tp.size == 0:
         return tp
-    # the first point is a turning point only if the signal starts at an extreme: it starts
-    # where it first moves away from (a rest before a sweep is not part of the sweep)
-    first = tp[0]
-    lo, hi = np.min(x[first:]), np.max(x[first:])
-    if not (abs(x[first] - lo) <= band or abs(x[first] - hi) <= band):
+    # the ends: a turning point there counts only at an extreme (within the band) of the
+    # signal beyond it; a rest before a sweep, a sweep entered or left mid-swing, is no half-period
+    lo, hi = float(np.min(x)), float(np.max(x))
+
+    def at_extreme(k: int) -> bool:
+        return abs(x[k] - lo) <= band or abs(x[k] - hi) <= band
+
+    while tp.size and not at_extreme(int(tp[0])):
         tp = tp[1:]
-    if tp.size > 2 and tp[-1] == n - 1:  # the run ends mid-swing: no half-period unless it is a full one
-        swings = np.abs(np.diff(x[tp]))
-        if swings[-1] < 0.5 * np.median(swings[:-1]):
-            tp = tp[:-1]
+    while tp.size and not at_extreme(int(tp[-1])):
+        tp = tp[:-1]
     return tp
 
 
@@ -251,17 +277,16 @@ def without_glitches(y: np.ndarray, glitches: np.ndarray) -> np.ndarray:
 
 
 def _sweep_shape(x: np.ndarray, tp: np.ndarray) -> str:
-    """``triangle`` when the slope is constant between reversals, else ``sine``."""
-    slopes = []
+    """``triangle`` when the drive is straight between reversals (RMS distance from the
+    straight line below 3 % of the swing; a half sine's is 8 %), else ``sine``. Robust to a
+    quantized drive, whose sample-to-sample slope jumps between codes."""
+    dev = []
     for a, b in zip(tp[:-1], tp[1:]):
-        seg = np.abs(np.diff(x[a:b + 1]))
+        seg = x[a:b + 1]
         if seg.size >= 8:
-            inner = seg[seg.size // 8: seg.size - seg.size // 8]
-            slopes.append(inner / max(float(np.median(inner)), 1e-300))
-    if not slopes:
-        return "triangle"
-    s = np.concatenate(slopes)
-    return "triangle" if np.mean(np.abs(s - 1.0) < 0.15) >= 0.8 else "sine"
+            line = np.linspace(seg[0], seg[-1], seg.size)
+            dev.append(float(np.sqrt(np.mean((seg - line) ** 2))) / max(abs(seg[-1] - seg[0]), 1e-300))
+    return "triangle" if not dev or float(np.median(dev)) < 0.03 else "sine"
 
 
 def profile_signals(t_s: np.ndarray, x: np.ndarray, output: np.ndarray | None = None, *, signal: str = "command_v") -> RunProfile:
@@ -280,6 +305,8 @@ def profile_signals(t_s: np.ndarray, x: np.ndarray, output: np.ndarray | None = 
     tol = max(1e-6 * span, 4.0 * _noise_sigma(x))
     min_len = max(3, int(round(1e-3 * fs)) if np.isfinite(fs) else 3)
     plats = plateaus(x, tol, min_len)
+    if len(plats) > 2 and np.median(np.abs(np.diff([v for _, _, v in plats]))) < 0.02 * span:
+        plats = []  # plateaus a quantum apart: a quantized continuous drive (a DAC's codes), not a staircase
     on = sum(b - a for a, b, _ in plats)
     if plats and on >= PLATEAU_SHARE * x.size:
         return _piecewise(t, x, plats, span, common)
