@@ -26,7 +26,11 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
     files: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            files += run_files(p)
+            found = run_files(p)
+            if not found:
+                raise BundleError(f"{p}: a directory holding no run (no manifest, no *.parquet file); expected a run directory "
+                                  "(from `piezopress characterize`) or run files (from `piezopress import`)")
+            files += found
         elif p.exists():
             files.append(p)
         else:

@@ -203,6 +203,8 @@ THESIS_CREEP_FORMS = ("poles",)
 #: with its creep removed, followed by the creep) predicts the sweeps' held-out ends within
 #: this fraction of the best prediction: the best pair's, or the first hysteresis model's alone.
 CREEP_SWEEP_TOLERANCE = 0.20
+#: Where no creep form agrees with the sweeps, the form kept from the hold alone (stable by construction).
+CREEP_FALLBACK_FORM = "spectrum"
 
 
 def sweep_holdout_rms(sweeps: list[runformat.Run], hysteresis: H.PIModel, creep: creep_mod.CreepModel | None,
@@ -238,8 +240,10 @@ def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, ho
     (:func:`sweep_holdout_rms`): a form more than :data:`CREEP_SWEEP_TOLERANCE` worse than the
     best prediction (the best pair's, or the first hysteresis model's alone) disagrees with
     them. Among the forms that agree, the hold's held-out end chooses (only the hold shows
-    the creep of minutes). None agrees: :class:`FitError` (``fit`` leaves creep out and says
-    why). With ``passes=1`` the hysteresis model keeps the sweeps' creep, and ``base`` has one
+    the creep of minutes). None agrees (the loop model itself misfits the sweeps, as on a
+    press of another family): the creep is still kept, fitted on the hold alone as the
+    :data:`CREEP_FALLBACK_FORM` form against the first hysteresis model, without alternation
+    (so it cannot reshape the loop), and the reason says so. With ``passes=1`` the hysteresis model keeps the sweeps' creep, and ``base`` has one
     form by definition: there the check is recorded, not enforced.
 
     ``base`` fits the thesis's structure instead of choosing one (:data:`THESIS_GRID`,
@@ -273,20 +277,33 @@ def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, ho
     enforced = passes >= 2 and not base  # base: the thesis's form, whatever the check says
     pool = [t for t in tried if t[0] in agree or not enforced]
     sweeps_note = f"the sweeps' held-out RMS is {alone:.4g} from the hysteresis model alone"
+    fallback = ""
     if not pool:
-        raise FitError("the held step's creep disagrees with the quasi-static sweeps: " + sweeps_note + ", "
-                       + ", ".join(f"{t[5]:.4g} with the {t[0]} creep" for t in tried)
-                       + f" (more than {100 * CREEP_SWEEP_TOLERANCE:g} % above the best)")
+        # No form's pair agrees with the sweeps: the loop model misfits them (a press of another
+        # family), and its misfit must not veto the creep that the hold alone measures clearly.
+        # The simplest stable form is kept instead: the relaxation spectrum (non-negative
+        # weights), fitted on the hold against the first hysteresis model, with no alternation
+        # so that it cannot reshape the loop.
+        disagreed = ", ".join(f"{t[5]:.4g} with the {t[0]} creep" for t in tried)
+        c, cfit = fit_creep_section(paths, h0, holdout_fraction=holdout_fraction, forms=("spectrum",))
+        spec = (CREEP_FALLBACK_FORM, h0, h0fit, c, cfit, sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction))
+        tried.append(spec)
+        pool = [spec]
+        fallback = (f"; the forms alternated with the loop disagreed with the quasi-static sweeps ({sweeps_note}, {disagreed}, more than "
+                    f"{100 * CREEP_SWEEP_TOLERANCE:g} % above the best), so the loop model does not fit these sweeps well: the creep "
+                    f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form without alternation")
     best = min(pool, key=lambda t: t[4].candidates[0].holdout_rms)
     form, h, hfit, c, cfit, rms = best
     others = "; ".join(f"{t[0]} {t[4].candidates[0].holdout_rms:.4g}" + ("" if t[0] in agree else f" (disagrees with the sweeps: {t[5]:.4g})")
                        for t in tried if t[0] != form) or "no other form"
     reason = (f"{form}: lowest held-out RMS {cfit.candidates[0].holdout_rms:.4g} on the hold (judged after {cfit.split_s:.4g} s) "
               f"among the forms {'that agree with the sweeps' if enforced else 'tried'}, against {others}; {sweeps_note}, "
-              f"{rms:.4g} with this creep" + ("" if form in agree else " (disagrees with the sweeps; kept: the check is not enforced here)"))
+              f"{rms:.4g} with this creep" + ("" if form in agree or fallback else " (disagrees with the sweeps; kept: the check is not enforced here)")
+              + fallback)
     c["fit"]["reason"] = reason
     c["fit"]["candidates"] = [{**_plain(t[4].candidates[0]), "sweep_holdout_rms": t[5], "agrees_with_sweeps": t[0] in agree} for t in tried]
     c["fit"]["sweep_check"] = {"hysteresis_alone_rms": alone, "with_creep_rms": rms, "tolerance": CREEP_SWEEP_TOLERANCE, "enforced": enforced,
+                               "fallback": bool(fallback),
                                "holdout_fraction": holdout_fraction, "sweeps": [r.name for r in sweeps], "failed": failed}
     cfit = dataclasses.replace(cfit, reason=reason, candidates=tuple(t[4].candidates[0] for t in tried))
     return h, hfit, c, cfit

@@ -74,13 +74,23 @@ __all__ = [
     "MODEL_FORMS",
     "KV_TAUS_S",
     "fit_sweep_creep",
+    "fit_spectrum",
 ]
 
 #: The model forms, in the order :func:`fit_creep` lists them.
 FORMS = ("poles", "log")
-#: Every form a model may have: the fitted-from-a-step forms, and ``"kv"`` (Kelvin-Voigt
-#: elements on a fixed time grid, fitted from sweeps by :func:`fit_sweep_creep`).
-MODEL_FORMS = FORMS + ("kv",)
+#: Every form a model may have: the fitted-from-a-step forms, ``"kv"`` (Kelvin-Voigt
+#: elements on a fixed time grid, fitted from sweeps by :func:`fit_sweep_creep`) and
+#: ``"spectrum"`` (a relaxation spectrum on a fixed log grid, :func:`fit_spectrum`).
+MODEL_FORMS = FORMS + ("kv", "spectrum")
+#: The relaxation spectrum's grid: first-order elements three per decade from 10 ms to 1000 s
+#: (Kelvin-Voigt, logarithmic and power-law creep are all sums over such a grid).
+SPECTRUM_TAU_MIN_S = 0.01
+SPECTRUM_TAU_MAX_S = 1000.0
+SPECTRUM_PER_DECADE = 3
+#: The spectrum's smoothness penalty: neighbouring weights may differ, at this cost relative
+#: to the squared error per sample (keeps the weights from trading off between neighbours).
+SPECTRUM_SMOOTHING = 1e-3
 #: Fewest samples a fit accepts (and the fewest in each part of :func:`fit_creep`).
 MIN_FIT_SAMPLES = 50
 #: A step in ``u`` must span this many times the noise of ``u``.
@@ -876,6 +886,63 @@ def _stable(model: CreepModel, fs_hz: float) -> bool:
 POLES_TAU_MIN_SAMPLES = 5.0
 
 
+def spectrum_taus(fs_hz: float, record_s: float) -> np.ndarray:
+    """The spectrum's time constants for a record: the fixed grid between two sample periods
+    and ten record lengths (a term faster than a sample acts as a direct gain, one far slower
+    than the record as a ramp)."""
+    lo = max(SPECTRUM_TAU_MIN_S, 2.0 / fs_hz)
+    hi = min(SPECTRUM_TAU_MAX_S, 10.0 * record_s)
+    n = max(2, int(round(SPECTRUM_PER_DECADE * math.log10(hi / lo))) + 1)
+    return np.logspace(math.log10(lo), math.log10(hi), n)
+
+
+def fit_spectrum(t_s, u, y) -> CreepModel:
+    """Fit a relaxation spectrum ``K_c + sum_k g_k / (1 + tau_k s)`` on a fixed log grid of
+    time constants (:func:`spectrum_taus`) with **non-negative** weights ``g_k``: one quadratic
+    program (cvxpy) with a small smoothness penalty on neighbouring weights.
+
+    Non-negative weights make ``K_c + C(s)`` positive real for ``K_c > 0``, so the compensator
+    ``1 / (K_c + C(s))`` is stable by construction; the grid covers Kelvin-Voigt, logarithmic
+    and power-law creep alike (each is a weighting of such a grid), so no form has to be
+    chosen. Fitted on a held step relative to the hold's own level, hysteresis plays no part.
+
+    Examples
+    --------
+    >>> t = np.arange(0, 120, 0.01)
+    >>> u = np.where(t >= 1, 300.0, 0.0)
+    >>> y, _ = CreepModel.log(1.0, 0.011).response(u, 100.0)
+    >>> m = fit_spectrum(t, u, y)
+    >>> bool(abs(m.response(u, 100.0)[0][-1] - y[-1]) < 0.02), min(m.gains) >= 0
+    (True, True)
+    """
+    import cvxpy as cp
+
+    where = "fit_spectrum"
+    t, u, y, fs = _fit_data(where, t_s, u, y)
+    taus = spectrum_taus(fs, float(t[-1] - t[0]))
+    a, one_minus_a = _decays(taus, fs)
+    cols = np.column_stack([_first_order(u, a[k], one_minus_a[k], 0.0) for k in range(taus.size)])
+    scale = max(float(np.max(np.abs(u))), 1e-12)
+    A = np.column_stack([u, cols]) / scale
+    k_c = cp.Variable()
+    g = cp.Variable(taus.size, nonneg=True)
+    resid = A @ cp.hstack([k_c, g]) - y / scale
+    cost = cp.sum_squares(resid) / t.size + SPECTRUM_SMOOTHING * cp.sum_squares(cp.diff(g))
+    prob = cp.Problem(cp.Minimize(cost))
+    try:
+        prob.solve()
+    except cp.error.SolverError as exc:
+        raise FitError(f"{where}: the quadratic program failed ({exc})") from None
+    if prob.status not in ("optimal", "optimal_inaccurate") or k_c.value is None:
+        raise FitError(f"{where}: the quadratic program ended {prob.status!r}; expected an optimum")
+    gains = np.maximum(np.asarray(g.value, float), 0.0)
+    params = {"tau_min_s": float(taus[0]), "tau_max_s": float(taus[-1]), "n_elements": float(taus.size)}
+    return CreepModel("spectrum", float(k_c.value), tuple(float(x) for x in taus), tuple(float(x) for x in gains), params)
+
+
+FITTERS["spectrum"] = fit_spectrum
+
+
 def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...] = FORMS) -> CreepFit:
     """Fit both forms, keep the one that best predicts the held-out end of the record.
 
@@ -931,8 +998,8 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
                        f"expected at least {MIN_FIT_SAMPLES} in each")
     unknown = [f for f in forms if f not in FITTERS]
     if unknown or not forms:
-        raise FitError(f"{where}: forms {forms!r}; expected some of {', '.join(FORMS)}")
-    options = {"poles": {"tau_bounds_s": (POLES_TAU_MIN_SAMPLES / fs, 10.0 * (t[-1] - t[0]))}, "log": {}}
+        raise FitError(f"{where}: forms {forms!r}; expected some of {', '.join(FITTERS)}")
+    options = {"poles": {"tau_bounds_s": (POLES_TAU_MIN_SAMPLES / fs, 10.0 * (t[-1] - t[0]))}, "log": {}, "spectrum": {}}
     candidates = []
     for form in forms:
         try:

@@ -450,8 +450,16 @@ def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.nda
     refitted freely (0.5-4 times the frequency, damping 0.01-0.9), where the effect under test
     distorts the identification itself: a delay of half the mode's period makes the steps'
     identification find a mode at less than half its frequency, heavily damped."""
-    if not model.wn:
-        return model
+    if not model.wn:  # no mode identified (a bundle without a shaper section): the cause's own parameters alone
+        if extra is None:
+            return model
+        lo_e, hi_e = list(extra_bounds[0]), list(extra_bounds[1])
+        x0_e = np.clip(list(extra_x0), lo_e, hi_e)
+        try:
+            sol = optimize.least_squares(lambda p: _err(fit, extra(model, p).predict), x0_e, bounds=(lo_e, hi_e), max_nfev=40)
+            return extra(model, sol.x)
+        except ValueError:
+            return extra(model, x0_e)
     wn, z = model.wn, model.zeta
 
     def build(p):
@@ -1552,6 +1560,7 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
     base_fit = _base_fit(ctx, total_floor)
     findings: list[Finding] = []
     last_try: dict[str, Finding] = {}
+    failed: dict[str, str] = {}  # causes whose fit raised: why (never a traceback; said under "tested")
     asked = list(causes or CAUSES)
     checks = {cid: testability(CAUSES[cid], ctx) for cid in asked}
     todo = [cid for cid in asked if checks[cid].testable]
@@ -1565,6 +1574,9 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
             try:
                 f = CAUSES[cid].run(ctx)
             except (ValueError, np.linalg.LinAlgError, H.HysteresisFitError, creep_mod.FitError):
+                f = None
+            except Exception as exc:  # noqa: BLE001 - a cause that cannot be fitted is a result, never a traceback
+                failed[cid] = f"{type(exc).__name__}: {str(exc)[:200]}"
                 f = None
             if f is not None and np.isfinite(f.gain_pct):
                 tried.append(f)
@@ -1595,7 +1607,8 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
             continue
         f = found.get(cid) or last_try.get(cid)
         entry: dict[str, Any] = {"cause": cid, "runs": checks[cid].runs,
-                                 "result": "found" if cid in found else "not found" if f is not None else "not found (no sign of it to fit)"}
+                                 "result": "found" if cid in found else "not found" if f is not None
+                                 else f"not fitted ({failed[cid]})" if cid in failed else "not found (no sign of it to fit)"}
         if f is not None:
             entry.update(gain_pct=f.gain_pct, parameters={k_: float(v) for k_, v in f.parameters.items()}, heldout=f.heldout)
         tested.append(entry)
