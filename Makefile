@@ -11,12 +11,13 @@ BUILD  ?= build
 SAMPLES ?= sample_runs
 REPORT ?= report
 
-.PHONY: demo test test-all bench clean help refit report sample-runs expected-metrics
+.PHONY: demo test test-all lint bench clean help refit report sample-runs expected-metrics
 
 help:
 	@echo "make demo      build the environment; characterize, fit, validate, diagnose and report on the virtual rig"
 	@echo "make test      build the environment and run the fast test suite"
 	@echo "make test-all  also run the slow tests"
+	@echo "make lint      ruff check (the rules in pyproject.toml; CI runs it)"
 	@echo "make bench     run the benchmark scripts in bench/"
 	@echo "make refit RUNS=dir   rebuild $(BUILD)/bundle.json from a run directory; only stages whose inputs changed"
 	@echo "make report    regenerate $(REPORT)/ from sample_runs/ (nothing to do when nothing changed)"
@@ -34,6 +35,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -m ''

@@ -33,9 +33,33 @@ def main() -> None:
         ]
         stages += [
             ("fit --base", ["fit", str(d / "characterization"), "--base", "--out", str(d / "base-bundle.json")]),
-            ("diagnose", ["diagnose", str(d / "characterization"), "--bundle", str(d / "base-bundle.json"), "--out", str(d / "diagnosis")]),
-            ("report", ["report", "--characterization", str(d / "characterization"), "--validation", str(d / "validation"),
-                        "--bundle", str(d / "bundle.json"), "--diagnosis", str(d / "diagnosis"), "--out", str(d / "report")]),
+            (
+                "diagnose",
+                [
+                    "diagnose",
+                    str(d / "characterization"),
+                    "--bundle",
+                    str(d / "base-bundle.json"),
+                    "--out",
+                    str(d / "diagnosis"),
+                ],
+            ),
+            (
+                "report",
+                [
+                    "report",
+                    "--characterization",
+                    str(d / "characterization"),
+                    "--validation",
+                    str(d / "validation"),
+                    "--bundle",
+                    str(d / "bundle.json"),
+                    "--diagnosis",
+                    str(d / "diagnosis"),
+                    "--out",
+                    str(d / "report"),
+                ],
+            ),
         ]
         total = 0.0
         for name, args in stages:

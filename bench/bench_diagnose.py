@@ -19,8 +19,10 @@ validation row, with each row's noise, beside the finding's prediction gain; ``-
 writes it as ``compensated_gain.csv``.
 
 Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second] [--seeds 20] [--workers 2] [--record results.jsonl]
-     .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl   (the matrix of what was recorded)
-     .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv] [--slew-capacitance-uf 8]
+     .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
+         (the matrix of what was recorded)
+     .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
+         [--slew-capacitance-uf 8]
 """
 
 from __future__ import annotations
@@ -64,7 +66,11 @@ def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
         backend, plan = _second_press(effect, seed)
     else:
         rng = np.random.default_rng([seed, 99])
-        backend = VirtualRig(RigConfig.clean().replace(rig={"seed": int(rng.integers(0, 2**31))}) if effect == "none" else hidden_effect(effect, rng))
+        backend = VirtualRig(
+            RigConfig.clean().replace(rig={"seed": int(rng.integers(0, 2**31))})
+            if effect == "none"
+            else hidden_effect(effect, rng)
+        )
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         try:
@@ -82,20 +88,44 @@ def main() -> None:
     from piezopress.acquisition.rig_config import EFFECTS
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--rig", choices=("ours", "second"), default="ours",
-                    help="ours: the virtual rig; second: tests/independent_press.py, written apart from it")
+    ap.add_argument(
+        "--rig",
+        choices=("ours", "second"),
+        default="ours",
+        help="ours: the virtual rig; second: tests/independent_press.py, written apart from it",
+    )
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--effects", nargs="*", help="only these rows (effect ids, or none)")
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
-    ap.add_argument("--record", type=Path, default=None, help="append every diagnosis to this JSON-lines file as it ends")
-    ap.add_argument("--matrix-from", type=Path, default=None, help="print the matrix of a --record file (for --rig) instead of running")
-    ap.add_argument("--gain", action="store_true", help="the gain on the press instead: compensated performance, base bundle "
-                    "against extended, per cause whose extension enters the compensator (pipelines/gain.py)")
-    ap.add_argument("--gain-seeds", type=int, default=3, help="with --gain: passes of the whole chain per cause (noise seeds)")
-    ap.add_argument("--slew-capacitance-uf", type=float, default=None,
-                    help="with --gain: the stack's capacitance for the slew limit instead of the gain magnitude's (documented: 3-8 uF)")
-    ap.add_argument("--gain-out", type=Path, default=None, help="with --gain: write the table here (compensated_gain.csv)")
+    ap.add_argument(
+        "--record", type=Path, default=None, help="append every diagnosis to this JSON-lines file as it ends"
+    )
+    ap.add_argument(
+        "--matrix-from",
+        type=Path,
+        default=None,
+        help="print the matrix of a --record file (for --rig) instead of running",
+    )
+    ap.add_argument(
+        "--gain",
+        action="store_true",
+        help="the gain on the press instead: compensated performance, base bundle "
+        "against extended, per cause whose extension enters the compensator (pipelines/gain.py)",
+    )
+    ap.add_argument(
+        "--gain-seeds", type=int, default=3, help="with --gain: passes of the whole chain per cause (noise seeds)"
+    )
+    ap.add_argument(
+        "--slew-capacitance-uf",
+        type=float,
+        default=None,
+        help="with --gain: the stack's capacitance for the slew limit instead of the gain magnitude's (documented: "
+        "3-8 uF)",
+    )
+    ap.add_argument(
+        "--gain-out", type=Path, default=None, help="with --gain: write the table here (compensated_gain.csv)"
+    )
     a = ap.parse_args()
     if a.gain:
         return gain_main(a)
@@ -114,15 +144,28 @@ def main() -> None:
             results.append(r)
             if a.record:
                 with open(a.record, "a", encoding="utf-8") as fh:
-                    fh.write(json.dumps({"rig": job[0], "effect": r[0], "seed": job[2], "named": list(r[1]),
-                                         "gain_pct": None if not np.isfinite(r[2]) else r[2]}) + "\n")
+                    fh.write(
+                        json.dumps(
+                            {
+                                "rig": job[0],
+                                "effect": r[0],
+                                "seed": job[2],
+                                "named": list(r[1]),
+                                "gain_pct": None if not np.isfinite(r[2]) else r[2],
+                            }
+                        )
+                        + "\n"
+                    )
     wall = time.perf_counter() - start
     print_matrix(a.rig, hidden, results, f"{a.seeds} seeds per row", (wall, len(jobs), a.workers))
 
 
 def _read_results(path: Path) -> list[tuple]:
     rows = [json.loads(line) for line in Path(path).read_text(encoding="utf-8").splitlines() if line.strip()]
-    return [(r["effect"], tuple(r["named"]), float("nan") if r["gain_pct"] is None else r["gain_pct"], r["rig"], r["seed"]) for r in rows]
+    return [
+        (r["effect"], tuple(r["named"]), float("nan") if r["gain_pct"] is None else r["gain_pct"], r["rig"], r["seed"])
+        for r in rows
+    ]
 
 
 def _ranges(seeds: list[int]) -> str:
@@ -139,12 +182,17 @@ def _ranges(seeds: list[int]) -> str:
 
 def print_matrix(rig_id: str, hidden: list[str], results: list[tuple], over: str, timing: tuple | None) -> None:
     """The confusion matrix of ``results`` ((hidden effect, causes named, gain of the hidden cause))."""
-    named = sorted({n for r in results for n in r[1]} | set(hidden), key=lambda n: (n not in hidden, hidden.index(n) if n in hidden else 0, n))
+    named = sorted(
+        {n for r in results for n in r[1]} | set(hidden),
+        key=lambda n: (n not in hidden, hidden.index(n) if n in hidden else 0, n),
+    )
     width = max(len(n) for n in named)
     rig = "the virtual rig" if rig_id == "ours" else "the second test press (tests/independent_press.py)"
-    print(f"Confusion matrix on {rig} over {over}: hidden effect (rows) against the causes named "
-          f"(columns; a seed counts in every column it names, 'none': no finding). 'alone %': the hidden cause named "
-          f"and nothing else (clean: nothing named)")
+    print(
+        f"Confusion matrix on {rig} over {over}: hidden effect (rows) against the causes named "
+        f"(columns; a seed counts in every column it names, 'none': no finding). 'alone %': the hidden cause named "
+        f"and nothing else (clean: nothing named)"
+    )
     short = {n: n[:10] for n in named}
     print(" " * (width + 2) + " ".join(f"{short[n]:>10}" for n in named) + f" {'alone %':>8} {'median gain %':>14}")
     ok = True
@@ -195,12 +243,19 @@ def gain_main(a) -> None:
     out = a.gain_out or Path(tempfile.gettempdir()) / G.GAIN_CSV
     G.write_csv(results, out)
     slew = f"; the slew limit with a {a.slew_capacitance_uf:g} uF stack" if a.slew_capacitance_uf else ""
-    print(f"The gain on the press: validation on the virtual rig with each effect on (gain magnitudes: pipelines/gain.py{slew}), "
-          f"base bundle (fit --base) against diagnose's extended bundle; {a.gain_seeds} passes of the whole chain per cause\n")
+    print(
+        "The gain on the press: validation on the virtual rig with each effect on (gain magnitudes: "
+        f"pipelines/gain.py{slew}), "
+        f"base bundle (fit --base) against diagnose's extended bundle; {a.gain_seeds} passes of the whole chain per "
+        "cause\n"
+    )
     print(G.format_table(G.read_csv(out)))
     met = [r.verdict()[0] for r in results]
-    print(f"\nacceptance (targeted rows +{G.MIN_TARGET_GAIN_PCT:g} %, nothing worse beyond its noise): "
-          f"{sum(m is True for m in met)} of {len(met)} causes met, {sum(m is None for m in met)} with nothing that large to gain")
+    print(
+        f"\nacceptance (targeted rows +{G.MIN_TARGET_GAIN_PCT:g} %, nothing worse beyond its noise): "
+        f"{sum(m is True for m in met)} of {len(met)} causes met, {sum(m is None for m in met)} with nothing that "
+        "large to gain"
+    )
     print(f"table written to {out}; wall time {wall / 60:.1f} min ({len(causes)} causes, {a.workers} workers)")
 
 

@@ -44,8 +44,12 @@ TARGETS_S = {"SmartHysteresis, 50,001 samples": 3.0, "virtual rig, 1,000,000 sam
 def before_module():
     """``hysteresis.py`` as it was at :data:`BEFORE`, or None outside a git checkout."""
     try:
-        src = subprocess.run(["git", "-C", str(ROOT), "show", f"{BEFORE}:piezopress/analysis/hysteresis.py"],
-                             capture_output=True, text=True, check=True).stdout
+        src = subprocess.run(
+            ["git", "-C", str(ROOT), "show", f"{BEFORE}:piezopress/analysis/hysteresis.py"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
     except (OSError, subprocess.CalledProcessError):
         return None
     path = Path(tempfile.mkdtemp()) / "hysteresis_before.py"
@@ -62,8 +66,13 @@ def records() -> dict[str, tuple[np.ndarray, np.ndarray]]:
     if DATASETS.is_dir():
         from piezopress.pipelines.importing import import_table
 
-        run = import_table(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv", header=False, kind="sine", sample_rate_hz=5000,
-                           columns={"t_s": 2, "displacement_um": 3, "command_v": 4})
+        run = import_table(
+            DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv",
+            header=False,
+            kind="sine",
+            sample_rate_hz=5000,
+            columns={"t_s": 2, "displacement_um": 3, "command_v": 4},
+        )
         out["SmartHysteresis, 50,001 samples"] = (run.command_v, run.output)
     fs = 10_000.0
     peaks = np.random.default_rng(3).uniform(40, 150, 10)
@@ -92,8 +101,10 @@ def main() -> int:
         t_old, e_old = timed(before, x, y) if before else (float("nan"), float("nan"))
         met = t_now < TARGETS_S[label]
         ok &= met
-        print(f"{label:34s} {t_now:7.2f} {t_old:9.2f} {t_now / t_old:6.2f} {e_now:15.3f} {e_old:7.3f} "
-              f"< {TARGETS_S[label]:g} s: {'met' if met else 'MISSED'}")
+        print(
+            f"{label:34s} {t_now:7.2f} {t_old:9.2f} {t_now / t_old:6.2f} {e_now:15.3f} {e_old:7.3f} "
+            f"< {TARGETS_S[label]:g} s: {'met' if met else 'MISSED'}"
+        )
     if before is None:
         print(f"(the fit before issue 10 could not be loaded: git show {BEFORE} failed)")
     return 0 if ok else 1

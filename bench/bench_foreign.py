@@ -11,7 +11,8 @@ the mode (rad/s, damping) against the press's own, the base fit's ratio to the n
 and the findings. ``--glitch-every N`` also fits the clean press's runs with one glitched
 sample in N (read as 0 or as the ADC's top code) beside the clean runs.
 
-Run: .venv/bin/python bench/bench_foreign.py [--cases none,input_delay,...] [--seed 0] [--custom] [--no-monitor] [--glitch-every 3000]
+Run: .venv/bin/python bench/bench_foreign.py [--rig ours|second] [--cases none,input_delay,...] [--seed 0]
+         [--custom] [--no-monitor] [--glitch-every 3000]
 """
 
 from __future__ import annotations
@@ -38,7 +39,11 @@ def _press(rig: str, effect: str, seed: int):
 
     if rig == "ours":
         rng = np.random.default_rng([seed, 99])
-        cfg = RigConfig.clean().replace(rig={"seed": int(rng.integers(0, 2**31))}) if effect == "none" else hidden_effect(effect, rng)
+        cfg = (
+            RigConfig.clean().replace(rig={"seed": int(rng.integers(0, 2**31))})
+            if effect == "none"
+            else hidden_effect(effect, rng)
+        )
         return VirtualRig(cfg), None, (cfg.mode.wn_rad_s if hasattr(cfg.mode, "wn_rad_s") else None, None)
     import independent_press as ip
 
@@ -55,8 +60,7 @@ def _case(char_dir: Path, work: Path, diagnose: bool) -> dict:
     fitted = F.fit_bundle([char_dir], None)
     res = fitted.result
     h = res.fits["hysteresis"]
-    out = {"hyst_pct": h.holdout_rms_pct,
-           "hyst_rms": h.holdout_rms, "sections": sorted(res.sections)}
+    out = {"hyst_pct": h.holdout_rms_pct, "hyst_rms": h.holdout_rms, "sections": sorted(res.sections)}
     m = res.sections.get("shaper", {}).get("mode", {})
     out["wn"], out["zeta"] = m.get("natural_freq_rad_s"), m.get("damping")
     if diagnose:
@@ -68,9 +72,10 @@ def _case(char_dir: Path, work: Path, diagnose: bool) -> dict:
 
 
 def main() -> None:
+    from foreign import foreign_dir
+
     from piezopress.pipelines import characterize as char
     from piezopress.pipelines import profiles
-    from foreign import foreign_dir
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--rig", choices=("ours", "second"), default="second")
@@ -87,8 +92,10 @@ def main() -> None:
             tmp = Path(tmp)
             t0 = time.perf_counter()
             char.characterize(tmp / "full", backend=press, **({"plan_path": plan} if plan else {}))
-            variants = {"full": tmp / "full",
-                        "minimal": foreign_dir(tmp / "full", tmp / "minimal", custom=a.custom, drop_monitor=a.no_monitor)}
+            variants = {
+                "full": tmp / "full",
+                "minimal": foreign_dir(tmp / "full", tmp / "minimal", custom=a.custom, drop_monitor=a.no_monitor),
+            }
             if a.glitch_every:
                 variants["glitched"] = foreign_dir(tmp / "full", tmp / "glitched", glitch_every=a.glitch_every)
             rows = {}
@@ -96,13 +103,18 @@ def main() -> None:
                 (tmp / f"w-{name}").mkdir()
                 profiles.trust_metadata(False)
                 rows[name] = _case(d, tmp / f"w-{name}", not a.no_diagnose)
-            print(f"== {a.rig} press, hidden: {effect} (seed {a.seed}); press mode {truth[0]} rad/s, damping {truth[1]}; "
-                  f"{time.perf_counter() - t0:.0f} s")
+            print(
+                f"== {a.rig} press, hidden: {effect} (seed {a.seed}); press mode {truth[0]} rad/s, damping {truth[1]}; "
+                f"{time.perf_counter() - t0:.0f} s"
+            )
             for name, r in rows.items():
                 wn = f"{r['wn']:.0f}" if r.get("wn") else "-"
                 zeta = f"{r['zeta']:.3f}" if r.get("zeta") else "-"
-                print(f"  {name:9s} hysteresis held-out {r['hyst_pct']:.3f} % of range ({r['hyst_rms']:.4g})  mode {wn} rad/s, damping {zeta}  "
-                      f"sections {','.join(r['sections'])}  findings {','.join(r.get('findings', []))}")
+                print(
+                    f"  {name:9s} hysteresis held-out {r['hyst_pct']:.3f} % of range ({r['hyst_rms']:.4g})  mode {wn} "
+                    f"rad/s, damping {zeta}  "
+                    f"sections {','.join(r['sections'])}  findings {','.join(r.get('findings', []))}"
+                )
 
 
 if __name__ == "__main__":

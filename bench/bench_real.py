@@ -50,7 +50,11 @@ from piezopress.pipelines.importing import import_table  # noqa: E402
 
 DATASETS = ROOT.parent / "shared" / "datasets"
 #: Acceptance bounds of issue 10: (RMS %, max %) per row; None: no bound.
-BOUNDS = {"SmartHysteresis 6.5-10 s": (0.30, 2.0), "Aye-Ang Model 20-40 s": (0.60, 1.6), "Aye-Ang Test rows 200:3100": (2.0, None)}
+BOUNDS = {
+    "SmartHysteresis 6.5-10 s": (0.30, 2.0),
+    "Aye-Ang Model 20-40 s": (0.60, 1.6),
+    "Aye-Ang Test rows 200:3100": (2.0, None),
+}
 
 
 @dataclass
@@ -62,14 +66,27 @@ class Record:
 
 
 def smart() -> Record:
-    run = import_table(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv", header=False, kind="sine", sample_rate_hz=5000,
-                       columns={"t_s": 2, "displacement_um": 3, "command_v": 4})
+    run = import_table(
+        DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv",
+        header=False,
+        kind="sine",
+        sample_rate_hz=5000,
+        columns={"t_s": 2, "displacement_um": 3, "command_v": 4},
+    )
     return Record(run.t_s, run.command_v, run.output, run.sample_rate_hz)
 
 
 def aye(file: str, rows=None) -> Record:
-    run = import_table(DATASETS / "aye-ang-2018" / file, header=False, delimiter="tab", kind="sine", sample_rate_hz=200,
-                       columns={"command_v": 1, "displacement_um": 5}, lag_samples={"displacement_um": 1}, rows=rows)
+    run = import_table(
+        DATASETS / "aye-ang-2018" / file,
+        header=False,
+        delimiter="tab",
+        kind="sine",
+        sample_rate_hz=200,
+        columns={"command_v": 1, "displacement_um": 5},
+        lag_samples={"displacement_um": 1},
+        rows=rows,
+    )
     return Record(run.t_s, run.command_v, run.output, run.sample_rate_hz)
 
 
@@ -101,12 +118,17 @@ def fit_piezopress(grid, creep):
         n = int(np.flatnonzero(mask)[-1]) + 1  # the record up to the split; piezopress finds its settled start
         found = fit_sweeps([("fit", x[:n], y[:n], fs)], holdout_fraction=0.3, grid=grid, creep=creep)
         return lambda xx: found.predict(xx, fs)
+
     return fit
 
 
 #: The models compared, in the order printed.
-MODELS = {"linear": fit_linear, "classic PI": fit_classic, "pp base": fit_piezopress((H.Candidate(12, 1.0, 1),), False),
-          "pp auto": fit_piezopress(None, True)}
+MODELS = {
+    "linear": fit_linear,
+    "classic PI": fit_classic,
+    "pp base": fit_piezopress((H.Candidate(12, 1.0, 1),), False),
+    "pp auto": fit_piezopress(None, True),
+}
 
 
 def main() -> int:
@@ -132,7 +154,9 @@ def main() -> int:
                 pred = pred + np.mean(o.y[offset_rows] - pred[offset_rows])
                 rows.append((label, name, *errors(pred[first:], o.y[first:]), dt))
 
-    run_row("SmartHysteresis 6.5-10 s", s, s.t < 6.5, s.t >= 6.5, baseline_mask=(s.t < 6.5) & (s.x != 0.0) & (s.t >= 3.2))
+    run_row(
+        "SmartHysteresis 6.5-10 s", s, s.t < 6.5, s.t >= 6.5, baseline_mask=(s.t < 6.5) & (s.x != 0.0) & (s.t >= 3.2)
+    )
     run_row("Aye-Ang Model 20-40 s", m_, m_.t < 20, m_.t >= 20)
     first = H.settled_start(tst.x)
     run_row("Aye-Ang Test rows 200:3100", m_, m_.t < 20, None, other=(tst, first, slice(first, first + 200)))
@@ -152,7 +176,10 @@ def main() -> int:
         if auto[2] >= classic[2]:
             verdict.append("loses to the classic PI baseline")
         ok &= not verdict
-        print(f"{'':28s} pp auto: {'; '.join(verdict) if verdict else 'meets the bound and beats the classic PI baseline'}")
+        print(
+            f"{'':28s} pp auto: "
+            f"{'; '.join(verdict) if verdict else 'meets the bound and beats the classic PI baseline'}"
+        )
     return 0 if ok else 1
 
 

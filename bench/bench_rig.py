@@ -52,23 +52,32 @@ def main() -> None:
 
     physics()  # warm-up (imports, caches)
     wall = best_of(physics)
-    print(f"default plan, physics only : rig time {rig_time:8.1f} s  wall {wall:6.3f} s  ratio {rig_time / wall:7.0f}x real time")
+    print(
+        f"default plan, physics only : rig time {rig_time:8.1f} s  wall {wall:6.3f} s  ratio {rig_time / wall:7.0f}x "
+        "real time"
+    )
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         characterize.characterize(Path(tmp) / "runs")
         wall_io = time.perf_counter() - t0
-    print(f"default plan, characterize : rig time {rig_time:8.1f} s  wall {wall_io:6.3f} s  ratio {rig_time / wall_io:7.0f}x real time")
+    print(
+        f"default plan, characterize : rig time {rig_time:8.1f} s  wall {wall_io:6.3f} s  ratio "
+        f"{rig_time / wall_io:7.0f}x real time"
+    )
 
     r, _ = rig_physics.hysteresis_operators(rig.config.hysteresis)
     n = 20_000
     clean = 75 - 75 * np.cos(np.linspace(0, 6 * np.pi, n))
     noisy = clean + np.random.default_rng(0).normal(0, 0.05, n)
     for label, x in (("clean drive (monotone runs)", clean), ("noisy drive (clamp scan)  ", noisy)):
-        loop = best_of(lambda: operators.play_loop(x, r), repeat=1)
-        vec = best_of(lambda: operators.play(x, r))
+        loop = best_of(lambda x=x: operators.play_loop(x, r), repeat=1)
+        vec = best_of(lambda x=x: operators.play(x, r))
         assert np.allclose(operators.play(x, r), operators.play_loop(x, r))
-        print(f"play operators, {label}: {n} samples x {r.size} thresholds  loop {loop:7.3f} s  vectorised {vec * 1e3:7.2f} ms  ratio {loop / vec:7.0f}x")
+        print(
+            f"play operators, {label}: {n} samples x {r.size} thresholds  loop {loop:7.3f} s  vectorised "
+            f"{vec * 1e3:7.2f} ms  ratio {loop / vec:7.0f}x"
+        )
 
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak resident memory of this process: {peak_mb:.0f} MB (target < 1024 MB)")

@@ -17,9 +17,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_S = 0.5
 
-EAGER = ("import importlib; from piezopress.piezocli.main import COMMANDS, cli\n"
-         "for m in sorted(set(m for m, _ in COMMANDS.values())): importlib.import_module('piezocli.' + m)\n"
-         "cli.main(ARGS, standalone_mode=False)")
+EAGER = (
+    "import importlib; from piezopress.piezocli.main import COMMANDS, cli\n"
+    "for m in sorted(set(m for m, _ in COMMANDS.values())): importlib.import_module('piezocli.' + m)\n"
+    "cli.main(ARGS, standalone_mode=False)"
+)
 LAZY = "from piezopress.piezocli.main import cli; cli.main(ARGS, standalone_mode=False)"
 
 
@@ -40,8 +42,10 @@ def main() -> int:
         met = now < TARGET_S or args[0] == "fit"  # a command's own help loads that command
         ok &= met
         label = "piezopress " + " ".join(args)
-        print(f"{label:24s} {now:7.3f} {eager:8.3f} {now / eager:6.2f}  {'met' if met else 'MISSED'}"
-              + ("  (loads the fit command: no target)" if args[0] == "fit" else ""))
+        print(
+            f"{label:24s} {now:7.3f} {eager:8.3f} {now / eager:6.2f}  {'met' if met else 'MISSED'}"
+            + ("  (loads the fit command: no target)" if args[0] == "fit" else "")
+        )
     return 0 if ok else 1
 
 

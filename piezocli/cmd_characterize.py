@@ -27,13 +27,19 @@ def _print_progress(ev: char.ProgressEvent) -> None:
     p = ev.protocol
     width = len(str(ev.total))
     tty = sys.stdout.isatty()
-    head = f"[{ev.index:>{width}}/{ev.total}] {p.name:<28} {p.kind:<9} {p.duration_s:8.2f} s at {p.sample_rate_hz:g} Hz ... "
+    head = (
+        f"[{ev.index:>{width}}/{ev.total}] {p.name:<28} {p.kind:<9} {p.duration_s:8.2f} s "
+        f"at {p.sample_rate_hz:g} Hz ... "
+    )
     if ev.index == 1 and not ev.done and ev.fraction is None:
         from datetime import datetime, timedelta
 
         end = (datetime.now() + timedelta(seconds=ev.plan_s)).strftime("%H:%M")
-        click.echo(f"{ev.total} protocols, {_duration(ev.plan_s)} of drive in all (on a press in real time: done at about {end}; "
-                   f"the virtual rig simulates faster)")
+        click.echo(
+            f"{ev.total} protocols, {_duration(ev.plan_s)} of drive in all (on a press in real time: done at about "
+            f"{end}; "
+            f"the virtual rig simulates faster)"
+        )
     if ev.fraction is not None:
         if tty:  # redraw the line with a bar
             n = int(round(20 * min(max(ev.fraction, 0.0), 1.0)))
@@ -51,10 +57,36 @@ def _print_progress(ev: char.ProgressEvent) -> None:
 
 
 @cli.command("characterize")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory for the runs (must not exist or be empty).")
-@click.option("--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_PLAN, show_default="protocols/characterize.toml", help="Protocol plan (TOML).")
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig configuration (TOML).")
-@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default=None, help="Which rig runs the plan (default: the rig file's [rig] backend).")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="New directory for the runs (must not exist or be empty).",
+)
+@click.option(
+    "--plan",
+    "plan_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=char.DEFAULT_PLAN,
+    show_default="protocols/characterize.toml",
+    help="Protocol plan (TOML).",
+)
+@click.option(
+    "--rig",
+    "rig_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=char.DEFAULT_RIG,
+    show_default="rigs/thesis-press.toml",
+    help="Rig configuration (TOML).",
+)
+@click.option(
+    "--backend",
+    "backend_name",
+    type=click.Choice(char.BACKENDS),
+    default=None,
+    help="Which rig runs the plan (default: the rig file's [rig] backend).",
+)
 @reports_errors
 def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_name: str) -> None:
     """Run the scripted characterization protocols and save each run as Parquet.
@@ -69,7 +101,9 @@ def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_nam
       piezopress characterize --out runs/press-2026-11-21
       piezopress characterize --plan my-plan.toml --rig rigs/thesis-press.toml --out runs/x
     """
-    result = char.characterize(out_dir, plan_path=plan_path, rig_path=rig_path, backend_name=backend_name, on_progress=_print_progress)
+    result = char.characterize(
+        out_dir, plan_path=plan_path, rig_path=rig_path, backend_name=backend_name, on_progress=_print_progress
+    )
     click.echo(f"\n{len(result.runs)} runs written to {result.out_dir} (manifest: {result.manifest_path.name})\n")
     table = summary.characterization_table(result.out_dir)
     click.echo(summary.format_table(table))
@@ -86,7 +120,9 @@ def _copy_new(sources: list[Path], dest_dir: Path) -> list[Path]:
     targets = [dest_dir / src.name for src in sources]
     clash = [t for t in targets if t.exists()]
     if clash:
-        raise OutputExistsError(f"{', '.join(map(str, clash))}: already exist(s); expected a directory without these files (nothing copied)")
+        raise OutputExistsError(
+            f"{', '.join(map(str, clash))}: already exist(s); expected a directory without these files (nothing copied)"
+        )
     dest_dir.mkdir(parents=True, exist_ok=True)
     for src, dst in zip(sources, targets):
         shutil.copyfile(src, dst)
@@ -94,8 +130,13 @@ def _copy_new(sources: list[Path], dest_dir: Path) -> list[Path]:
 
 
 @cli.command("protocols")
-@click.option("--copy", "copy_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Write editable copies of the shipped plans into this directory.")
+@click.option(
+    "--copy",
+    "copy_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Write editable copies of the shipped plans into this directory.",
+)
 @reports_errors
 def protocols_cmd(copy_dir: Path | None) -> None:
     """List the protocol kinds a plan may use and the keys of each; with --copy, write
@@ -116,10 +157,21 @@ def protocols_cmd(copy_dir: Path | None) -> None:
 
 
 @cli.command("rig-keys")
-@click.option("--template", "template", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Write an editable rig file: the shipped one of --backend.")
-@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default="virtual", show_default=True,
-              help="With --template: a virtual press (thesis-press.toml) or an NI-DAQmx press (nidaq-example.toml).")
+@click.option(
+    "--template",
+    "template",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Write an editable rig file: the shipped one of --backend.",
+)
+@click.option(
+    "--backend",
+    "backend_name",
+    type=click.Choice(char.BACKENDS),
+    default="virtual",
+    show_default=True,
+    help="With --template: a virtual press (thesis-press.toml) or an NI-DAQmx press (nidaq-example.toml).",
+)
 @reports_errors
 def rig_keys_cmd(template: Path | None, backend_name: str) -> None:
     """List every key of a rig file with its unit, default and allowed range; with
@@ -137,7 +189,9 @@ def rig_keys_cmd(template: Path | None, backend_name: str) -> None:
 
         if template.exists():
             raise OutputExistsError(f"{template}: already exists; expected a new file name for the rig file")
-        src = Path(char.DEFAULT_RIG).parent / ("thesis-press.toml" if backend_name == "virtual" else "nidaq-example.toml")
+        src = Path(char.DEFAULT_RIG).parent / (
+            "thesis-press.toml" if backend_name == "virtual" else "nidaq-example.toml"
+        )
         template.parent.mkdir(parents=True, exist_ok=True)
         template.write_bytes(src.read_bytes())
         click.echo(f"Wrote {template} (from {src.name}; edit it, then: piezopress check-rig --rig {template})")

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, reports_errors
 from piezopress.errors import OutputExistsError
+from piezopress.piezocli.main import cli, reports_errors
 
 
 def demo_steps(d: Path) -> list[tuple[str, list[str]]]:
@@ -17,17 +17,48 @@ def demo_steps(d: Path) -> list[tuple[str, list[str]]]:
         ("characterize the virtual press", ["characterize", "--out", str(d / "characterization")]),
         ("fit the bundle", ["fit", str(d / "characterization"), "--out", str(d / "bundle.json")]),
         ("validate the compensation", ["validate", "--bundle", str(d / "bundle.json"), "--out", str(d / "validation")]),
-        ("fit the thesis's base model", ["fit", str(d / "characterization"), "--base", "--out", str(d / "base-bundle.json")]),
-        ("diagnose the base model", ["diagnose", str(d / "characterization"), "--bundle", str(d / "base-bundle.json"),
-                                     "--out", str(d / "diagnosis")]),
-        ("write the report", ["report", "--characterization", str(d / "characterization"), "--validation", str(d / "validation"),
-                              "--bundle", str(d / "bundle.json"), "--diagnosis", str(d / "diagnosis"), "--out", str(d / "report")]),
+        (
+            "fit the thesis's base model",
+            ["fit", str(d / "characterization"), "--base", "--out", str(d / "base-bundle.json")],
+        ),
+        (
+            "diagnose the base model",
+            [
+                "diagnose",
+                str(d / "characterization"),
+                "--bundle",
+                str(d / "base-bundle.json"),
+                "--out",
+                str(d / "diagnosis"),
+            ],
+        ),
+        (
+            "write the report",
+            [
+                "report",
+                "--characterization",
+                str(d / "characterization"),
+                "--validation",
+                str(d / "validation"),
+                "--bundle",
+                str(d / "bundle.json"),
+                "--diagnosis",
+                str(d / "diagnosis"),
+                "--out",
+                str(d / "report"),
+            ],
+        ),
     ]
 
 
 @cli.command("demo")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="New directory for everything (default: demo-YYYYMMDDTHHMMSSZ here).")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="New directory for everything (default: demo-YYYYMMDDTHHMMSSZ here).",
+)
 @reports_errors
 def demo_cmd(out_dir: Path | None) -> None:
     """Run the whole chain on the virtual rig: characterize, fit, validate, fit --base,
@@ -41,7 +72,7 @@ def demo_cmd(out_dir: Path | None) -> None:
       piezopress demo
       piezopress demo --out demo-run
     """
-    d = out_dir or Path(f"demo-{datetime.now(timezone.utc).strftime('%Y%m%dT%H%M%SZ')}")
+    d = out_dir or Path(f"demo-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}")
     if d.exists() and any(d.iterdir()):
         raise OutputExistsError(f"{d}: exists and is not empty; expected a new directory for the demo")
     d.mkdir(parents=True, exist_ok=True)

@@ -7,17 +7,26 @@ from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress import units
+from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress.pipelines import diagnose as diag
 from piezopress.pipelines.files import kept_note
 
 
 @cli.command("simulate")
 @click.argument("run", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle.")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Run file to write: the run with columns predicted and residual added.")
-@click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>).")
+@click.option(
+    "--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle."
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Run file to write: the run with columns predicted and residual added.",
+)
+@click.option(
+    "--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>)."
+)
 @reports_errors
 def simulate_cmd(run, bundle_path, out, replace) -> None:
     """Run the bundle's model on a run's measured drive, beside the measurement.
@@ -32,8 +41,11 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
     sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace)
     res = sim.data["residual"].to_numpy()
     u = units.label(sim.output_unit)
-    click.echo(f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res ** 2).mean() ** 0.5:.3g} {u} RMS ({sim.output_column})"
-               f"{kept_note(previous)}")
+    click.echo(
+        f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res**2).mean() ** 0.5:.3g} {u} RMS "
+        f"({sim.output_column})"
+        f"{kept_note(previous)}"
+    )
 
 
 def _progress_printer(err: bool):
@@ -59,14 +71,42 @@ def _progress_printer(err: bool):
 
 @cli.command("diagnose")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
-@click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle whose model is judged.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory: diagnosis.json, extended_bundle.json, residual plots.")
-@click.option("--cause", "causes", multiple=True, type=click.Choice(sorted(diag.dg.CAUSES)), metavar="CAUSE",
-              help="Only these causes (repeatable; default: the whole catalogue; an unknown name lists the known ones).")
-@click.option("--gain", "gain", is_flag=True, help="Also measure the gain on the press: validate the base and the extended bundle on "
-              "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).")
-@click.option("--gain-seeds", type=click.IntRange(1, 10), default=2, show_default=True,
-              help="With --gain: passes of the whole chain (the runs', and more with other noise seeds) for each row's noise.")
+@click.option(
+    "--bundle",
+    "bundle_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Parameter bundle whose model is judged.",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="New directory: diagnosis.json, extended_bundle.json, residual plots.",
+)
+@click.option(
+    "--cause",
+    "causes",
+    multiple=True,
+    type=click.Choice(sorted(diag.dg.CAUSES)),
+    metavar="CAUSE",
+    help="Only these causes (repeatable; default: the whole catalogue; an unknown name lists the known ones).",
+)
+@click.option(
+    "--gain",
+    "gain",
+    is_flag=True,
+    help="Also measure the gain on the press: validate the base and the extended bundle on "
+    "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).",
+)
+@click.option(
+    "--gain-seeds",
+    type=click.IntRange(1, 10),
+    default=2,
+    show_default=True,
+    help="With --gain: passes of the whole chain (the runs', and more with other noise seeds) for each row's noise.",
+)
 @json_option
 @reports_errors
 def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) -> None:
@@ -90,14 +130,19 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
       piezopress diagnose runs/char runs/more --bundle build/base.json --out runs/diagnosis-2
       piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis-3 --gain
     """
+
     def say(text: str) -> None:
         click.echo(text, err=as_json)
 
     result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None, on_progress=_progress_printer(as_json))
     plan = diag.next_plan_info(out)
     say(diag.format_summary(result, plan))
-    files = {"diagnosis": out / "diagnosis.json", "extended_bundle": out / "extended_bundle.json",
-             "residuals_figure": out / "residuals.png", "residual_traces_figure": out / "residual_traces.png"}
+    files = {
+        "diagnosis": out / "diagnosis.json",
+        "extended_bundle": out / "extended_bundle.json",
+        "residuals_figure": out / "residuals.png",
+        "residual_traces_figure": out / "residual_traces.png",
+    }
     if plan and plan.get("file"):
         files["next_plan"] = Path(plan["file"])
     say(f"\nWrote {', '.join(str(f) for f in files.values())}")
@@ -105,7 +150,9 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
     if gain:
         from piezopress.pipelines import gain as gain_mod
 
-        _, csv = gain_mod.gain_for_runs(runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None)
+        _, csv = gain_mod.gain_for_runs(
+            runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None
+        )
         gain_rows = gain_mod.read_csv(csv)
         say("\nThe gain on the press (validation on the runs' virtual rig, base bundle against extended):\n")
         say(gain_mod.format_table(gain_rows, {f.cause: f.gain_pct for f in result.findings}))
@@ -115,4 +162,11 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
         import json
 
         doc = json.loads(files["diagnosis"].read_text(encoding="utf-8"))
-        emit_json({"out_dir": out, "files": files, **doc, **({"compensated_gain": gain_rows.to_dict(orient="records")} if gain_rows is not None else {})})
+        emit_json(
+            {
+                "out_dir": out,
+                "files": files,
+                **doc,
+                **({"compensated_gain": gain_rows.to_dict(orient="records")} if gain_rows is not None else {}),
+            }
+        )

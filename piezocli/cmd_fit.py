@@ -6,22 +6,39 @@ from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
 from piezopress import units
+from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
 from piezopress.pipelines import bundle as bundle_mod
-from piezopress.pipelines import files as files_mod
 from piezopress.pipelines import characterize as char
+from piezopress.pipelines import files as files_mod
 from piezopress.pipelines import fit as fit_mod
 
 _runs_arg = click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
 _names_opt = click.option("--run", "names", multiple=True, help="Use only the run(s) of this name (repeatable).")
-_replace_opt = click.option("--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>).")
-_skip_opt = click.option("--skip-s", "skip_s", type=click.FloatRange(min=0.0), default=None, metavar="SECONDS",
-                         help="Do not fit the first SECONDS of each sweep (a rest, a start-up transient); they still carry the model's state. "
-                              "Default: detected (the sweep's start until its input has reached both ends of its range).")
-_rows_opt = click.option("--rows", type=ROWS, default=None, help="Fit only rows START to STOP-1 of each sweep (from 0); earlier rows still carry the state.")
-_if_changed_opt = click.option("--if-changed", is_flag=True,
-                               help="Do nothing if the output was made from the same inputs; else replace it (keeping the old one, timestamped).")
+_replace_opt = click.option(
+    "--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>)."
+)
+_skip_opt = click.option(
+    "--skip-s",
+    "skip_s",
+    type=click.FloatRange(min=0.0),
+    default=None,
+    metavar="SECONDS",
+    help="Do not fit the first SECONDS of each sweep (a rest, a start-up transient); they still carry the model's "
+    "state. "
+    "Default: detected (the sweep's start until its input has reached both ends of its range).",
+)
+_rows_opt = click.option(
+    "--rows",
+    type=ROWS,
+    default=None,
+    help="Fit only rows START to STOP-1 of each sweep (from 0); earlier rows still carry the state.",
+)
+_if_changed_opt = click.option(
+    "--if-changed",
+    is_flag=True,
+    help="Do nothing if the output was made from the same inputs; else replace it (keeping the old one, timestamped).",
+)
 
 
 def _skip(out: Path, digest: str, if_changed: bool) -> bool:
@@ -37,10 +54,23 @@ def _wrote(path: Path, previous: Path | None) -> None:
 
 @cli.command("fit-hysteresis")
 @_runs_arg
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON)."
+)
 @_names_opt
-@click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of each run held out to choose the model.")
-@click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section: remove creep from the outputs first.")
+@click.option(
+    "--holdout-fraction",
+    type=click.FloatRange(0.05, 0.9),
+    default=0.3,
+    show_default=True,
+    help="End of each run held out to choose the model.",
+)
+@click.option(
+    "--creep",
+    "creep_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Creep section: remove creep from the outputs first.",
+)
 @_skip_opt
 @_rows_opt
 @_replace_opt
@@ -65,10 +95,14 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, r
     """
     files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
     creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
-    digest = fit_mod.hysteresis_digest(fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, skip_s=skip_s, rows=rows)
+    digest = fit_mod.hysteresis_digest(
+        fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, skip_s=skip_s, rows=rows
+    )
     if _skip(out, digest, if_changed):
         return
-    doc, fit = fit_mod.fit_hysteresis_section(runs, names=names, holdout_fraction=holdout_fraction, creep=creep, skip_s=skip_s, rows=rows)
+    doc, fit = fit_mod.fit_hysteresis_section(
+        runs, names=names, holdout_fraction=holdout_fraction, creep=creep, skip_s=skip_s, rows=rows
+    )
     click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])}")
     click.echo(f"Chosen: {fit.reason}")
     click.echo(f"Fit error: {_fit_error(fit, doc['model']['output_unit'])}")
@@ -77,10 +111,24 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, r
 
 @cli.command("fit-creep")
 @_runs_arg
-@click.option("--hysteresis", "hyst_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Hysteresis section (from fit-hysteresis).")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
+@click.option(
+    "--hysteresis",
+    "hyst_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Hysteresis section (from fit-hysteresis).",
+)
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON)."
+)
 @_names_opt
-@click.option("--holdout-fraction", type=click.FloatRange(0.05, 0.9), default=0.3, show_default=True, help="End of the hold kept out to choose the creep form.")
+@click.option(
+    "--holdout-fraction",
+    type=click.FloatRange(0.05, 0.9),
+    default=0.3,
+    show_default=True,
+    help="End of the hold kept out to choose the creep form.",
+)
 @_replace_opt
 @_if_changed_opt
 @reports_errors
@@ -107,7 +155,9 @@ def fit_creep_cmd(runs, hyst_path, out, names, holdout_fraction, replace, if_cha
 
 @cli.command("fit-shaper")
 @_runs_arg
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON).")
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Section file to write (JSON)."
+)
 @_names_opt
 @_replace_opt
 @_if_changed_opt
@@ -135,14 +185,37 @@ def fit_shaper_cmd(runs, out, names, replace, if_changed) -> None:
 
 
 @cli.command("bundle")
-@click.option("--hysteresis", "hyst_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Hysteresis section.")
-@click.option("--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section (optional).")
-@click.option("--shaper", "shaper_path", type=click.Path(dir_okay=False, path_type=Path), help="Shaper section (optional).")
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
-@click.option("--max-rate", type=click.FloatRange(min=1e-9), default=None,
-              help="Largest reference rate passed to the drive, in the model's output unit per second "
-                   "(N/s or µm/s; default: 40000 N/s for a force model, no limit for a displacement model).")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
+@click.option(
+    "--hysteresis",
+    "hyst_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Hysteresis section.",
+)
+@click.option(
+    "--creep", "creep_path", type=click.Path(dir_okay=False, path_type=Path), help="Creep section (optional)."
+)
+@click.option(
+    "--shaper", "shaper_path", type=click.Path(dir_okay=False, path_type=Path), help="Shaper section (optional)."
+)
+@click.option(
+    "--rig",
+    "rig_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=char.DEFAULT_RIG,
+    show_default="rigs/thesis-press.toml",
+    help="Rig file: the drive range.",
+)
+@click.option(
+    "--max-rate",
+    type=click.FloatRange(min=1e-9),
+    default=None,
+    help="Largest reference rate passed to the drive, in the model's output unit per second "
+    "(N/s or µm/s; default: 40000 N/s for a force model, no limit for a displacement model).",
+)
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON)."
+)
 @_replace_opt
 @_if_changed_opt
 @reports_errors
@@ -161,7 +234,9 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
     if shaper_path:
         sections["shaper"] = bundle_mod.read_document(shaper_path, "shaper")
     act = char.rig_limits(rig_path)  # the drive range of whichever backend the rig file names
-    comp = fit_mod.compensation_settings(sections, max_rate_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v)
+    comp = fit_mod.compensation_settings(
+        sections, max_rate_per_s=max_rate, drive_min_v=act.drive_min_v, drive_max_v=act.drive_max_v
+    )
     doc = bundle_mod.assemble(sections, comp)
     if _skip(out, doc["inputs_digest"], if_changed):
         return
@@ -171,9 +246,22 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
 
 @cli.command("fit")
 @_runs_arg
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON).")
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig file: the drive range.")
-@click.option("--base", is_flag=True, help="Fit the thesis's model structure (12 plays, 1 dead zone, 3-pole creep): the base model diagnose extends.")
+@click.option(
+    "--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Bundle file to write (JSON)."
+)
+@click.option(
+    "--rig",
+    "rig_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=char.DEFAULT_RIG,
+    show_default="rigs/thesis-press.toml",
+    help="Rig file: the drive range.",
+)
+@click.option(
+    "--base",
+    is_flag=True,
+    help="Fit the thesis's model structure (12 plays, 1 dead zone, 3-pole creep): the base model diagnose extends.",
+)
 @_skip_opt
 @_rows_opt
 @_replace_opt
@@ -199,7 +287,9 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     def say(text: str) -> None:
         click.echo(text, err=as_json)
 
-    fitted = fit_mod.fit_bundle(runs, act, base=base, skip_s=skip_s, rows=rows, on_stage=lambda stage: say(f"fitting {stage} ..."))
+    fitted = fit_mod.fit_bundle(
+        runs, act, base=base, skip_s=skip_s, rows=rows, on_stage=lambda stage: say(f"fitting {stage} ...")
+    )
     res = fitted.result
     u = units.label(res.unit)
     hfit = res.fits["hysteresis"]
@@ -209,31 +299,50 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
         say(f"creep:      {res.fits['creep'].reason} (RMS in {u})")
     if "shaper" in res.sections:
         s = res.sections["shaper"]
-        say(f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; {s['choice']['reason']}")
+        say(
+            f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; "
+            f"{s['choice']['reason']}"
+        )
         chain = s["mode"].get("drive_chain")
         if chain:  # the applied drive was not recorded: say which chain the steps showed
-            what = {"none": "none (the command reaches the stack as it is)",
-                    "slew": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms",
-                    "first_order": f"a first-order lag of {(chain.get('tau_s') or 0) * 1e6:.3g} us"}.get(chain.get("form"), "?")
+            what = {
+                "none": "none (the command reaches the stack as it is)",
+                "slew": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms",
+                "first_order": f"a first-order lag of {(chain.get('tau_s') or 0) * 1e6:.3g} us",
+            }.get(chain.get("form"), "?")
             say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")
     lo, hi = res.drive_v
     if lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
-        say(f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
-            f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this actuator's range)")
+        say(
+            f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
+            f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this "
+            "actuator's range)"
+        )
     previous = bundle_mod.write_document(fitted.doc, out, replace=replace)
     if as_json:
         say(f"Wrote {out}{files_mod.kept_note(previous)}")
-        emit_json({
-            "bundle": out, "previous": previous, "output_unit": res.unit, "sections": list(res.sections),
-            "not_fitted": res.not_fitted,
-            "hysteresis": {"reason": hfit.reason, "train_rms": hfit.train_rms, "holdout_rms": hfit.holdout_rms,
-                           "holdout_rms_pct_of_range": hfit.holdout_rms_pct, "output_range": hfit.output_range},
-            "creep": res.fits["creep"].reason if "creep" in res.sections else None,
-            "shaper": res.sections["shaper"]["choice"]["reason"] if "shaper" in res.sections else None,
-            "drive_v": list(res.drive_v), "rig_drive_v": [act.drive_min_v, act.drive_max_v],
-        })
+        emit_json(
+            {
+                "bundle": out,
+                "previous": previous,
+                "output_unit": res.unit,
+                "sections": list(res.sections),
+                "not_fitted": res.not_fitted,
+                "hysteresis": {
+                    "reason": hfit.reason,
+                    "train_rms": hfit.train_rms,
+                    "holdout_rms": hfit.holdout_rms,
+                    "holdout_rms_pct_of_range": hfit.holdout_rms_pct,
+                    "output_range": hfit.output_range,
+                },
+                "creep": res.fits["creep"].reason if "creep" in res.sections else None,
+                "shaper": res.sections["shaper"]["choice"]["reason"] if "shaper" in res.sections else None,
+                "drive_v": list(res.drive_v),
+                "rig_drive_v": [act.drive_min_v, act.drive_max_v],
+            }
+        )
     else:
         _wrote(out, previous)
 
@@ -241,18 +350,38 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
 def _fit_error(fit, unit: str) -> str:
     """Train and held-out errors of a hysteresis fit, in the output's unit."""
     u = units.label(unit)
-    return (f"train RMS {fit.train_rms:.4g} {u}, held-out RMS {fit.holdout_rms:.4g} {u} "
-            f"= {fit.holdout_rms_pct:.3f} % of the {fit.output_range:.4g} {u} output range")
+    return (
+        f"train RMS {fit.train_rms:.4g} {u}, held-out RMS {fit.holdout_rms:.4g} {u} "
+        f"= {fit.holdout_rms_pct:.3f} % of the {fit.output_range:.4g} {u} output range"
+    )
 
 
 @cli.command("compensate")
-@click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle.")
-@click.option("--reference", "ref_path", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="CSV with columns t_s and reference_n (force above the preload; reference_um for a displacement bundle), uniformly sampled.")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="CSV to write: t_s, the reference column, command_v.")
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Rig file: the bundle's drive range must lie inside its drive range, the reference's rate within its maximum "
-                   "(default: the drive range is not checked, the rate against the virtual rig's maximum).")
+@click.option(
+    "--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle."
+)
+@click.option(
+    "--reference",
+    "ref_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="CSV with columns t_s and reference_n (force above the preload; reference_um for a displacement bundle), "
+    "uniformly sampled.",
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="CSV to write: t_s, the reference column, command_v.",
+)
+@click.option(
+    "--rig",
+    "rig_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Rig file: the bundle's drive range must lie inside its drive range, the reference's rate within its maximum "
+    "(default: the drive range is not checked, the rate against the virtual rig's maximum).",
+)
 @click.option("--no-shaper", is_flag=True, help="Leave the input shaper out.")
 @_replace_opt
 @reports_errors
@@ -273,9 +402,19 @@ def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, replace) -> 
     """
     from piezopress.pipelines import compensate as comp_mod
 
-    result, previous = comp_mod.compensate_file(bundle_path, ref_path, out, use_shaper=not no_shaper, replace=replace,
-                                                rig_limits=char.rig_limits(rig_path), rig=str(rig_path) if rig_path else None)
+    result, previous = comp_mod.compensate_file(
+        bundle_path,
+        ref_path,
+        out,
+        use_shaper=not no_shaper,
+        replace=replace,
+        rig_limits=char.rig_limits(rig_path),
+        rig=str(rig_path) if rig_path else None,
+    )
     for w in result.warnings:
         click.echo(f"Warning: {w}", err=True)
-    click.echo(f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to {result.command_v.max():.2f} V"
-               f"{files_mod.kept_note(previous)}")
+    click.echo(
+        f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to "
+        f"{result.command_v.max():.2f} V"
+        f"{files_mod.kept_note(previous)}"
+    )

@@ -6,13 +6,14 @@ from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, reports_errors
 from piezopress.errors import ImportFormatError
+from piezopress.piezocli.main import cli, reports_errors
 from piezopress.pipelines.importing import import_file
 
 # The two shared data sets, imported with one command each (also in docs/import.md; the
 # tests run exactly these commands).
-HELP = """Convert a CSV/TSV measurement (SOURCE) into a run file (--out, never overwritten unless --replace, which keeps the old one).
+HELP = """Convert a CSV/TSV measurement (SOURCE) into a run file (--out, never overwritten unless --replace,
+which keeps the old one).
 
 Map run columns to source columns with --col RUN_COLUMN=SOURCE_COLUMN, the source column
 given as a number counted from 1 or as a header name. Run columns: t_s, command_v (required),
@@ -83,25 +84,75 @@ def _rows(text: str | None) -> tuple[int | None, int | None] | None:
             raise ValueError
         return (int(start) if start.strip() else None, int(stop) if stop.strip() else None)
     except ValueError:
-        raise ImportFormatError(f"--rows {text!r}: expected START:STOP (counted from 0, STOP excluded), e.g. --rows 0:8000 or --rows 11151:") from None
+        raise ImportFormatError(
+            f"--rows {text!r}: expected START:STOP (counted from 0, STOP excluded), e.g. --rows 0:8000 or --rows 11151:"
+        ) from None
 
 
 @cli.command("import", help=HELP, short_help="Convert a CSV/TSV measurement into a run file.")
 @click.argument("source", type=click.Path(path_type=Path))
-@click.option("--out", "-o", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Run file to write (.parquet); refused if it exists (see --replace).")
-@click.option("--col", "cols", multiple=True, metavar="RUN_COLUMN=SOURCE", help="Map a run column to a source column (number from 1, or header name). Repeat.")
-@click.option("--scale", "scales", multiple=True, metavar="RUN_COLUMN=FACTOR", help="Multiply a column to get V, N, µm or s. Repeat.")
-@click.option("--offset", "offsets", multiple=True, metavar="RUN_COLUMN=VALUE", help="Add to a column after scaling. Repeat.")
-@click.option("--lag", "lags", multiple=True, metavar="RUN_COLUMN=SAMPLES", help="The column was recorded SAMPLES after the input (command_v). Repeat.")
-@click.option("--kind", default="custom", show_default=True, help="Run kind: triangle, step, creep, staircase, sine or custom.")
+@click.option(
+    "--out",
+    "-o",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Run file to write (.parquet); refused if it exists (see --replace).",
+)
+@click.option(
+    "--col",
+    "cols",
+    multiple=True,
+    metavar="RUN_COLUMN=SOURCE",
+    help="Map a run column to a source column (number from 1, or header name). Repeat.",
+)
+@click.option(
+    "--scale",
+    "scales",
+    multiple=True,
+    metavar="RUN_COLUMN=FACTOR",
+    help="Multiply a column to get V, N, µm or s. Repeat.",
+)
+@click.option(
+    "--offset", "offsets", multiple=True, metavar="RUN_COLUMN=VALUE", help="Add to a column after scaling. Repeat."
+)
+@click.option(
+    "--lag",
+    "lags",
+    multiple=True,
+    metavar="RUN_COLUMN=SAMPLES",
+    help="The column was recorded SAMPLES after the input (command_v). Repeat.",
+)
+@click.option(
+    "--kind", default="custom", show_default=True, help="Run kind: triangle, step, creep, staircase, sine or custom."
+)
 @click.option("--name", default=None, help="Run name  [default: the source file name without suffix]")
-@click.option("--sample-rate-hz", "--sample-rate", "sample_rate_hz", type=float, default=None, metavar="HZ", help="Sample rate; required without a t_s column, checked against it otherwise.")
-@click.option("--delimiter", default="auto", show_default=True, help="auto, comma, tab, semicolon, whitespace or one character.")
-@click.option("--header/--no-header", default=None, help="Whether line 1 holds column names  [default: guessed from line 1]")
-@click.option("--rows", "rows_text", default=None, metavar="START:STOP", help="Keep these data rows of the input (from 0, STOP excluded; either end may be left out).")
+@click.option(
+    "--sample-rate-hz",
+    "--sample-rate",
+    "sample_rate_hz",
+    type=float,
+    default=None,
+    metavar="HZ",
+    help="Sample rate; required without a t_s column, checked against it otherwise.",
+)
+@click.option(
+    "--delimiter", default="auto", show_default=True, help="auto, comma, tab, semicolon, whitespace or one character."
+)
+@click.option(
+    "--header/--no-header", default=None, help="Whether line 1 holds column names  [default: guessed from line 1]"
+)
+@click.option(
+    "--rows",
+    "rows_text",
+    default=None,
+    metavar="START:STOP",
+    help="Keep these data rows of the input (from 0, STOP excluded; either end may be left out).",
+)
 @click.option("--keep-time", is_flag=True, help="Keep the source's time origin instead of starting t_s at 0.")
 @click.option("--units-note", default=None, help="Note on units and assumptions, stored in the metadata.")
-@click.option("--replace", is_flag=True, help="Replace an existing --out (the old one is kept as <name>.replaced-<UTC time>).")
+@click.option(
+    "--replace", is_flag=True, help="Replace an existing --out (the old one is kept as <name>.replaced-<UTC time>)."
+)
 @reports_errors
 def import_command(
     source: Path,

@@ -7,14 +7,24 @@ from pathlib import Path
 
 import click
 
-from piezopress.pipelines import profiles
-from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
 from piezopress.errors import PiezopressError
+from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
+from piezopress.pipelines import profiles
 from piezopress.runformat import REQUIRED_METADATA, Run, read_run
 
 # Provenance shown for imported runs, in this order (the rest is in the file).
-_IMPORT_KEYS = ("source_file", "source_sha256", "columns", "scales", "offsets", "lag_samples", "rows", "time_source",
-                "importer_version", "imported_utc")
+_IMPORT_KEYS = (
+    "source_file",
+    "source_sha256",
+    "columns",
+    "scales",
+    "offsets",
+    "lag_samples",
+    "rows",
+    "time_source",
+    "importer_version",
+    "imported_utc",
+)
 
 
 def _value(value: object) -> str:
@@ -54,10 +64,22 @@ def _describe(run: Run) -> list[str]:
 def _as_dict(run: Run) -> dict:
     stats = run.data.agg(["min", "max", "mean"])
     t = run.t_s
-    return {"path": run.path, "kind": run.kind, "name": run.name, "samples": len(run.data), "sample_rate_hz": run.sample_rate_hz,
-            "duration_s": float(t[-1] - t[0]), "status": run.meta.get("status", "complete"),
-            "columns": {c: {"min": float(stats[c]["min"]), "max": float(stats[c]["max"]), "mean": float(stats[c]["mean"])} for c in run.data.columns},
-            "meta": run.meta, "profile": profiles.examine(run)[0].as_dict(), "disagreements": profiles.examine(run)[1]}
+    return {
+        "path": run.path,
+        "kind": run.kind,
+        "name": run.name,
+        "samples": len(run.data),
+        "sample_rate_hz": run.sample_rate_hz,
+        "duration_s": float(t[-1] - t[0]),
+        "status": run.meta.get("status", "complete"),
+        "columns": {
+            c: {"min": float(stats[c]["min"]), "max": float(stats[c]["max"]), "mean": float(stats[c]["mean"])}
+            for c in run.data.columns
+        },
+        "meta": run.meta,
+        "profile": profiles.examine(run)[0].as_dict(),
+        "disagreements": profiles.examine(run)[1],
+    }
 
 
 @cli.command("inspect")
@@ -68,7 +90,8 @@ def _as_dict(run: Run) -> dict:
 def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool, as_json: bool) -> None:
     """Validate run files and print a summary of each.
 
-    For each RUN (a run file, or a directory: every run file in it): kind, name, sample rate, duration and number of samples; minimum,
+    For each RUN (a run file, or a directory: every run file in it): kind, name, sample rate,
+    duration and number of samples; what its signals show (the measured profile); minimum,
     maximum and mean of every column; the other metadata (units note, protocol, ...) and,
     for imported runs, the source file, its sha256 and the import options. A file that
     is not a valid run gets one line on stderr; the others are still shown, and the

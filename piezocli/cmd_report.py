@@ -11,12 +11,42 @@ from piezopress.pipelines import report as rep
 
 
 @cli.command("report")
-@click.option("--characterization", "char_dir", type=click.Path(file_okay=False, path_type=Path), help="Characterization run directory (from `piezopress characterize`).")
-@click.option("--validation", "val_dir", type=click.Path(file_okay=False, path_type=Path), help="Validation run directory (from `piezopress validate`).")
-@click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), help="Parameter bundle (from `piezopress fit`).")
-@click.option("--diagnosis", "diag_dir", type=click.Path(file_okay=False, path_type=Path), help="Diagnosis directory (from `piezopress diagnose`).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New (or empty) directory for the report.")
-@click.option("--replace", is_flag=True, help="Replace an existing report in --out (the old one is kept as <out>.replaced-<UTC time>).")
+@click.option(
+    "--characterization",
+    "char_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Characterization run directory (from `piezopress characterize`).",
+)
+@click.option(
+    "--validation",
+    "val_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Validation run directory (from `piezopress validate`).",
+)
+@click.option(
+    "--bundle",
+    "bundle_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Parameter bundle (from `piezopress fit`).",
+)
+@click.option(
+    "--diagnosis",
+    "diag_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Diagnosis directory (from `piezopress diagnose`).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="New (or empty) directory for the report.",
+)
+@click.option(
+    "--replace",
+    is_flag=True,
+    help="Replace an existing report in --out (the old one is kept as <out>.replaced-<UTC time>).",
+)
 @reports_errors
 def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> None:
     """Write the report: Table 6.13 beside the thesis, the detailed tables, model quality, figures.
@@ -31,7 +61,9 @@ def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> No
       piezopress report --characterization runs/press-2026-11-21 --validation runs/validation \\
           --bundle build/bundle.json --out build/report
     """
-    result = rep.generate(out_dir, characterization=char_dir, validation=val_dir, bundle=bundle_path, diagnosis=diag_dir, replace=replace)
+    result = rep.generate(
+        out_dir, characterization=char_dir, validation=val_dir, bundle=bundle_path, diagnosis=diag_dir, replace=replace
+    )
     report = result.report
     if report.verdict is not None:
         click.echo("\n".join(report.verdict.lines()) + "\n")

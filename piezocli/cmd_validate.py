@@ -14,11 +14,43 @@ from piezopress.pipelines import validate as val
 
 
 @cli.command("validate")
-@click.option("--bundle", "bundle_path", type=click.Path(dir_okay=False, path_type=Path), required=True, help="Parameter bundle (from `piezopress fit` or `bundle`).")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="New directory for the runs.")
-@click.option("--plan", "plan_path", type=click.Path(dir_okay=False, path_type=Path), default=val.DEFAULT_VALIDATION_PLAN, show_default="protocols/validate.toml", help="Reference plan (forces in N above the preload).")
-@click.option("--rig", "rig_path", type=click.Path(dir_okay=False, path_type=Path), default=char.DEFAULT_RIG, show_default="rigs/thesis-press.toml", help="Rig configuration.")
-@click.option("--backend", "backend_name", type=click.Choice(char.BACKENDS), default=None, help="Which rig runs the plan (default: the rig file's [rig] backend).")
+@click.option(
+    "--bundle",
+    "bundle_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Parameter bundle (from `piezopress fit` or `bundle`).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="New directory for the runs.",
+)
+@click.option(
+    "--plan",
+    "plan_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=val.DEFAULT_VALIDATION_PLAN,
+    show_default="protocols/validate.toml",
+    help="Reference plan (forces in N above the preload).",
+)
+@click.option(
+    "--rig",
+    "rig_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=char.DEFAULT_RIG,
+    show_default="rigs/thesis-press.toml",
+    help="Rig configuration.",
+)
+@click.option(
+    "--backend",
+    "backend_name",
+    type=click.Choice(char.BACKENDS),
+    default=None,
+    help="Which rig runs the plan (default: the rig file's [rig] backend).",
+)
 @click.option("--no-shaper", is_flag=True, help="Run without the input shaper (Table 6.12's comparison).")
 @click.option("--no-creep", is_flag=True, help="Run without the creep compensator.")
 @json_option
@@ -40,13 +72,29 @@ def validate_cmd(bundle_path, out_dir, plan_path, rig_path, backend_name, no_sha
         warnings.append(w)
         click.echo(f"\n  warning: {w}", err=True)
 
-    result = val.validate(out_dir, bundle_path, plan_path=plan_path, rig_path=rig_path, backend_name=backend_name,
-                          use_shaper=not no_shaper, use_creep=not no_creep, on_progress=None if as_json else _print_progress,
-                          on_warning=warn)
+    result = val.validate(
+        out_dir,
+        bundle_path,
+        plan_path=plan_path,
+        rig_path=rig_path,
+        backend_name=backend_name,
+        use_shaper=not no_shaper,
+        use_creep=not no_creep,
+        on_progress=None if as_json else _print_progress,
+        on_warning=warn,
+    )
     table = summary.validation_table(result.out_dir)
     path = summary.write_table(table, result.out_dir / "validation.csv")
     if as_json:
-        emit_json({"out_dir": result.out_dir, "runs": result.runs, "table": path, "warnings": warnings, "rows": table.to_dict(orient="records")})
+        emit_json(
+            {
+                "out_dir": result.out_dir,
+                "runs": result.runs,
+                "table": path,
+                "warnings": warnings,
+                "rows": table.to_dict(orient="records"),
+            }
+        )
         return
     click.echo(f"\n{len(result.runs)} runs written to {result.out_dir}\n")
     click.echo(summary.format_table(table, title="Validation (compensated)"))

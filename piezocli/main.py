@@ -15,7 +15,6 @@ import click
 from piezopress import __version__
 from piezopress.errors import PiezopressError
 
-
 #: Whether a progress line was started without its end (``[1/2] tri ... ``): an error then starts a new line.
 _PROGRESS_LINE = {"open": False}
 
@@ -50,7 +49,9 @@ def reports_errors(func):
 
 def json_option(func):
     """``--json``: print one machine-readable document on stdout; the human lines go to stderr."""
-    return click.option("--json", "as_json", is_flag=True, help="Print one JSON document on stdout (the usual lines go to stderr).")(func)
+    return click.option(
+        "--json", "as_json", is_flag=True, help="Print one JSON document on stdout (the usual lines go to stderr)."
+    )(func)
 
 
 def emit_json(doc) -> None:
@@ -86,8 +87,14 @@ class RowsType(click.ParamType):
                 raise ValueError
             out = (int(start) if start.strip() else None, int(stop) if stop.strip() else None)
         except ValueError:
-            self.fail(f"{value!r}: expected START:STOP (counted from 0, STOP excluded), e.g. 0:8000 or 11151:", param, ctx)
-        if (out[0] is not None and out[0] < 0) or (out[1] is not None and out[1] < 1) or (None not in out and out[1] <= out[0]):
+            self.fail(
+                f"{value!r}: expected START:STOP (counted from 0, STOP excluded), e.g. 0:8000 or 11151:", param, ctx
+            )
+        if (
+            (out[0] is not None and out[0] < 0)
+            or (out[1] is not None and out[1] < 1)
+            or (None not in out and out[1] <= out[0])
+        ):
             self.fail(f"{value!r}: expected 0 <= START < STOP", param, ctx)
         return out
 
@@ -139,9 +146,15 @@ def _accept_incomplete(ctx: click.Context, param: click.Parameter, value: bool) 
 
 
 def accept_incomplete_option() -> click.Option:
-    return click.Option(["--accept-incomplete"], is_flag=True, expose_value=False, is_eager=True, callback=_accept_incomplete,
-                        help="Use the complete runs of a run directory whose manifest says interrupted, failed or running "
-                             "(the output says so); without it such a directory is refused.")
+    return click.Option(
+        ["--accept-incomplete"],
+        is_flag=True,
+        expose_value=False,
+        is_eager=True,
+        callback=_accept_incomplete,
+        help="Use the complete runs of a run directory whose manifest says interrupted, failed or running "
+        "(the output says so); without it such a directory is refused.",
+    )
 
 
 def _trust_metadata(ctx: click.Context, param: click.Parameter, value: bool) -> None:
@@ -159,9 +172,15 @@ def _trust_metadata(ctx: click.Context, param: click.Parameter, value: bool) -> 
 
 
 def trust_metadata_option() -> click.Option:
-    return click.Option(["--trust-metadata"], is_flag=True, expose_value=False, is_eager=True, callback=_trust_metadata,
-                        help="Where a run's recorded kind disagrees with what its signals show, use the record "
-                             "(default: the measured kind; every disagreement is named on stderr).")
+    return click.Option(
+        ["--trust-metadata"],
+        is_flag=True,
+        expose_value=False,
+        is_eager=True,
+        callback=_trust_metadata,
+        help="Where a run's recorded kind disagrees with what its signals show, use the record "
+        "(default: the measured kind; every disagreement is named on stderr).",
+    )
 
 
 class LazyGroup(click.Group):
@@ -174,9 +193,15 @@ class LazyGroup(click.Group):
         if name not in self.commands and name in COMMANDS:
             import importlib
 
-            importlib.import_module(f"piezopress.piezocli.{COMMANDS[name][0]}")  # its decorators add the command to this group
+            importlib.import_module(
+                f"piezopress.piezocli.{COMMANDS[name][0]}"
+            )  # its decorators add the command to this group
         cmd = self.commands.get(name)
-        if cmd is not None and name in READS_RUN_DIRECTORIES and not any(p.name == "accept_incomplete" for p in cmd.params):
+        if (
+            cmd is not None
+            and name in READS_RUN_DIRECTORIES
+            and not any(p.name == "accept_incomplete" for p in cmd.params)
+        ):
             cmd.params.append(accept_incomplete_option())
             cmd.params.append(trust_metadata_option())
         return cmd

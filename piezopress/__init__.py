@@ -29,7 +29,9 @@ if hasattr(_os, "sched_getaffinity"):
 _here = _os.path.dirname(_os.path.abspath(__file__))
 _root = _os.path.dirname(_here)
 if not _os.path.isdir(_os.path.join(_here, "pipelines")) and all(
-        _os.path.exists(_os.path.join(_root, *p)) for p in (("pyproject.toml",), ("pipelines", "__init__.py"), ("piezocli", "__init__.py"))):
+    _os.path.exists(_os.path.join(_root, *p))
+    for p in (("pyproject.toml",), ("pipelines", "__init__.py"), ("piezocli", "__init__.py"))
+):
     __path__.append(_root)  # a checkout: piezopress.pipelines is <root>/pipelines
 
 __version__ = "0.1.0"

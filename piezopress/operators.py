@@ -63,7 +63,9 @@ def monotone_runs(x: np.ndarray) -> np.ndarray:
     return np.concatenate([[0], change])
 
 
-def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, widen: np.ndarray | None = None) -> np.ndarray:
+def play(
+    x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, widen: np.ndarray | None = None
+) -> np.ndarray:
     """Play (backlash) operators of thresholds ``r`` driven by ``x``.
 
     Parameters
@@ -108,7 +110,9 @@ def play(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, wid
     return _play_scan(x, r, y_start, widen)
 
 
-def _play_runs(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, starts: np.ndarray, widen: np.ndarray | None = None) -> np.ndarray | None:
+def _play_runs(
+    x: np.ndarray, r: np.ndarray, y_start: np.ndarray, starts: np.ndarray, widen: np.ndarray | None = None
+) -> np.ndarray | None:
     # Rising run: y[k] = max(y[k-1], lo[k]) while the upper bound hi[k] never binds, i.e.
     # a running maximum of lo (falling: a running minimum of hi). With constant thresholds
     # the bound never binds; with widened ones it is checked, and None returned if it does
@@ -166,6 +170,7 @@ def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, widen: np.ndar
     big = np.inf
     comp_lo = np.full((B, r.size), -big)
     comp_hi = np.full((B, r.size), big)
+
     def bounds(j):
         col = xs[:, j, None]
         w = r if wd is None else r + wd[:, j, None]
@@ -189,7 +194,9 @@ def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, widen: np.ndar
     return y
 
 
-def play_loop(x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, widen: np.ndarray | None = None) -> np.ndarray:
+def play_loop(
+    x: np.ndarray, r: np.ndarray | float, y0: np.ndarray | float = 0.0, widen: np.ndarray | None = None
+) -> np.ndarray:
     """Reference implementation: the per-sample loop of Eq. 3.1 (slow; for tests and benchmarks)."""
     x = np.asarray(x, dtype=np.float64)
     r = _as_thresholds(r)

@@ -16,8 +16,8 @@ True
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -92,8 +92,15 @@ def step_responses(uncompensated: Sequence[Curve], compensated: Sequence[Curve])
     return fig
 
 
-def residual_rms_bars(runs: Sequence[str], before: Sequence[float], after: Sequence[float], floor: Sequence[float], *,
-                      unit: str = "N", title: str = "Residual per run: base model against the extended model") -> Figure:
+def residual_rms_bars(
+    runs: Sequence[str],
+    before: Sequence[float],
+    after: Sequence[float],
+    floor: Sequence[float],
+    *,
+    unit: str = "N",
+    title: str = "Residual per run: base model against the extended model",
+) -> Figure:
     """Per-run RMS residual before and after, on a log scale, with each run's noise floor."""
     fig = _figure(4.4)
     ax = fig.subplots()
@@ -126,8 +133,15 @@ class ResidualRow:
     spans_right: bool = True
 
 
-def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title: str = "", right_title: str = "",
-                    xlabel: str = "time / run length", title: str = "Residuals") -> Figure:
+def residual_traces(
+    rows: Sequence[ResidualRow],
+    *,
+    unit: str = "N",
+    left_title: str = "",
+    right_title: str = "",
+    xlabel: str = "time / run length",
+    title: str = "Residuals",
+) -> Figure:
     """Measured minus modelled output, one row per run kind (its own scale), two columns
     (e.g. the base model and the extended one); a row's note says what was clipped."""
     n = max(len(rows), 1)
@@ -138,17 +152,34 @@ def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title:
         _no_data(axes[0, 1], "no run")
     for i, row in enumerate(rows):
         ax_l, ax_r = axes[i]
-        for ax, curves, sub, note in ((ax_l, row.left, left_title, row.left_note), (ax_r, row.right, right_title, row.right_note)):
+        for ax, curves, sub, note in (
+            (ax_l, row.left, left_title, row.left_note),
+            (ax_r, row.right, right_title, row.right_note),
+        ):
             for j, c in enumerate(curves):
-                ax.plot(c.x, c.y, color=AFTER_COLOURS[j % len(AFTER_COLOURS)], lw=0.5, alpha=0.85,
-                        label=(c.label or None) if len(curves) <= 6 else None)
+                ax.plot(
+                    c.x,
+                    c.y,
+                    color=AFTER_COLOURS[j % len(AFTER_COLOURS)],
+                    lw=0.5,
+                    alpha=0.85,
+                    label=(c.label or None) if len(curves) <= 6 else None,
+                )
             if len(curves) <= 6 and any(c.label for c in curves) and ax is ax_r:
                 ax.legend(fontsize=7, loc="upper right")
-            for x0, x1, label in (row.spans if ax is ax_l or row.spans_right else ()):
+            for x0, x1, label in row.spans if ax is ax_l or row.spans_right else ():
                 ax.axvspan(x0, x1, color="#f5d76e", alpha=0.35, lw=0)
                 if label:
-                    ax.text((x0 + x1) / 2, 0.97, label, transform=ax.get_xaxis_transform(), ha="center", va="top",
-                            fontsize=7, color="0.25")
+                    ax.text(
+                        (x0 + x1) / 2,
+                        0.97,
+                        label,
+                        transform=ax.get_xaxis_transform(),
+                        ha="center",
+                        va="top",
+                        fontsize=7,
+                        color="0.25",
+                    )
             ax.axhline(0.0, color="0.3", lw=0.6)
             ax.set_ylim(-1.05 * row.limit, 1.05 * row.limit)
             ax.grid(True, alpha=0.3)
@@ -157,8 +188,16 @@ def residual_traces(rows: Sequence[ResidualRow], *, unit: str = "N", left_title:
             if i == n - 1:
                 ax.set_xlabel(xlabel)
             if note:
-                ax.text(0.01, 0.02, note, transform=ax.transAxes, fontsize=7, color="0.25", va="bottom",
-                        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
+                ax.text(
+                    0.01,
+                    0.02,
+                    note,
+                    transform=ax.transAxes,
+                    fontsize=7,
+                    color="0.25",
+                    va="bottom",
+                    bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0},
+                )
         ax_l.set_ylabel(f"{row.title}\n({units.label(unit)})", fontsize=9)
     fig.suptitle(title)
     return fig
@@ -243,8 +282,11 @@ def creep_relative(before: Sequence[Curve], after: Sequence[Curve], *, t_ss_s: f
         ax.legend(fontsize=8, loc="upper left")
     else:
         _no_data(ax, "no creep run")
-    ax.set(title=f"Creep from {t_ss_s:.2g} s after the step", xlabel="time after the step (s, log)",
-           ylabel="(F - F_ss) / (F_ss - F_0)  (%)")
+    ax.set(
+        title=f"Creep from {t_ss_s:.2g} s after the step",
+        xlabel="time after the step (s, log)",
+        ylabel="(F - F_ss) / (F_ss - F_0)  (%)",
+    )
     ax.grid(True, which="both", alpha=0.3)
     return fig
 
@@ -259,8 +301,16 @@ class Stair:
     high: float
 
 
-def tracking_stairs(t_s: np.ndarray, reference: np.ndarray, measured: np.ndarray, stairs: Sequence[Stair], *,
-                    title: str = "Staircase tracking", unit: str = "N", evaluated_from: float | None = None) -> Figure:
+def tracking_stairs(
+    t_s: np.ndarray,
+    reference: np.ndarray,
+    measured: np.ndarray,
+    stairs: Sequence[Stair],
+    *,
+    title: str = "Staircase tracking",
+    unit: str = "N",
+    evaluated_from: float | None = None,
+) -> Figure:
     """Reference and measured output against time (top), and per stair the mean error
     with whiskers from its minimum to its maximum (bottom): one bar per stair instead of a
     barcode of samples."""
@@ -302,9 +352,17 @@ class Response:
     label: str = ""
 
 
-def bode(models: Sequence[Response], measured: Sequence[Response] = (), *, band_hz: tuple[float, float] | None = None,
-         band_label: str = "", marks_hz: Sequence[tuple[float, str]] = (), title: str = "",
-         magnitude_label: str = "magnitude (1)", log_magnitude: bool = True) -> Figure:
+def bode(
+    models: Sequence[Response],
+    measured: Sequence[Response] = (),
+    *,
+    band_hz: tuple[float, float] | None = None,
+    band_label: str = "",
+    marks_hz: Sequence[tuple[float, str]] = (),
+    title: str = "",
+    magnitude_label: str = "magnitude (1)",
+    log_magnitude: bool = True,
+) -> Figure:
     """Magnitude (log) and phase against frequency (log): models as lines, measured
     responses as points; ``band_hz`` shaded (e.g. the band a shaper was designed for),
     ``marks_hz`` vertical lines with their labels."""
@@ -324,8 +382,15 @@ def bode(models: Sequence[Response], measured: Sequence[Response] = (), *, band_
         for f, text in marks_hz:
             ax.axvline(f, color="0.3", lw=0.8, ls=":")
             if ax is ax_m:
-                ax.annotate(text, (f, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -12), textcoords="offset points",
-                            fontsize=8, color="0.2")
+                ax.annotate(
+                    text,
+                    (f, 1.0),
+                    xycoords=("data", "axes fraction"),
+                    xytext=(3, -12),
+                    textcoords="offset points",
+                    fontsize=8,
+                    color="0.2",
+                )
         ax.set_xscale("log")
         ax.grid(True, which="both", alpha=0.3)
     if log_magnitude:
@@ -337,8 +402,14 @@ def bode(models: Sequence[Response], measured: Sequence[Response] = (), *, band_
     return fig
 
 
-def shaper_sensitivity(curves: Sequence[Curve], *, chosen: str, band: tuple[float, float] | None = None,
-                       limit_pct: float | None = None, title: str = "") -> Figure:
+def shaper_sensitivity(
+    curves: Sequence[Curve],
+    *,
+    chosen: str,
+    band: tuple[float, float] | None = None,
+    limit_pct: float | None = None,
+    title: str = "",
+) -> Figure:
     """Residual vibration (%) against the mode's frequency relative to the design
     frequency (%): one curve per shaper, the chosen one bold; ``band`` (relative, %)
     shaded: the frequency error the choice was judged over; ``limit_pct`` a dotted line."""
@@ -346,8 +417,13 @@ def shaper_sensitivity(curves: Sequence[Curve], *, chosen: str, band: tuple[floa
     ax = fig.subplots()
     for i, c in enumerate(curves):
         bold = c.label.split(" ")[0] == chosen
-        ax.plot(c.x, c.y, color="k" if bold else AFTER_COLOURS[(i + 1) % len(AFTER_COLOURS)], lw=2.0 if bold else 0.9,
-                label=(c.label + " (chosen)") if bold else c.label)
+        ax.plot(
+            c.x,
+            c.y,
+            color="k" if bold else AFTER_COLOURS[(i + 1) % len(AFTER_COLOURS)],
+            lw=2.0 if bold else 0.9,
+            label=(c.label + " (chosen)") if bold else c.label,
+        )
     if band is not None:
         ax.axvspan(*band, color="#f5d76e", alpha=0.35, lw=0, label=f"judged over {band[0]:+g} to {band[1]:+g} %")
     if limit_pct is not None:

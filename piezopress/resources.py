@@ -30,8 +30,10 @@ def shipped_dir(kind: str) -> Path:
     checkout = Path(__file__).resolve().parents[1] / kind  # a checkout without piezopress/__init__'s path
     if checkout.is_dir():
         return checkout
-    raise FileNotFoundError(f"the shipped {kind}/ folder is missing from this installation of piezopress "
-                            f"(looked in {', '.join(str(p) for p in _paths(where)) or 'the package'}); reinstall it")
+    raise FileNotFoundError(
+        f"the shipped {kind}/ folder is missing from this installation of piezopress "
+        f"(looked in {', '.join(str(p) for p in _paths(where)) or 'the package'}); reinstall it"
+    )
 
 
 def shipped(kind: str, name: str) -> Path:

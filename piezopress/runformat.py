@@ -25,9 +25,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -160,9 +161,16 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
 
     missing = [c for c in REQUIRED_COLUMNS if c not in data.columns]
     if missing:
-        raise _problem(label, f"missing column {', '.join(missing)}; expected columns t_s, command_v and force_n and/or displacement_um")
+        raise _problem(
+            label,
+            f"missing column {', '.join(missing)}; expected columns t_s, command_v and force_n and/or displacement_um",
+        )
     if not any(c in data.columns for c in OUTPUT_COLUMNS):
-        raise _problem(label, f"no measured output; expected a column force_n and/or displacement_um (columns: {', '.join(map(str, data.columns))})")
+        raise _problem(
+            label,
+            "no measured output; expected a column force_n and/or displacement_um (columns: "
+            f"{', '.join(map(str, data.columns))})",
+        )
     if len(data) < 2:
         raise _problem(label, f"has {len(data)} sample(s), expected at least 2")
     for col in KNOWN_COLUMNS:
@@ -175,27 +183,42 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
         bad = ~np.isfinite(arr)
         if bad.any():
             i = int(np.argmax(bad))
-            raise _problem(label, f"column {col} has {int(bad.sum())} NaN/infinite value(s), first at row {i}; expected finite numbers")
+            raise _problem(
+                label,
+                f"column {col} has {int(bad.sum())} NaN/infinite value(s), first at row {i}; expected finite numbers",
+            )
 
     for col in data.columns:  # columns beyond the known ones are kept, but as numbers too (all float64, finite)
         if col in KNOWN_COLUMNS:
             continue
         if data[col].dtype != np.float64:
-            raise _problem(label, f"extra column {str(col)[:60]!r} has type {data[col].dtype}, expected float64 (every column of a run is a number)")
+            raise _problem(
+                label,
+                f"extra column {str(col)[:60]!r} has type {data[col].dtype}, expected float64 (every column of a run "
+                "is a number)",
+            )
         if not np.isfinite(data[col].to_numpy()).all():
             raise _problem(label, f"extra column {str(col)[:60]!r} has NaN/infinite values; expected finite numbers")
     for col in data.columns:
         big = np.abs(data[col].to_numpy()) > MAX_MAGNITUDE
         if big.any():
             i = int(np.argmax(big))
-            raise _problem(label, f"column {str(col)[:60]} holds {data[col].iloc[i]:g} at row {i}; expected magnitudes below {MAX_MAGNITUDE:g} "
-                                  "(no press measures that: a unit or scale error?)")
+            raise _problem(
+                label,
+                f"column {str(col)[:60]} holds {data[col].iloc[i]:g} at row {i}; expected magnitudes below "
+                f"{MAX_MAGNITUDE:g} "
+                "(no press measures that: a unit or scale error?)",
+            )
 
     t = data["t_s"].to_numpy()
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        raise _problem(label, f"t_s is not strictly increasing at row {i + 1} ({t[i]!r} then {t[i + 1]!r}); expected strictly increasing time")
+        raise _problem(
+            label,
+            f"t_s is not strictly increasing at row {i + 1} ({t[i]!r} then {t[i + 1]!r}); expected strictly "
+            "increasing time",
+        )
     dt_nominal = (t[-1] - t[0]) / (len(t) - 1)
     dev = np.abs(dt - dt_nominal)
     if dev.max() > UNIFORM_RTOL * dt_nominal:
@@ -207,7 +230,10 @@ def validate(data: pd.DataFrame, meta: Mapping[str, Any], label: str, *, allow_i
         )
     fs_from_t = 1.0 / dt_nominal
     if abs(fs_from_t - fs) > 1e-3 * fs:
-        raise _problem(label, f"sample_rate_hz is {fs:g} but t_s is sampled at {fs_from_t:.6g} Hz; expected them to agree within 0.1 %")
+        raise _problem(
+            label,
+            f"sample_rate_hz is {fs:g} but t_s is sampled at {fs_from_t:.6g} Hz; expected them to agree within 0.1 %",
+        )
 
 
 def meta_get(meta: Any, *keys: str, default: Any = None) -> Any:
@@ -328,13 +354,21 @@ def read_run(path: str | os.PathLike[str], *, allow_incomplete: bool = False) ->
         raise _problem(label, f"cannot be read as Parquet ({first}); expected a Parquet run file") from None
     raw = (table.schema.metadata or {}).get(METADATA_KEY)
     if raw is None:
-        raise _problem(label, "has no 'piezopress' metadata; expected a run written by piezopress (convert other data with `piezopress import`)")
+        raise _problem(
+            label,
+            "has no 'piezopress' metadata; expected a run written by piezopress (convert other data with `piezopress "
+            "import`)",
+        )
     try:
         meta = json.loads(raw)
     except json.JSONDecodeError as exc:
-        raise _problem(label, f"'piezopress' metadata is not valid JSON ({exc.msg} at character {exc.pos}); expected a JSON object") from None
+        raise _problem(
+            label, f"'piezopress' metadata is not valid JSON ({exc.msg} at character {exc.pos}); expected a JSON object"
+        ) from None
     except UnicodeDecodeError as exc:
-        raise _problem(label, f"'piezopress' metadata is not UTF-8 text (byte {exc.start}); expected a JSON object") from None
+        raise _problem(
+            label, f"'piezopress' metadata is not UTF-8 text (byte {exc.start}); expected a JSON object"
+        ) from None
     try:
         data = table.to_pandas()
     except Exception as exc:  # pyarrow raises many types for columns it cannot convert
@@ -350,7 +384,9 @@ def read_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     try:
         schema = pq.read_schema(path)
     except Exception as exc:
-        raise _problem(str(path), f"cannot be read as Parquet ({type(exc).__name__}); expected a Parquet run file") from None
+        raise _problem(
+            str(path), f"cannot be read as Parquet ({type(exc).__name__}); expected a Parquet run file"
+        ) from None
     raw = (schema.metadata or {}).get(METADATA_KEY)
     if raw is None:
         raise _problem(str(path), "has no 'piezopress' metadata; expected a run written by piezopress")

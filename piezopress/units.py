@@ -30,7 +30,9 @@ def unit_of_column(column: str) -> str:
     try:
         return COLUMN_UNITS[column]
     except KeyError:
-        raise ValueError(f"output column {column!r} has no known unit; expected one of {', '.join(COLUMN_UNITS)}") from None
+        raise ValueError(
+            f"output column {column!r} has no known unit; expected one of {', '.join(COLUMN_UNITS)}"
+        ) from None
 
 
 def normalise(unit: str | None) -> str:

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import piezopress
 from piezopress import runformat
-from piezopress.pipelines.profiles import read_measured
 from piezopress.analysis.bundle import BUNDLE_VERSION, SECTIONS, Bundle, BundleError, check_section
 from piezopress.pipelines.files import run_files, utc_now, write_json_atomic, write_output
+from piezopress.pipelines.profiles import read_measured
 
 
 def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> list[runformat.Run]:
@@ -28,8 +29,10 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
         if p.is_dir():
             found = run_files(p)
             if not found:
-                raise BundleError(f"{p}: a directory holding no run (no manifest, no *.parquet file); expected a run directory "
-                                  "(from `piezopress characterize`) or run files (from `piezopress import`)")
+                raise BundleError(
+                    f"{p}: a directory holding no run (no manifest, no *.parquet file); expected a run directory "
+                    "(from `piezopress characterize`) or run files (from `piezopress import`)"
+                )
             files += found
         elif p.exists():
             files.append(p)
@@ -47,10 +50,14 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
 
 
 def provenance(runs: Iterable[runformat.Run]) -> list[dict[str, Any]]:
-    return [{"name": r.name, "file": str(r.path), "sha256": runformat.sha256_file(r.path) if r.path else None} for r in runs]
+    return [
+        {"name": r.name, "file": str(r.path), "sha256": runformat.sha256_file(r.path) if r.path else None} for r in runs
+    ]
 
 
-def inputs_digest(kind: str, runs: Iterable[runformat.Run], upstream: Iterable[dict[str, Any] | None] = (), **options: Any) -> str:
+def inputs_digest(
+    kind: str, runs: Iterable[runformat.Run], upstream: Iterable[dict[str, Any] | None] = (), **options: Any
+) -> str:
     """A digest of everything a stage's result depends on: the runs' bytes, the upstream
     sections' own digests, the options and the software version. Equal digests, equal
     results: ``--if-changed`` skips the stage."""
@@ -79,13 +86,22 @@ def up_to_date(path: str | Path, digest: str) -> bool:
         return False
 
 
-def section(kind: str, body: dict[str, Any], runs: Iterable[runformat.Run], digest: str | None = None) -> dict[str, Any]:
+def section(
+    kind: str, body: dict[str, Any], runs: Iterable[runformat.Run], digest: str | None = None
+) -> dict[str, Any]:
     """A section document: what, from which runs, by which software, when."""
     if kind not in SECTIONS:
         raise BundleError(f"section kind {kind!r} is unknown; expected one of {', '.join(SECTIONS)}")
     runs = list(runs)
-    return {"section": kind, "bundle_version": BUNDLE_VERSION, "software_version": piezopress.__version__,
-            "fitted_utc": utc_now(), "inputs_digest": digest or inputs_digest(kind, runs), "runs": provenance(runs), **body}
+    return {
+        "section": kind,
+        "bundle_version": BUNDLE_VERSION,
+        "software_version": piezopress.__version__,
+        "fitted_utc": utc_now(),
+        "inputs_digest": digest or inputs_digest(kind, runs),
+        "runs": provenance(runs),
+        **body,
+    }
 
 
 def write_document(doc: dict[str, Any], path: str | Path, *, replace: bool = False) -> Path | None:
@@ -118,7 +134,9 @@ def _load(path: Path, expect: str) -> Any:
     except RecursionError:
         raise BundleError(f"{path}: nested too deeply; expected a {expect} JSON file") from None
     except json.JSONDecodeError as exc:
-        raise BundleError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); expected a {expect} file") from None
+        raise BundleError(
+            f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}); expected a {expect} file"
+        ) from None
 
 
 def read_bundle(path: str | Path) -> Bundle:
@@ -142,6 +160,12 @@ def assemble(sections: dict[str, dict[str, Any]], compensation: dict[str, Any]) 
     if "hysteresis" not in sections:
         raise BundleError("a bundle needs at least the hysteresis section")
     digest = inputs_digest("bundle", [], [sections[k] for k in SECTIONS if k in sections], **compensation)
-    return {"bundle_version": BUNDLE_VERSION, "kind": "piezopress-bundle", "software_version": piezopress.__version__,
-            "created_utc": utc_now(), "inputs_digest": digest, **{k: sections[k] for k in SECTIONS if k in sections},
-            "compensation": compensation}
+    return {
+        "bundle_version": BUNDLE_VERSION,
+        "kind": "piezopress-bundle",
+        "software_version": piezopress.__version__,
+        "created_utc": utc_now(),
+        "inputs_digest": digest,
+        **{k: sections[k] for k in SECTIONS if k in sections},
+        "compensation": compensation,
+    }

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,14 @@ from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError, output_error
-from piezopress.pipelines.files import MANIFEST, MANIFEST_VERSION, new_output_dir, software_versions, utc_now, write_json_atomic
+from piezopress.pipelines.files import (
+    MANIFEST,
+    MANIFEST_VERSION,
+    new_output_dir,
+    software_versions,
+    utc_now,
+    write_json_atomic,
+)
 from piezopress.resources import shipped
 
 DEFAULT_PLAN = shipped("protocols", "characterize.toml")
@@ -58,7 +66,9 @@ def make_backend(name: str | None, rig_path: str | Path | None) -> Backend:
         raise BackendError(f"backend {name!r} is unknown; expected one of {', '.join(BACKENDS)}")
     if rig_path is None:
         if name not in (None, "virtual"):
-            raise BackendError(f"backend {name!r} needs a rig file (--rig) describing the hardware; see rigs/nidaq-example.toml")
+            raise BackendError(
+                f"backend {name!r} needs a rig file (--rig) describing the hardware; see rigs/nidaq-example.toml"
+            )
         return VirtualRig(load_rig(None))
     doc = read_rig_document(rig_path)
     in_file = rig_backend(doc)
@@ -117,12 +127,18 @@ def plain_drive(proto: Protocol) -> Drive:
     return Drive(*proto.waveform())
 
 
-def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any],
-                 drive_for: Callable[[Protocol], Drive] = plain_drive, progress: Callable[[float], None] | None = None) -> runformat.Run:
+def run_protocol(
+    backend: Backend,
+    proto: Protocol,
+    plan: Plan,
+    extra_meta: dict[str, Any],
+    drive_for: Callable[[Protocol], Drive] = plain_drive,
+    progress: Callable[[float], None] | None = None,
+) -> runformat.Run:
     """Play one protocol through ``backend`` and return it as a run (complete or not);
     ``progress`` receives the fraction measured, as the backend reports it."""
     drive = drive_for(proto)
-    t_s, command_v = drive.t_s, drive.command_v
+    command_v = drive.command_v
     started = utc_now()
     try:
         m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name, progress=progress)
@@ -138,13 +154,22 @@ def run_protocol(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict
     return _measured_run(backend, proto, plan, extra_meta, drive, m, started)
 
 
-def _measured_run(backend: Backend, proto: Protocol, plan: Plan, extra_meta: dict[str, Any], drive: Drive,
-                  m: Measurement, started: str) -> runformat.Run:
+def _measured_run(
+    backend: Backend,
+    proto: Protocol,
+    plan: Plan,
+    extra_meta: dict[str, Any],
+    drive: Drive,
+    m: Measurement,
+    started: str,
+) -> runformat.Run:
     t_s, command_v = drive.t_s, drive.command_v
     columns = {"t_s": t_s, "command_v": command_v, **drive.columns}
     n = min((len(v) for v in m.channels.values()), default=0) if not m.complete else len(t_s)
     if not m.complete and n < 2:
-        raise BackendError(f"{proto.name}: the backend stopped the run before 2 samples were measured ({m.reason}); nothing to keep")
+        raise BackendError(
+            f"{proto.name}: the backend stopped the run before 2 samples were measured ({m.reason}); nothing to keep"
+        )
     columns = {k: v[:n] for k, v in columns.items()}
     columns.update({k: np.asarray(v[:n], dtype=np.float64) for k, v in m.channels.items()})
     meta = runformat.make_meta(
@@ -252,12 +277,25 @@ def execute_plan(
                 raise
             path, complete = _keep_run(out, manifest_path, manifest, proto, run)
             if not complete:
-                raise BackendError(f"{proto.name}: the backend stopped the run early ({run.meta['status_reason']}); kept as {path.name}")
+                raise BackendError(
+                    f"{proto.name}: the backend stopped the run early ({run.meta['status_reason']}); kept as "
+                    f"{path.name}"
+                )
             result.runs.append(path)
             remaining -= proto.duration_s
             if on_progress:
-                on_progress(ProgressEvent(i, total, proto, done=True, elapsed_s=time.perf_counter() - t0, path=path, plan_s=plan_s,
-                                          remaining_s=remaining))
+                on_progress(
+                    ProgressEvent(
+                        i,
+                        total,
+                        proto,
+                        done=True,
+                        elapsed_s=time.perf_counter() - t0,
+                        path=path,
+                        plan_s=plan_s,
+                        remaining_s=remaining,
+                    )
+                )
     except BaseException as exc:
         try:
             backend.zero_output()
@@ -265,13 +303,20 @@ def execute_plan(
             manifest["zero_output_error"] = f"{type(zero_exc).__name__}: {zero_exc}"
         interrupted = isinstance(exc, KeyboardInterrupt)
         manifest["status"] = "interrupted" if interrupted else "failed"
-        manifest["status_reason"] = (f"interrupted by {signal.Signals(exc.signum).name}" if getattr(exc, "signum", None)
-                                     else "interrupted by the user" if interrupted else f"{type(exc).__name__}: {exc}")
+        manifest["status_reason"] = (
+            f"interrupted by {signal.Signals(exc.signum).name}"
+            if getattr(exc, "signum", None)
+            else "interrupted by the user"
+            if interrupted
+            else f"{type(exc).__name__}: {exc}"
+        )
         manifest["finished_utc"] = utc_now()
         write_json_atomic(manifest_path, manifest)
         if isinstance(exc, (PiezopressError, KeyboardInterrupt)):
             raise
-        raise BackendError(f"characterization stopped: {type(exc).__name__}: {exc} (runs so far kept in {out})") from exc
+        raise BackendError(
+            f"characterization stopped: {type(exc).__name__}: {exc} (runs so far kept in {out})"
+        ) from exc
     finally:
         stop_signals.__exit__(None, None, None)
     manifest["status"] = "complete"
@@ -280,8 +325,15 @@ def execute_plan(
     return result
 
 
-def _keep_run(out: Path, manifest_path: Path, manifest: dict[str, Any], proto: Protocol, run: runformat.Run,
-              *, force_incomplete: bool = False) -> tuple[Path, bool]:
+def _keep_run(
+    out: Path,
+    manifest_path: Path,
+    manifest: dict[str, Any],
+    proto: Protocol,
+    run: runformat.Run,
+    *,
+    force_incomplete: bool = False,
+) -> tuple[Path, bool]:
     """Write one run (``NAME.parquet``, or ``NAME.incomplete.parquet`` if cut short) and list it in the manifest."""
     if force_incomplete and run.meta["status"] == runformat.STATUS_COMPLETE:
         run.meta["status"] = runformat.STATUS_INCOMPLETE
@@ -312,8 +364,10 @@ def check_drives(plan: Plan, backend: Backend) -> None:
     """
     check = getattr(backend, "check_drive", None)
     if check is None:  # a backend without its own check: the shared one, on its stated limits
+
         def check(command_v: np.ndarray, fs: float, label: str) -> None:
             drive_check.check_drive(command_v, fs, backend.limits, f"{backend.name}: {label}")
+
     problems = []
     for i, proto in enumerate(plan.protocols, start=1):
         _, command_v = proto.waveform()
@@ -323,5 +377,3 @@ def check_drives(plan: Plan, backend: Backend) -> None:
             problems.append(f"protocol[{i}] '{proto.name}': {exc}")
     if problems:
         raise PlanError(plan.source, problems)
-
-

@@ -47,8 +47,14 @@ class RigCheckReport:
         return {**d, **{f"check_{k}": v for k, v in self.check.__dict__.items()}}
 
 
-def check_drive(amplitude_v: float, freq_hz: float, duration_s: float, rest_s: float, sample_rate_hz: float,
-                limits: DriveLimits | None = None) -> tuple[np.ndarray, int]:
+def check_drive(
+    amplitude_v: float,
+    freq_hz: float,
+    duration_s: float,
+    rest_s: float,
+    sample_rate_hz: float,
+    limits: DriveLimits | None = None,
+) -> tuple[np.ndarray, int]:
     """``(command_v, rest_samples)``: rest at 0 V, then raised-cosine cycles 0 -> ``amplitude_v`` -> 0.
 
     With ``limits`` (the rig's), the sample rate, the number of samples and the duration are
@@ -57,20 +63,29 @@ def check_drive(amplitude_v: float, freq_hz: float, duration_s: float, rest_s: f
     values = (amplitude_v, freq_hz, duration_s, rest_s, sample_rate_hz)
     if not all(math.isfinite(v) and v > 0 for v in values):
         raise PiezopressError(
-            f"check-rig: amplitude_v = {amplitude_v:g}, freq_hz = {freq_hz:g}, duration_s = {duration_s:g}, rest_s = {rest_s:g}, "
+            f"check-rig: amplitude_v = {amplitude_v:g}, freq_hz = {freq_hz:g}, duration_s = {duration_s:g}, rest_s = "
+            f"{rest_s:g}, "
             f"sample_rate_hz = {sample_rate_hz:g}; expected all positive and finite"
         )
     if sample_rate_hz < 20 * freq_hz:
-        raise PiezopressError(f"check-rig: sample_rate_hz = {sample_rate_hz:g} is too low for freq_hz = {freq_hz:g}; expected at least 20 samples per cycle")
+        raise PiezopressError(
+            f"check-rig: sample_rate_hz = {sample_rate_hz:g} is too low for freq_hz = {freq_hz:g}; expected at least "
+            "20 samples per cycle"
+        )
     cycles = max(1, int(round(duration_s * freq_hz)))
     if limits is not None:
         problems = drive_check.sample_rate_problems(sample_rate_hz, limits, "--sample-rate-hz")
         samples = (rest_s + cycles / freq_hz) * sample_rate_hz
         problems += drive_check.sample_count_problems(samples, sample_rate_hz, limits, "the check drive")
         if rest_s + cycles / freq_hz > limits.max_duration_s:
-            problems.append(f"the check drive lasts {rest_s + cycles / freq_hz:.4g} s, more than the rig's limit of {limits.max_duration_s:g} s")
+            problems.append(
+                f"the check drive lasts {rest_s + cycles / freq_hz:.4g} s, more than the rig's limit of "
+                f"{limits.max_duration_s:g} s"
+            )
         if problems:
-            raise drive_check.DriveRefused(f"check-rig: {'; '.join(problems)}; expected a short, small drive within the rig's limits")
+            raise drive_check.DriveRefused(
+                f"check-rig: {'; '.join(problems)}; expected a short, small drive within the rig's limits"
+            )
     rest = np.zeros(max(10, int(round(rest_s * sample_rate_hz))))
     sine = waveforms.sine(freq_hz, cycles, 0.0, amplitude_v, sample_rate_hz)
     return np.concatenate([rest, sine[1:]]), len(rest)
@@ -101,15 +116,22 @@ def check_rig(
     command_v, rest_samples = check_drive(amplitude_v, freq_hz, duration_s, rest_s, sample_rate_hz, backend.limits)
     drive_check.check_drive(command_v, sample_rate_hz, backend.limits, f"check-rig ({backend.name})")
     try:
-        with stop_signals_interrupt():  # SIGTERM/SIGHUP as Ctrl-C: the drive back to 0 V, then the CLI's exit 128 + signal
+        with (
+            stop_signals_interrupt()
+        ):  # SIGTERM/SIGHUP as Ctrl-C: the drive back to 0 V, then the CLI's exit 128 + signal
             m = backend.run(command_v, sample_rate_hz, preload_n=preload_n, label="check-rig")
     except KeyboardInterrupt:
         backend.zero_output()
         raise
     if not m.complete:
-        raise BackendError(f"check-rig: the run was cut short after {min(map(len, m.channels.values()), default=0)} samples: {m.reason}")
+        raise BackendError(
+            f"check-rig: the run was cut short after {min(map(len, m.channels.values()), default=0)} samples: "
+            f"{m.reason}"
+        )
     if "force_n" not in m.channels:
-        raise BackendError(f"check-rig: the {backend.name} backend measured no force_n (channels: {', '.join(m.channels)})")
+        raise BackendError(
+            f"check-rig: the {backend.name} backend measured no force_n (channels: {', '.join(m.channels)})"
+        )
     force_n = np.asarray(m.channels["force_n"], dtype=np.float64)
     achieved = m.info.get("sample_rate_achieved_hz")
     return RigCheckReport(
@@ -131,11 +153,17 @@ def check_rig(
 def format_report(r: RigCheckReport) -> str:
     """The report as a technician reads it: one finding per line, the verdict last."""
     c = r.check
-    achieved = "simulated (exact)" if r.sample_rate_achieved_hz is None else f"{r.sample_rate_achieved_hz:g} Hz on one clock for output and input"
+    achieved = (
+        "simulated (exact)"
+        if r.sample_rate_achieved_hz is None
+        else f"{r.sample_rate_achieved_hz:g} Hz on one clock for output and input"
+    )
     lines = [
         f"rig:            {r.rig} (backend {r.backend})",
-        f"drive:          {r.rest_s:g} s at 0 V, then 0 -> {r.amplitude_v:g} V raised-cosine at {r.freq_hz:g} Hz for {r.duration_s:g} s",
-        f"sample rate:    asked {r.sample_rate_hz:g} Hz, achieved {achieved}; {r.samples_measured} of {r.samples_planned} samples",
+        f"drive:          {r.rest_s:g} s at 0 V, then 0 -> {r.amplitude_v:g} V raised-cosine at {r.freq_hz:g} Hz for "
+        f"{r.duration_s:g} s",
+        f"sample rate:    asked {r.sample_rate_hz:g} Hz, achieved {achieved}; {r.samples_measured} of "
+        f"{r.samples_planned} samples",
     ]
     if r.preload_measured_n is not None:
         lines.append(f"preload read:   {r.preload_measured_n:.2f} N before the run")
@@ -147,7 +175,8 @@ def format_report(r: RigCheckReport) -> str:
         + (
             "OK: the force follows the drive"
             if c.follows
-            else f"NOT OK: the force does not follow the drive (correlation below {c.min_correlation:g} or gain not positive); "
+            else f"NOT OK: the force does not follow the drive (correlation below {c.min_correlation:g} or gain not "
+            "positive); "
             "check the load cell's channel, wiring, sensitivity and sign"
         ),
     ]

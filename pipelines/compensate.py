@@ -13,11 +13,11 @@ from piezopress.acquisition.drive_check import check_drive, check_sample_rate
 from piezopress.analysis.bundle import MAX_OUTPUT, Bundle, BundleError
 from piezopress.analysis.compensation import CompensationResult
 from piezopress.errors import ImportFormatError
-from piezopress.runformat import UNIFORM_RTOL
 from piezopress.pipelines.bundle import read_bundle
 from piezopress.pipelines.characterize import DEFAULT_RIG
 from piezopress.pipelines.characterize import rig_limits as limits_of_rig
 from piezopress.pipelines.files import check_output, write_output
+from piezopress.runformat import UNIFORM_RTOL
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:
@@ -31,7 +31,10 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
         raise ImportFormatError(f"{path}: cannot be read as CSV ({exc}); expected columns {want}") from None
     missing = [c for c in ("t_s", column) if c not in df.columns]
     if missing:
-        raise ImportFormatError(f"{path}: missing column {', '.join(missing)}; expected columns {want} (found {', '.join(map(str, df.columns))})")
+        raise ImportFormatError(
+            f"{path}: missing column {', '.join(missing)}; expected columns {want} (found "
+            f"{', '.join(map(str, df.columns))})"
+        )
     try:
         t = df["t_s"].to_numpy(dtype=float)
         r = df[column].to_numpy(dtype=float)
@@ -40,7 +43,10 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
     if t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(r))):
         raise ImportFormatError(f"{path}: {t.size} rows or non-finite values; expected at least 2 finite rows")
     if np.max(np.abs(r)) > MAX_OUTPUT:
-        raise ImportFormatError(f"{path}: {column} reaches {np.max(np.abs(r)):.6g}; expected values within +/-{MAX_OUTPUT:g} (a press's range)")
+        raise ImportFormatError(
+            f"{path}: {column} reaches {np.max(np.abs(r)):.6g}; expected values within +/-{MAX_OUTPUT:g} (a press's "
+            "range)"
+        )
     dt = np.diff(t)
     mean = (t[-1] - t[0]) / (t.size - 1)
     if mean <= 0 or np.max(np.abs(dt - mean)) > UNIFORM_RTOL * mean:
@@ -62,11 +68,23 @@ def _reference_unit(path: Path, bundle: Bundle) -> None:
     for unit in units.LABELS:
         col = f"reference_{units.key(unit)}"
         if col in header and unit != bundle.unit and reference_column(bundle) not in header:
-            bundle.check_unit(unit, f"{path} (column {col})", f"a {units.quantity(bundle.unit)} reference, column {reference_column(bundle)}")
+            bundle.check_unit(
+                unit,
+                f"{path} (column {col})",
+                f"a {units.quantity(bundle.unit)} reference, column {reference_column(bundle)}",
+            )
 
 
-def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Path, *, use_shaper: bool = True, replace: bool = False,
-                    rig_limits: Any = None, rig: str | None = None) -> tuple[CompensationResult, Path | None]:
+def compensate_file(
+    bundle_path: str | Path,
+    ref_path: str | Path,
+    out: str | Path,
+    *,
+    use_shaper: bool = True,
+    replace: bool = False,
+    rig_limits: Any = None,
+    rig: str | None = None,
+) -> tuple[CompensationResult, Path | None]:
     """The drive for a reference file, written to ``out`` (``t_s``, the reference, ``command_v``);
     returns the result and where the replaced file was kept (``None``: nothing replaced).
 
@@ -90,7 +108,10 @@ def compensate_file(bundle_path: str | Path, ref_path: str | Path, out: str | Pa
     bundle.check_reference(t.size, fs, str(ref_path))
     result = bundle.compensator(use_shaper=use_shaper).drive(r, fs)
     if not np.all(np.isfinite(result.command_v)):
-        raise BundleError(f"{bundle_path}: its compensator gives a non-finite drive for {ref_path}; expected a finite drive (check the bundle)")
+        raise BundleError(
+            f"{bundle_path}: its compensator gives a non-finite drive for {ref_path}; expected a finite drive (check "
+            "the bundle)"
+        )
     check_drive(result.command_v, fs, limits, f"{ref_path} through {bundle_path}")
     frame = pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v})
     previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)

@@ -2,22 +2,25 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 
-from piezopress import runformat, units
+from piezopress import plotting, runformat, units
 from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.bundle import (
+    Bundle,
+    creep_for_compensator,  # noqa: F401 (moved there)
+    extend_document,
+)
 from piezopress.errors import PiezopressError
-from piezopress import plotting
-from piezopress.analysis.bundle import (FAST_CREEP_S, MODE_REFIT_CAUSES, Bundle, creep_for_compensator,  # noqa: F401 (moved there)
-                                       extend_document, modal_delay_s, rate_dependence, second_shaper)
-from piezopress.pipelines.profiles import read_measured
-from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
 from piezopress.pipelines import next_plan
+from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
 from piezopress.pipelines.files import check_output, new_output_dir, write_json_atomic, write_output
+from piezopress.pipelines.profiles import read_measured
 
 
 def base_model(bundle: dict[str, Any]) -> dg.Model:
@@ -31,10 +34,21 @@ def fitted_run_names(bundle: dict[str, Any]) -> list[str]:
 
 
 def run_data(run: runformat.Run) -> dg.RunData:
-    return dg.RunData(run.name, run.kind, run.t_s, run.command_v, run.output, run.sample_rate_hz, run.column("monitor_v"), dict(run.meta))
+    return dg.RunData(
+        run.name,
+        run.kind,
+        run.t_s,
+        run.command_v,
+        run.output,
+        run.sample_rate_hz,
+        run.column("monitor_v"),
+        dict(run.meta),
+    )
 
 
-def simulate_file(bundle_path: str | Path, run_path: str | Path, out: str | Path, *, replace: bool = False) -> tuple[runformat.Run, Path | None]:
+def simulate_file(
+    bundle_path: str | Path, run_path: str | Path, out: str | Path, *, replace: bool = False
+) -> tuple[runformat.Run, Path | None]:
     """The bundle's model on a run's measured drive, written beside the measurement
     (columns ``predicted`` and ``residual`` added, in the run's output unit); returns the
     run and where a replaced file was kept."""
@@ -61,7 +75,13 @@ def extend_bundle(bundle: dict[str, Any], findings: list[dg.Finding], model: dg.
 def fitted_run_keys(bundle: dict[str, Any]) -> list[str]:
     """The runs the bundle's models were fitted on, by file (sha256; the name where the bundle
     recorded no file): two runs may share a name, never a file."""
-    return sorted({r.get("sha256") or r["name"] for sec in ("hysteresis", "creep", "shaper") for r in bundle.get(sec, {}).get("runs", [])})
+    return sorted(
+        {
+            r.get("sha256") or r["name"]
+            for sec in ("hysteresis", "creep", "shaper")
+            for r in bundle.get(sec, {}).get("runs", [])
+        }
+    )
 
 
 def diagnosis_runs(loaded: list[runformat.Run]) -> list[dg.RunData]:
@@ -90,13 +110,19 @@ def check_causes(causes: Iterable[str] | None) -> list[str] | None:
     causes = list(causes) if causes else None
     unknown = [c for c in causes or () if c not in dg.CAUSES]
     if unknown:
-        raise UnknownCauseError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(dg.CAUSES)}")
+        raise UnknownCauseError(
+            f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(dg.CAUSES)}"
+        )
     return causes
 
 
-def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str | Path,
-             causes: Iterable[str] | None = None,
-             on_progress: Callable[[dg.CauseProgress], None] | None = None) -> tuple[dg.Diagnosis, Path]:
+def diagnose(
+    paths: Iterable[str | Path],
+    bundle_path: str | Path,
+    out_dir: str | Path,
+    causes: Iterable[str] | None = None,
+    on_progress: Callable[[dg.CauseProgress], None] | None = None,
+) -> tuple[dg.Diagnosis, Path]:
     """Diagnose the runs (files or run directories, several at once) against the bundle;
     write ``diagnosis.json``, ``extended_bundle.json``, the residual figures and, when some
     causes could not be tested, ``next-plan.toml``: the experiment that would test them.
@@ -117,17 +143,32 @@ def diagnose(paths: Iterable[str | Path], bundle_path: str | Path, out_dir: str 
     result = dg.diagnose(base, runs, fitted, causes, on_progress)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
-    doc = {"bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
-           "causes": {c.id: {"physics": c.physics, "extension": c.extension, "in_compensator": c.in_compensator,
-                             "needs": "; or ".join(n.text() for n in c.needs)} for c in dg.CAUSES.values()},
-           **result.as_dict(), "next_plan": plan}
-    write_json_atomic(out / "diagnosis.json", doc)
+    doc = {
+        "bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
+        "causes": {
+            c.id: {
+                "physics": c.physics,
+                "extension": c.extension,
+                "in_compensator": c.in_compensator,
+                "needs": "; or ".join(n.text() for n in c.needs),
+            }
+            for c in dg.CAUSES.values()
+        },
+        **result.as_dict(),
+        "next_plan": plan,
+    }
+    write_json_atomic(out / "diagnosis.json", doc, null_nonfinite=True)  # strict JSON: an unmeasured figure is null
     write_document(checked.extended(result.findings, result.model).to_dict(), out / "extended_bundle.json")
     before = {s.run: s for s in result.before}
     after = {s.run: s for s in result.after}
     names = [r.name for r in runs]
-    bars = plotting.residual_rms_bars(names, [before[n].rms for n in names], [after[n].rms for n in names], [before[n].floor for n in names],
-                                      unit=result.unit)
+    bars = plotting.residual_rms_bars(
+        names,
+        [before[n].rms for n in names],
+        [after[n].rms for n in names],
+        [before[n].floor for n in names],
+        unit=result.unit,
+    )
     (out / "residuals.png").write_bytes(plotting.to_png(bars))
     (out / "residual_traces.png").write_bytes(plotting.to_png(residual_figure(runs, base, result)))
     return result, out
@@ -142,6 +183,7 @@ CLIP_MARGIN = 1.5
 def residual_figure(runs: list[dg.RunData], base: dg.Model, result: dg.Diagnosis):
     """Residual of each run against its own time (0-1), before (base model) and after
     (extended): one row per run kind, spikes clipped at a robust level with a note."""
+
     def kind_of(r: dg.RunData) -> str:
         return "rest" if np.ptp(r.x) == 0 else r.kind
 
@@ -156,17 +198,39 @@ def residual_figure(runs: list[dg.RunData], base: dg.Model, result: dg.Diagnosis
         lim = CLIP_MARGIN * float(np.percentile(both, CLIP_PERCENTILE)) if both.size else 1.0
         lim = lim if lim > 0 else max(float(both.max()) if both.size else 1.0, 1e-12)
 
-        def note(res):
+        def note(res, lim=lim):
             n, total = sum(int(np.count_nonzero(np.abs(e) > lim)) for e in res), sum(e.size for e in res)
-            return f"{n} of {total} samples beyond ±{lim:.3g} {u} clipped ({CLIP_MARGIN:g} x the {CLIP_PERCENTILE:g}th percentile)" if n else ""
+            return (
+                f"{n} of {total} samples beyond ±{lim:.3g} {u} clipped ({CLIP_MARGIN:g} x the {CLIP_PERCENTILE:g}th "
+                "percentile)"
+                if n
+                else ""
+            )
 
-        def curves(res):
-            return [plotting.Curve(r.t_s / r.t_s[-1] if r.t_s[-1] > 0 else r.t_s, np.clip(e, -lim, lim), r.name) for r, e in zip(rs, res)]
+        def curves(res, lim=lim, rs=rs):
+            return [
+                plotting.Curve(r.t_s / r.t_s[-1] if r.t_s[-1] > 0 else r.t_s, np.clip(e, -lim, lim), r.name)
+                for r, e in zip(rs, res)
+            ]
 
-        rows.append(plotting.ResidualRow(f"{kind} ({len(rs)} run{'s' if len(rs) > 1 else ''})", curves(res_b), curves(res_e), lim,
-                                         note(res_b), note(res_e)))
-    return plotting.residual_traces(rows, unit=result.unit, left_title="base model", right_title="extended by the findings",
-                                    xlabel="time / run length", title=f"Residuals of {len(runs)} run{'s' if len(runs) != 1 else ''}: measured - model")
+        rows.append(
+            plotting.ResidualRow(
+                f"{kind} ({len(rs)} run{'s' if len(rs) > 1 else ''})",
+                curves(res_b),
+                curves(res_e),
+                lim,
+                note(res_b),
+                note(res_e),
+            )
+        )
+    return plotting.residual_traces(
+        rows,
+        unit=result.unit,
+        left_title="base model",
+        right_title="extended by the findings",
+        xlabel="time / run length",
+        title=f"Residuals of {len(runs)} run{'s' if len(runs) != 1 else ''}: measured - model",
+    )
 
 
 def next_plan_info(out_dir: str | Path) -> dict[str, Any] | None:
@@ -182,23 +246,34 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
     findings, what was tested and what could not be and why, and the next experiment."""
     u, k = units.label(result.unit), units.key(result.unit)
     lines = [f"Diagnosis: {result.summary}", ""]
-    lines.append(f"Residual over all runs: {result.residual_rms:.3g} {u} RMS; sensor noise floor {result.noise_floor:.3g} {u} RMS.")
+    lines.append(
+        f"Residual over all runs: {result.residual_rms:.3g} {u} RMS; sensor noise floor {result.noise_floor:.3g} {u} "
+        "RMS."
+    )
     bf = result.base_fit
     if bf:
         verdict = "poor" if bf["poor"] else "fair"
-        lines.append(f"Base fit ({verdict}): {bf[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on ({', '.join(bf['runs'])}), "
-                     f"{bf['ratio']:.1f} x the noise floor; largest in {bf['worst_run']} at {bf['worst_at_s']:.4g} s."
-                     + (" Every cause the runs allow was still tried against it." if bf["poor"] else ""))
+        lines.append(
+            f"Base fit ({verdict}): {bf[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on "
+            f"({', '.join(bf['runs'])}), "
+            f"{bf['ratio']:.1f} x the noise floor; largest in {bf['worst_run']} at {bf['worst_at_s']:.4g} s."
+            + (" Every cause the runs allow was still tried against it." if bf["poor"] else "")
+        )
     if result.findings:
         lines.append("")
         lines.append(f"{'cause':<28} {'held-out RMS: base -> extended':>32} {'gain':>7}  parameters")
         for f in result.findings:
             params = ", ".join(f"{k} = {v:.4g}" for k, v in f.parameters.items())
-            lines.append(f"{f.cause:<28} {f.baseline_rms:>14.3g} {u} -> {f.extended_rms:.3g} {u} {f.gain_pct:>6.0f} %  {params}")
+            lines.append(
+                f"{f.cause:<28} {f.baseline_rms:>14.3g} {u} -> {f.extended_rms:.3g} {u} {f.gain_pct:>6.0f} %  {params}"
+            )
             lines.append(f"    why: {dg.CAUSES[f.cause].physics}; evidence: {f.evidence}")
             lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension)")
     elif result.tested:
-        lines.append(f"None of the {len(result.tested)} causes tried improves the prediction of held-out data beyond the noise: no findings.")
+        lines.append(
+            f"None of the {len(result.tested)} causes tried improves the prediction of held-out data beyond the "
+            "noise: no findings."
+        )
     if result.tested:
         lines.append("")
         lines.append(f"Tested ({len(result.tested)}):")
@@ -206,9 +281,14 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
             gain = ""
             if "gain_pct" in t:
                 params = ", ".join(f"{k_} = {v:.3g}" for k_, v in t["parameters"].items())
-                gain = f", held-out gain {t['gain_pct']:.0f} %" + (f" (finding: >= {dg.MIN_GAIN_PCT:.0f} %)" if t["result"] != "found" else "")
+                gain = f", held-out gain {t['gain_pct']:.0f} %" + (
+                    f" (finding: >= {dg.MIN_GAIN_PCT:.0f} %)" if t["result"] != "found" else ""
+                )
                 gain += f", {params}" if params else ""
-            lines.append(f"    {t['cause']}: {t['result']}{gain}; on {', '.join(t['runs'][:6])}{', ...' if len(t['runs']) > 6 else ''}")
+            lines.append(
+                f"    {t['cause']}: {t['result']}{gain}; on "
+                f"{', '.join(t['runs'][:6])}{', ...' if len(t['runs']) > 6 else ''}"
+            )
     if result.not_tested:
         lines.append("")
         lines.append(f"Not tested ({len(result.not_tested)}): the runs do not allow it")
@@ -217,20 +297,32 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
             lines.append(f"        have: {t.have}")
     if result.unexplained:
         lines.append("")
-        lines.append(f"Unexplained ({'no cause tried' if result.not_tested else 'no cause in the catalogue'} accounts for it):")
+        lines.append(
+            f"Unexplained ({'no cause tried' if result.not_tested else 'no cause in the catalogue'} accounts for it):"
+        )
         for u_ in result.unexplained:
-            lines.append(f"    {u_['run']}: {u_[f'rms_{k}']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at {u_['where_s']:.4g} s, "
-                         f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz")
+            lines.append(
+                f"    {u_['run']}: {u_[f'rms_{k}']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at "
+                f"{u_['where_s']:.4g} s, "
+                f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz"
+            )
     if plan:
         lines.append("")
         if plan.get("file"):
-            lines.append(f"Next experiment: {plan['file']} ({len(plan['protocols'])} protocols, {plan['duration_s']:.0f} s) "
-                         f"makes testable: {', '.join(plan['serves'])}")
+            lines.append(
+                f"Next experiment: {plan['file']} ({len(plan['protocols'])} protocols, {plan['duration_s']:.0f} s) "
+                f"makes testable: {', '.join(plan['serves'])}"
+            )
             for g in plan.get("groups", []):
                 lines.append(f"    {', '.join(g['protocols'])}: serves {', '.join(g['serves'])}")
-            lines.append("    run it with `piezopress characterize --plan` (the file says how), then diagnose both directories")
+            lines.append(
+                "    run it with `piezopress characterize --plan` (the file says how), then diagnose both directories"
+            )
             if plan.get("refit_for"):
-                lines.append(f"    refit the base model with the new runs first (`fit ... --base`): {', '.join(plan['refit_for'])} need it")
+                lines.append(
+                    "    refit the base model with the new runs first (`fit ... --base`): "
+                    f"{', '.join(plan['refit_for'])} need it"
+                )
         if plan.get("unservable"):
             lines.append(f"No protocol on this rig makes testable: {', '.join(plan['unservable'])}")
     return "\n".join(lines)

@@ -15,14 +15,16 @@ from __future__ import annotations
 import contextlib
 import datetime as _dt
 import json
+import math
 import os
 import platform
-from contextvars import ContextVar
 import shutil
 import time
 import uuid
+from collections.abc import Callable, Iterator
+from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import piezopress
 from piezopress import runformat
@@ -34,11 +36,14 @@ MANIFEST_VERSION = 1
 
 
 def utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def software_versions() -> dict[str, str]:
-    import numpy, pandas, pyarrow, scipy  # noqa: E401
+    import numpy  # noqa: E401
+    import pandas
+    import pyarrow
+    import scipy
 
     return {
         "piezopress": piezopress.__version__,
@@ -55,14 +60,33 @@ def _partial(path: Path) -> Path:
     return path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.partial{path.suffix}")
 
 
-def write_json_atomic(path: Path, obj: Any, *, finite: bool = False) -> None:
+def finite_or_null(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, infinity) as ``None``: strict JSON (``null``),
+    which every JSON parser reads; bare ``NaN``/``Infinity`` are not JSON."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_null(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):  # numpy scalars
+        return finite_or_null(obj.item())
+    return obj
+
+
+def write_json_atomic(path: Path, obj: Any, *, finite: bool = False, null_nonfinite: bool = False) -> None:
     """Write JSON beside ``path`` and rename it into place (never a half-written file).
-    ``finite``: refuse a non-finite number (a model's parameters: NaN there is a defect)."""
+    ``finite``: refuse a non-finite number (a model's parameters: NaN there is a defect);
+    ``null_nonfinite``: write it as ``null`` (strict JSON; a figure that could not be measured)."""
     path = Path(path)
+    if null_nonfinite:
+        obj = finite_or_null(obj)
     try:
         text = json.dumps(obj, indent=2, default=runformat._json_default, allow_nan=not finite)
     except ValueError:
-        raise PiezopressError(f"{path}: would hold a non-finite number (NaN or inf); expected finite values, refusing to write it") from None
+        raise PiezopressError(
+            f"{path}: would hold a non-finite number (NaN or inf); expected finite values, refusing to write it"
+        ) from None
     tmp = _partial(path)
     try:
         tmp.write_text(text + "\n", encoding="utf-8")
@@ -73,7 +97,9 @@ def write_json_atomic(path: Path, obj: Any, *, finite: bool = False) -> None:
 
 def _unwritable(folder: Path, exc: OSError | None = None) -> PiezopressError:
     why = exc.strerror if exc is not None and exc.strerror else "permission denied"
-    return PiezopressError(f"{folder}: cannot write there ({why.lower()}); expected a folder you may write to (choose another --out)")
+    return PiezopressError(
+        f"{folder}: cannot write there ({why.lower()}); expected a folder you may write to (choose another --out)"
+    )
 
 
 def writable_folder(folder: str | Path) -> Path:
@@ -101,7 +127,9 @@ def new_output_dir(out_dir: str | Path) -> Path:
     or if it cannot be written (one line)."""
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory (runs are never overwritten)")
+        raise OutputExistsError(
+            f"{out}: already exists and is not empty; choose a new directory (runs are never overwritten)"
+        )
     return writable_folder(out)
 
 
@@ -115,7 +143,9 @@ def read_manifest(run_dir: str | Path) -> dict[str, Any]:
     except json.JSONDecodeError as exc:
         raise PiezopressError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
     except UnicodeDecodeError as exc:
-        raise PiezopressError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at {exc.start}); expected a JSON manifest") from None
+        raise PiezopressError(
+            f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at {exc.start}); expected a JSON manifest"
+        ) from None
     _check_manifest(path, doc)
     return doc
 
@@ -123,7 +153,7 @@ def read_manifest(run_dir: str | Path) -> dict[str, Any]:
 def _check_manifest(path: Path, doc: Any) -> None:
     """A manifest as other programs may have edited it: a JSON object whose ``runs`` is a
     list of objects, each naming a ``file`` inside the manifest's own folder."""
-    what = "expected a JSON object with a list `runs` of {\"file\": ..., \"sha256\": ...}"
+    what = 'expected a JSON object with a list `runs` of {"file": ..., "sha256": ...}'
     if not isinstance(doc, dict):
         raise PiezopressError(f"{path}: holds a JSON {type(doc).__name__}; {what}")
     if "runs" not in doc:
@@ -137,10 +167,15 @@ def _check_manifest(path: Path, doc: Any) -> None:
             raise PiezopressError(f"{path}: runs[{i}] is {json.dumps(r)[:60]}; {what}")
         f = r.get("file")
         if not isinstance(f, str) or not f:
-            raise PiezopressError(f"{path}: runs[{i}] has file = {json.dumps(f)[:60]}; expected the run file's name (text)")
+            raise PiezopressError(
+                f"{path}: runs[{i}] has file = {json.dumps(f)[:60]}; expected the run file's name (text)"
+            )
         target = (folder / f).resolve()
         if folder not in target.parents:
-            raise PiezopressError(f"{path}: runs[{i}] names {f!r}, outside the manifest's folder {folder}; expected a file beside the manifest")
+            raise PiezopressError(
+                f"{path}: runs[{i}] names {f!r}, outside the manifest's folder {folder}; expected a file beside the "
+                "manifest"
+            )
 
 
 def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Path]:
@@ -152,8 +187,11 @@ def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Pa
     run_dir = Path(run_dir)
     if (run_dir / MANIFEST).is_file():
         check_status(run_dir, expect_kind=expect_kind)
-        return [run_dir / r["file"] for r in read_manifest(run_dir).get("runs", [])
-                if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE]
+        return [
+            run_dir / r["file"]
+            for r in read_manifest(run_dir).get("runs", [])
+            if r.get("status", runformat.STATUS_COMPLETE) == runformat.STATUS_COMPLETE
+        ]
     return sorted(run_dir.glob("*.parquet"))
 
 
@@ -164,8 +202,10 @@ def check_output(path: str | Path, *, replace: bool = False) -> None:
     if path.is_dir():
         raise OutputExistsError(f"{path}: is a directory; expected a file name for the output")
     if path.exists() and not replace:
-        raise OutputExistsError(f"{path}: already exists; refusing to overwrite it (pass --replace to replace it; the old one is kept "
-                                "under a timestamped name)")
+        raise OutputExistsError(
+            f"{path}: already exists; refusing to overwrite it (pass --replace to replace it; the old one is kept "
+            "under a timestamped name)"
+        )
     writable_folder(path.parent)
 
 
@@ -202,13 +242,20 @@ def check_status(run_dir: str | Path, *, expect_kind: str | None = None, accept:
         return []
     manifest = read_manifest(run_dir)
     if not isinstance(manifest, dict) or not isinstance(manifest.get("runs", []), list):
-        raise PiezopressError(f"{run_dir / MANIFEST}: not a manifest (expected an object with a 'runs' list); expected a directory written by `piezopress characterize`")
+        raise PiezopressError(
+            f"{run_dir / MANIFEST}: not a manifest (expected an object with a 'runs' list); expected a directory "
+            "written by `piezopress characterize`"
+        )
     kind = manifest.get("kind")
     if expect_kind is not None and kind != expect_kind:
-        raise PiezopressError(f"{run_dir}: its manifest says kind {kind!r}; expected a {expect_kind} directory "
-                              f"(from `piezopress {'validate' if expect_kind == 'validation' else 'characterize'}`)")
+        raise PiezopressError(
+            f"{run_dir}: its manifest says kind {kind!r}; expected a {expect_kind} directory "
+            f"(from `piezopress {'validate' if expect_kind == 'validation' else 'characterize'}`)"
+        )
     runs = [r for r in manifest.get("runs", []) if isinstance(r, dict)]
-    skipped = [str(r.get("file")) for r in runs if r.get("status", runformat.STATUS_COMPLETE) != runformat.STATUS_COMPLETE]
+    skipped = [
+        str(r.get("file")) for r in runs if r.get("status", runformat.STATUS_COMPLETE) != runformat.STATUS_COMPLETE
+    ]
     status = manifest.get("status")
     notes: list[str] = []
     if status != "complete":
@@ -216,16 +263,18 @@ def check_status(run_dir: str | Path, *, expect_kind: str | None = None, accept:
         done = len(runs) - len(skipped)
         accept = _ACCEPT_INCOMPLETE.get() if accept is None else accept
         if not accept:
-            raise PiezopressError(f"{run_dir}: its manifest says status {status!r} ({reason}), with {done} complete run(s); expected a "
-                                  "complete directory: run the plan again, or pass --accept-incomplete to use its complete runs")
-        notes.append(f"{run_dir}: accepted although its manifest says status {status!r} ({reason}); {done} complete run(s) used")
+            raise PiezopressError(
+                f"{run_dir}: its manifest says status {status!r} ({reason}), with {done} complete run(s); expected a "
+                "complete directory: run the plan again, or pass --accept-incomplete to use its complete runs"
+            )
+        notes.append(
+            f"{run_dir}: accepted although its manifest says status {status!r} ({reason}); {done} complete run(s) used"
+        )
     if skipped:
         notes.append(f"{run_dir}: skipped incomplete run(s) {', '.join(skipped)}")
     if notes:
         _STATUS_NOTES.set(_STATUS_NOTES.get() + tuple(n for n in notes if n not in _STATUS_NOTES.get()))
     return notes
-
-
 
 
 #: How long a writer waits for another one replacing the same output.
@@ -243,8 +292,10 @@ def _lock(path: Path) -> Iterator[None]:
             break
         except FileExistsError:
             if time.monotonic() > deadline:
-                raise PiezopressError(f"{path}: another writer has held {lock} for over {LOCK_WAIT_S:g} s; "
-                                      "expected it to finish (remove the lock file if no piezopress is running)") from None
+                raise PiezopressError(
+                    f"{path}: another writer has held {lock} for over {LOCK_WAIT_S:g} s; "
+                    "expected it to finish (remove the lock file if no piezopress is running)"
+                ) from None
             time.sleep(0.005)
         except OSError as exc:
             raise _unwritable(path.parent, exc) from None
@@ -261,7 +312,7 @@ def kept_name(path: str | Path) -> Path:
     (no longer ending in ``.parquet`` or ``.json``: a folder's runs or sections are not
     joined by their old versions)."""
     path = Path(path)
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
+    stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%S.%fZ")
     for n in range(10_000):
         cand = path.with_name(f"{path.name}.replaced-{stamp}{f'-{n}' if n else ''}")
         if not os.path.lexists(cand):
@@ -310,7 +361,9 @@ def write_output(path: str | Path, write: Callable[[Path], Any], *, replace: boo
             previous = None
             if os.path.lexists(path):
                 if not replace:  # appeared meanwhile
-                    raise OutputExistsError(f"{path}: appeared while it was being written; refusing to overwrite it (pass --replace)")
+                    raise OutputExistsError(
+                        f"{path}: appeared while it was being written; refusing to overwrite it (pass --replace)"
+                    )
                 previous = _keep(path)
             os.replace(tmp, path)
         return previous
@@ -323,6 +376,22 @@ def kept_note(previous: Path | None) -> str:
     return f" (previous version kept as {previous})" if previous else ""
 
 
-__all__ = ["MANIFEST", "MANIFEST_VERSION", "utc_now", "software_versions", "write_json_atomic", "new_output_dir", "read_manifest", "run_files",
-           "check_output", "writable_folder", "kept_name", "keep_previous", "write_output", "kept_note", "accept_incomplete", "status_notes",
-           "check_status"]
+__all__ = [
+    "MANIFEST",
+    "MANIFEST_VERSION",
+    "utc_now",
+    "software_versions",
+    "write_json_atomic",
+    "new_output_dir",
+    "read_manifest",
+    "run_files",
+    "check_output",
+    "writable_folder",
+    "kept_name",
+    "keep_previous",
+    "write_output",
+    "kept_note",
+    "accept_incomplete",
+    "status_notes",
+    "check_status",
+]

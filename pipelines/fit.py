@@ -7,10 +7,11 @@ returns a section document with parameters in named units, fit quality and prove
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from types import SimpleNamespace
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -46,16 +47,22 @@ def hysteresis_runs(runs: list[runformat.Run], named: bool) -> list[runformat.Ru
         limit = profile.slow_limit_hz([_freq(r) for r in sweeps])
         chosen = [r for r in sweeps if _freq(r) <= limit]
         if chosen:
-            profiles.note(f"no sweep at <= {STATIC_MAX_FREQ_HZ:g} Hz among the runs; hysteresis is fitted on the slowest, "
-                          f"{', '.join(f'{r.name} ({_freq(r):.3g} Hz)' for r in chosen)}")
+            profiles.note(
+                f"no sweep at <= {STATIC_MAX_FREQ_HZ:g} Hz among the runs; hysteresis is fitted on the slowest, "
+                f"{', '.join(f'{r.name} ({_freq(r):.3g} Hz)' for r in chosen)}"
+            )
     if not chosen:
         kinds = ", ".join(sorted({f"{r.name} ({profile.of(r).describe()})" for r in runs})) or "none"
-        raise BundleError(f"no quasi-static sweep among the runs (a triangle or sine at <= {STATIC_MAX_FREQ_HZ:g} Hz, "
-                          f"measured from the drive); runs given: {kinds}")
+        raise BundleError(
+            f"no quasi-static sweep among the runs (a triangle or sine at <= {STATIC_MAX_FREQ_HZ:g} Hz, "
+            f"measured from the drive); runs given: {kinds}"
+        )
     return chosen
 
 
-def fitted_rows(runs: list[runformat.Run], skip_s: float | None = None, rows: tuple[int | None, int | None] | None = None):
+def fitted_rows(
+    runs: list[runformat.Run], skip_s: float | None = None, rows: tuple[int | None, int | None] | None = None
+):
     """Per run, the samples kept (``stop``) and the start not fitted (``skip``, ``None``: detected).
 
     ``skip_s`` skips that many seconds at the start of every run; ``rows = (start, stop)``
@@ -72,18 +79,25 @@ def fitted_rows(runs: list[runformat.Run], skip_s: float | None = None, rows: tu
         skip = None
         if skip_s is not None:
             if not 0 <= skip_s < r.t_s[-1] - r.t_s[0]:
-                raise BundleError(f"{r.name}: --skip-s {skip_s:g} s; expected 0 to {r.t_s[-1] - r.t_s[0]:.4g} s (the run's length)")
+                raise BundleError(
+                    f"{r.name}: --skip-s {skip_s:g} s; expected 0 to {r.t_s[-1] - r.t_s[0]:.4g} s (the run's length)"
+                )
             skip = int(round(skip_s * r.sample_rate_hz))
         if start is not None:
             skip = max(skip or 0, int(start))
         if skip is not None and not 0 <= skip < stop - 20:
-            raise BundleError(f"{r.name}: the fit would start at row {skip} and stop before row {stop}; expected at least 20 rows between")
+            raise BundleError(
+                f"{r.name}: the fit would start at row {skip} and stop before row {stop}; expected at least 20 rows "
+                "between"
+            )
         stops.append(stop)
         skips.append(skip)
     return stops, (None if all(k is None for k in skips) else [k for k in skips])
 
 
-def _hysteresis_body(out_col: str, model: H.PIModel, creep_removed: bool, fit_figures: dict[str, Any]) -> dict[str, Any]:
+def _hysteresis_body(
+    out_col: str, model: H.PIModel, creep_removed: bool, fit_figures: dict[str, Any]
+) -> dict[str, Any]:
     return {"output_column": out_col, "creep_removed": creep_removed, "model": model.to_dict(), "fit": fit_figures}
 
 
@@ -94,9 +108,16 @@ def _same_output(runs: list[runformat.Run]) -> str:
     return out_col
 
 
-def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] = (), holdout_fraction: float = 0.3,
-                           grid=None, creep: dict[str, Any] | None = None, skip_s: float | None = None,
-                           rows: tuple[int | None, int | None] | None = None) -> tuple[dict[str, Any], H.HysteresisFit]:
+def fit_hysteresis_section(
+    paths: Iterable[str | Path],
+    *,
+    names: Iterable[str] = (),
+    holdout_fraction: float = 0.3,
+    grid=None,
+    creep: dict[str, Any] | None = None,
+    skip_s: float | None = None,
+    rows: tuple[int | None, int | None] | None = None,
+) -> tuple[dict[str, Any], H.HysteresisFit]:
     """Fit the PI model on the quasi-static sweeps; the section holds the model refitted on
     all samples, and the held-out error of the model fitted without the held-out part.
 
@@ -111,8 +132,11 @@ def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] 
     stops, skips = fitted_rows(runs, skip_s, rows)
     cm = creep_mod.CreepModel.from_dict(creep["model"]) if creep is not None else None
     outputs = [creep_removed(cm, r.command_v, r.output, r.sample_rate_hz) for r in runs]
-    data = H.prepare([(r.name, r.command_v[:n], y[:n]) for r, y, n in zip(runs, outputs, stops)], holdout_fraction=holdout_fraction,
-                     skip=skips)
+    data = H.prepare(
+        [(r.name, r.command_v[:n], y[:n]) for r, y, n in zip(runs, outputs, stops)],
+        holdout_fraction=holdout_fraction,
+        skip=skips,
+    )
     fit = H.fit_hysteresis(data, grid)
     unit = units.unit_of_column(out_col)  # "N" or "um": keys below are train_rms_n / train_rms_um
     final = fit.final_model or fit.model
@@ -133,8 +157,15 @@ def fit_hysteresis_section(paths: Iterable[str | Path], *, names: Iterable[str] 
     return section("hysteresis", _hysteresis_body(out_col, model, creep is not None, figures), runs, digest), fit
 
 
-def fit_sweep_sections(paths: Iterable[str | Path], *, names: Iterable[str] = (), holdout_fraction: float = 0.3, grid=None,
-                       skip_s: float | None = None, rows: tuple[int | None, int | None] | None = None):
+def fit_sweep_sections(
+    paths: Iterable[str | Path],
+    *,
+    names: Iterable[str] = (),
+    holdout_fraction: float = 0.3,
+    grid=None,
+    skip_s: float | None = None,
+    rows: tuple[int | None, int | None] | None = None,
+):
     """Hysteresis and, when the sweeps show it, creep, from the sweeps alone (no held step):
     :func:`piezopress.analysis.identify.fit_sweeps`. Returns the hysteresis section, the
     creep section (``None`` when creep did not predict the held-out ends better) and the fit."""
@@ -143,8 +174,12 @@ def fit_sweep_sections(paths: Iterable[str | Path], *, names: Iterable[str] = ()
     runs = select_hysteresis_runs(paths, names)
     out_col = _same_output(runs)
     stops, skips = fitted_rows(runs, skip_s, rows)
-    found = identify.fit_sweeps([(r.name, r.command_v[:n], r.output[:n], r.sample_rate_hz) for r, n in zip(runs, stops)],
-                                holdout_fraction=holdout_fraction, grid=grid, skip=skips)
+    found = identify.fit_sweeps(
+        [(r.name, r.command_v[:n], r.output[:n], r.sample_rate_hz) for r, n in zip(runs, stops)],
+        holdout_fraction=holdout_fraction,
+        grid=grid,
+        skip=skips,
+    )
     unit = units.unit_of_column(out_col)
     final = found.model
     model = H.PIModel(final.r, final.w, final.d, final.s, final.x0, final.y0, "V", unit)
@@ -161,8 +196,15 @@ def fit_sweep_sections(paths: Iterable[str | Path], *, names: Iterable[str] = ()
         "pruned_operators": found.hysteresis.pruned,
         "candidates": found.hysteresis.candidates,
     }
-    digest = inputs_digest("sweeps", runs, [], holdout_fraction=holdout_fraction, grid=None if grid is None else [c.label for c in grid],
-                           skip_s=skip_s, rows=rows)
+    digest = inputs_digest(
+        "sweeps",
+        runs,
+        [],
+        holdout_fraction=holdout_fraction,
+        grid=None if grid is None else [c.label for c in grid],
+        skip_s=skip_s,
+        rows=rows,
+    )
     h = section("hysteresis", _hysteresis_body(out_col, model, found.creep is not None, figures), runs, digest)
     c = None
     if found.creep is not None:
@@ -189,8 +231,14 @@ def select_hysteresis_runs(paths: Iterable[str | Path], names: Iterable[str] = (
 
 def hysteresis_digest(runs, creep, holdout_fraction, grid=None, skip_s=None, rows=None) -> str:
     extra = {} if skip_s is None and rows is None else {"skip_s": skip_s, "rows": rows}
-    return inputs_digest("hysteresis", runs, [creep], holdout_fraction=holdout_fraction, grid=None if grid is None else [c.label for c in grid],
-                         **extra)
+    return inputs_digest(
+        "hysteresis",
+        runs,
+        [creep],
+        holdout_fraction=holdout_fraction,
+        grid=None if grid is None else [c.label for c in grid],
+        **extra,
+    )
 
 
 #: The thesis's model structure (Section 6.2.1: 12 evenly spaced plays, one dead zone;
@@ -207,8 +255,12 @@ CREEP_SWEEP_TOLERANCE = 0.20
 CREEP_FALLBACK_FORM = "spectrum"
 
 
-def sweep_holdout_rms(sweeps: list[runformat.Run], hysteresis: H.PIModel, creep: creep_mod.CreepModel | None,
-                      holdout_fraction: float = 0.3) -> float:
+def sweep_holdout_rms(
+    sweeps: list[runformat.Run],
+    hysteresis: H.PIModel,
+    creep: creep_mod.CreepModel | None,
+    holdout_fraction: float = 0.3,
+) -> float:
     """RMS error of ``creep`` after ``hysteresis`` (both simulated from rest over each whole
     sweep) on the held-out end of each sweep, in the output's unit; ``creep=None``: the
     hysteresis model alone."""
@@ -223,8 +275,15 @@ def sweep_holdout_rms(sweeps: list[runformat.Run], hysteresis: H.PIModel, creep:
     return float(np.sqrt(np.mean(e**2)))
 
 
-def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, holdout_fraction: float = 0.3, base: bool = False,
-                             skip_s: float | None = None, rows: tuple[int | None, int | None] | None = None):
+def fit_hysteresis_and_creep(
+    paths: Iterable[str | Path],
+    *,
+    passes: int = 2,
+    holdout_fraction: float = 0.3,
+    base: bool = False,
+    skip_s: float | None = None,
+    rows: tuple[int | None, int | None] | None = None,
+):
     """Alternate: hysteresis on the sweeps, creep on the held step given the hysteresis
     model, hysteresis again on the sweeps with that creep removed, ... (``passes`` rounds),
     for each creep form on its own; keep the form whose pair agrees with the sweeps.
@@ -243,8 +302,8 @@ def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, ho
     the creep of minutes). None agrees (the loop model itself misfits the sweeps, as on a
     press of another family): the creep is still kept, fitted on the hold alone as the
     :data:`CREEP_FALLBACK_FORM` form against the first hysteresis model, without alternation
-    (so it cannot reshape the loop), and the reason says so. With ``passes=1`` the hysteresis model keeps the sweeps' creep, and ``base`` has one
-    form by definition: there the check is recorded, not enforced.
+    (so it cannot reshape the loop), and the reason says so. With ``passes=1`` the hysteresis
+    model keeps the sweeps' creep, and ``base`` has one form by definition: there the check is recorded, not enforced.
 
     ``base`` fits the thesis's structure instead of choosing one (:data:`THESIS_GRID`,
     :data:`THESIS_CREEP_FORMS`). Returns the last hysteresis and creep sections and fits;
@@ -264,7 +323,9 @@ def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, ho
             h, hfit = h0, h0fit
             c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction, forms=(form,))
             for _ in range(passes - 1):
-                h, hfit = fit_hysteresis_section(paths, holdout_fraction=holdout_fraction, creep=c, grid=grid, skip_s=skip_s, rows=rows)
+                h, hfit = fit_hysteresis_section(
+                    paths, holdout_fraction=holdout_fraction, creep=c, grid=grid, skip_s=skip_s, rows=rows
+                )
                 c, cfit = fit_creep_section(paths, h, holdout_fraction=holdout_fraction, forms=(form,))
         except (FitError, CompensatorUnstableError) as exc:
             failed.append(f"{form}: {exc}")
@@ -286,25 +347,56 @@ def fit_hysteresis_and_creep(paths: Iterable[str | Path], *, passes: int = 2, ho
         # so that it cannot reshape the loop.
         disagreed = ", ".join(f"{t[5]:.4g} with the {t[0]} creep" for t in tried)
         c, cfit = fit_creep_section(paths, h0, holdout_fraction=holdout_fraction, forms=("spectrum",))
-        spec = (CREEP_FALLBACK_FORM, h0, h0fit, c, cfit, sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction))
+        spec = (
+            CREEP_FALLBACK_FORM,
+            h0,
+            h0fit,
+            c,
+            cfit,
+            sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction),
+        )
         tried.append(spec)
         pool = [spec]
-        fallback = (f"; the forms alternated with the loop disagreed with the quasi-static sweeps ({sweeps_note}, {disagreed}, more than "
-                    f"{100 * CREEP_SWEEP_TOLERANCE:g} % above the best), so the loop model does not fit these sweeps well: the creep "
-                    f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form without alternation")
+        fallback = (
+            f"; the forms alternated with the loop disagreed with the quasi-static sweeps ({sweeps_note}, "
+            f"{disagreed}, more than "
+            f"{100 * CREEP_SWEEP_TOLERANCE:g} % above the best), so the loop model does not fit these sweeps well: "
+            "the creep "
+            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form without alternation"
+        )
     best = min(pool, key=lambda t: t[4].candidates[0].holdout_rms)
     form, h, hfit, c, cfit, rms = best
-    others = "; ".join(f"{t[0]} {t[4].candidates[0].holdout_rms:.4g}" + ("" if t[0] in agree else f" (disagrees with the sweeps: {t[5]:.4g})")
-                       for t in tried if t[0] != form) or "no other form"
-    reason = (f"{form}: lowest held-out RMS {cfit.candidates[0].holdout_rms:.4g} on the hold (judged after {cfit.split_s:.4g} s) "
-              f"among the forms {'that agree with the sweeps' if enforced else 'tried'}, against {others}; {sweeps_note}, "
-              f"{rms:.4g} with this creep" + ("" if form in agree or fallback else " (disagrees with the sweeps; kept: the check is not enforced here)")
-              + fallback)
+    others = (
+        "; ".join(
+            f"{t[0]} {t[4].candidates[0].holdout_rms:.4g}"
+            + ("" if t[0] in agree else f" (disagrees with the sweeps: {t[5]:.4g})")
+            for t in tried
+            if t[0] != form
+        )
+        or "no other form"
+    )
+    reason = (
+        f"{form}: lowest held-out RMS {cfit.candidates[0].holdout_rms:.4g} on the hold (judged after "
+        f"{cfit.split_s:.4g} s) "
+        f"among the forms {'that agree with the sweeps' if enforced else 'tried'}, against {others}; {sweeps_note}, "
+        f"{rms:.4g} with this creep"
+        + ("" if form in agree or fallback else " (disagrees with the sweeps; kept: the check is not enforced here)")
+        + fallback
+    )
     c["fit"]["reason"] = reason
-    c["fit"]["candidates"] = [{**_plain(t[4].candidates[0]), "sweep_holdout_rms": t[5], "agrees_with_sweeps": t[0] in agree} for t in tried]
-    c["fit"]["sweep_check"] = {"hysteresis_alone_rms": alone, "with_creep_rms": rms, "tolerance": CREEP_SWEEP_TOLERANCE, "enforced": enforced,
-                               "fallback": bool(fallback),
-                               "holdout_fraction": holdout_fraction, "sweeps": [r.name for r in sweeps], "failed": failed}
+    c["fit"]["candidates"] = [
+        {**_plain(t[4].candidates[0]), "sweep_holdout_rms": t[5], "agrees_with_sweeps": t[0] in agree} for t in tried
+    ]
+    c["fit"]["sweep_check"] = {
+        "hysteresis_alone_rms": alone,
+        "with_creep_rms": rms,
+        "tolerance": CREEP_SWEEP_TOLERANCE,
+        "enforced": enforced,
+        "fallback": bool(fallback),
+        "holdout_fraction": holdout_fraction,
+        "sweeps": [r.name for r in sweeps],
+        "failed": failed,
+    }
     cfit = dataclasses.replace(cfit, reason=reason, candidates=tuple(t[4].candidates[0] for t in tried))
     return h, hfit, c, cfit
 
@@ -320,7 +412,9 @@ def _rest_level(y: np.ndarray, x: np.ndarray) -> float:
 CREEP_FIT_RATE_HZ = 50.0
 
 
-def _slow_part(t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _slow_part(
+    t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Input and output through the same low-pass (so an LTI relation between them holds
     unchanged) and decimated to ``CREEP_FIT_RATE_HZ``: the millisecond step transient (the
     amplifier's slew, the mode's ringing) is not creep and must not be fitted as creep."""
@@ -336,8 +430,14 @@ def _slow_part(t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float) -> t
     return t_s[::step], uf[::step], yf[::step]
 
 
-def fit_creep_section(paths: Iterable[str | Path], hysteresis: dict[str, Any], *, names: Iterable[str] = (),
-                      holdout_fraction: float = 0.3, forms: tuple[str, ...] = creep_mod.FORMS) -> tuple[dict[str, Any], creep_mod.CreepFit]:
+def fit_creep_section(
+    paths: Iterable[str | Path],
+    hysteresis: dict[str, Any],
+    *,
+    names: Iterable[str] = (),
+    holdout_fraction: float = 0.3,
+    forms: tuple[str, ...] = creep_mod.FORMS,
+) -> tuple[dict[str, Any], creep_mod.CreepFit]:
     """Fit the creep of the hysteresis-compensated press from a held step: the hysteresis
     model's static prediction is the input, the measured force (above the rest level) the
     output."""
@@ -397,7 +497,9 @@ def _first_hold_end(command_v: np.ndarray) -> int:
     return int(changes[1] + 1) if changes.size > 1 else command_v.size
 
 
-def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = (), fs_hz: float | None = None) -> tuple[dict[str, Any], Any]:
+def fit_shaper_section(
+    paths: Iterable[str | Path], *, names: Iterable[str] = (), fs_hz: float | None = None
+) -> tuple[dict[str, Any], Any]:
     """Identify the mode from the low-amplitude steps against the drive actually applied
     (the amplifier monitor when recorded), then design and choose the input shaper."""
     runs = select_shaper_runs(paths, names)
@@ -412,8 +514,11 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
         fits = [mode_fit.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
         fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
     else:  # the applied drive is not recorded: the chain from command to stack is identified with the mode
-        chain = mode_fit.identify_mode_chain([r.t_s[:n] for r, n in zip(runs, cuts)], [r.command_v[:n] for r, n in zip(runs, cuts)],
-                                             [r.output[:n] for r, n in zip(runs, cuts)])
+        chain = mode_fit.identify_mode_chain(
+            [r.t_s[:n] for r, n in zip(runs, cuts)],
+            [r.command_v[:n] for r, n in zip(runs, cuts)],
+            [r.output[:n] for r, n in zip(runs, cuts)],
+        )
         fit = chain.mode
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
     # only the designs valid at the identified damping (EI's closed form stops at 0.5)
@@ -425,16 +530,29 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
             "natural_freq_rad_s": fit.wn,
             "damping": fit.zeta,
             "drive_used": "monitor_v" if monitored else "command_v",
-            "drive_chain": None if chain is None else {"form": chain.chain, "slew_v_per_s": chain.slew_v_per_s, "tau_s": chain.tau_s,
-                                                       "rms_by_chain": chain.candidates},
+            "drive_chain": None
+            if chain is None
+            else {
+                "form": chain.chain,
+                "slew_v_per_s": chain.slew_v_per_s,
+                "tau_s": chain.tau_s,
+                "rms_by_chain": chain.candidates,
+            },
             "hold": fit.hold,
             "output_unit": _same_output_unit(runs),
             "sensor_lowpass_hz": _sensor_lowpass(runs),
             "fit": {k: v for k, v in _plain(fit).items() if k not in ("wn", "zeta")},
         },
-        "shaper": {"name": sh.name, "times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes),
-                   "natural_freq_rad_s": sh.wn, "damping": sh.zeta, "zv_power": sh.zv_power,
-                   "delay_ms": 1e3 * sh.delay_s, "centroid_ms": 1e3 * sh.centroid_s},
+        "shaper": {
+            "name": sh.name,
+            "times_s": list(sh.times_s),
+            "amplitudes": list(sh.amplitudes),
+            "natural_freq_rad_s": sh.wn,
+            "damping": sh.zeta,
+            "zv_power": sh.zv_power,
+            "delay_ms": 1e3 * sh.delay_s,
+            "centroid_ms": 1e3 * sh.centroid_s,
+        },
         "choice": {"reason": choice.reason, "designed_at_hz": fs, "candidates": choice.table},
         "thesis_table_6_8": shaper_mod.thesis_shaper_residual(fit.wn, fit.zeta),
     }
@@ -447,10 +565,15 @@ def select_shaper_runs(paths: Iterable[str | Path], names: Iterable[str] = ()) -
     if not names:
         steps = [r for r in runs if r.kind == "step"]
         top = max((float(np.max(r.command_v)) for r in steps), default=0.0)
-        drive_max = max([top] + [runformat.meta_number(r.meta, "rig", "config", "actuator", "drive_max_v") or 0.0 for r in steps])
+        drive_max = max(
+            [top] + [runformat.meta_number(r.meta, "rig", "config", "actuator", "drive_max_v") or 0.0 for r in steps]
+        )
         runs = [r for r in steps if float(np.max(r.command_v)) <= LOW_STEP_FRACTION * drive_max + 1e-9]
     if not runs:
-        raise BundleError(f"no low-amplitude step run (kind 'step', at most {100 * LOW_STEP_FRACTION:g} % of the largest drive) among the runs given")
+        raise BundleError(
+            f"no low-amplitude step run (kind 'step', at most {100 * LOW_STEP_FRACTION:g} % of the largest drive) "
+            "among the runs given"
+        )
     return runs
 
 
@@ -482,8 +605,13 @@ def _plain(obj: Any) -> dict[str, Any]:
 FORCE_MAX_RATE_N_PER_S = 40_000.0
 
 
-def compensation_settings(sections: dict[str, dict[str, Any]], *, max_rate_per_s: float | None = None,
-                          drive_min_v: float = 0.0, drive_max_v: float = 150.0) -> dict[str, Any]:
+def compensation_settings(
+    sections: dict[str, dict[str, Any]],
+    *,
+    max_rate_per_s: float | None = None,
+    drive_min_v: float = 0.0,
+    drive_max_v: float = 150.0,
+) -> dict[str, Any]:
     """Compensation settings: drive range, reference rate limit and the drive's lead.
 
     The lead is the mode's low-frequency group delay ``2 zeta / wn`` (the shaper itself is
@@ -499,7 +627,12 @@ def compensation_settings(sections: dict[str, dict[str, Any]], *, max_rate_per_s
     if "shaper" in sections:
         m = sections["shaper"]["mode"]
         lead = 2.0 * m["damping"] / m["natural_freq_rad_s"]
-    return {"drive_min_v": drive_min_v, "drive_max_v": drive_max_v, f"max_rate_{units.key(unit)}_per_s": max_rate_per_s, "lead_s": lead}
+    return {
+        "drive_min_v": drive_min_v,
+        "drive_max_v": drive_max_v,
+        f"max_rate_{units.key(unit)}_per_s": max_rate_per_s,
+        "lead_s": lead,
+    }
 
 
 # --------------------------------------------------------------------------- every stage the runs allow
@@ -520,14 +653,22 @@ class FitAll:
 def _why_runs_unfit(section: str, runs: list[runformat.Run], unit: str) -> str | None:
     other = sorted({r.output_column for r in runs if r.output_unit != unit})
     if other:
-        return (f"the {section} run(s) {', '.join(r.name for r in runs)} measure {', '.join(other)}, the sweeps "
-                f"{'force_n' if units.is_force(unit) else 'displacement_um'}; fit them separately")
+        return (
+            f"the {section} run(s) {', '.join(r.name for r in runs)} measure {', '.join(other)}, the sweeps "
+            f"{'force_n' if units.is_force(unit) else 'displacement_um'}; fit them separately"
+        )
     return None
 
 
-def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | None = None,
-            rows: tuple[int | None, int | None] | None = None, on_stage: Callable[[str], None] | None = None,
-            shaper: bool = True) -> FitAll:
+def fit_all(
+    paths: Iterable[str | Path],
+    *,
+    base: bool = False,
+    skip_s: float | None = None,
+    rows: tuple[int | None, int | None] | None = None,
+    on_stage: Callable[[str], None] | None = None,
+    shaper: bool = True,
+) -> FitAll:
     """Fit every stage the runs allow: hysteresis (needed: a sweep), creep (a creep run),
     shaper (low-amplitude steps); the sections that cannot be fitted are named with the
     reason instead of stopping the fit. From sweeps alone the bundle holds the hysteresis
@@ -584,7 +725,9 @@ def fit_all(paths: Iterable[str | Path], *, base: bool = False, skip_s: float | 
             why = f"the mode fit failed ({exc})"
     if why is not None:
         not_fitted["shaper"] = why
-    return FitAll({k: sections[k] for k in ("hysteresis", "creep", "shaper") if k in sections}, fits, not_fitted, unit, drive)
+    return FitAll(
+        {k: sections[k] for k in ("hysteresis", "creep", "shaper") if k in sections}, fits, not_fitted, unit, drive
+    )
 
 
 @dataclass
@@ -600,9 +743,17 @@ class FittedBundle:
         return Bundle.from_dict(self.doc, "the fitted bundle")
 
 
-def fit_bundle(runs: Iterable[str | Path], limits: Any = None, *, base: bool = False, shaper: bool = True, skip_s: float | None = None,
-               rows: tuple[int | None, int | None] | None = None, max_rate_per_s: float | None = None,
-               on_stage: Callable[[str], None] | None = None) -> FittedBundle:
+def fit_bundle(
+    runs: Iterable[str | Path],
+    limits: Any = None,
+    *,
+    base: bool = False,
+    shaper: bool = True,
+    skip_s: float | None = None,
+    rows: tuple[int | None, int | None] | None = None,
+    max_rate_per_s: float | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> FittedBundle:
     """``piezopress fit``: every stage the runs allow (:func:`fit_all`), assembled with the
     compensation settings into a bundle, which is checked as any bundle read from a file.
 
@@ -611,7 +762,9 @@ def fit_bundle(runs: Iterable[str | Path], limits: Any = None, *, base: bool = F
     leaves the shaper section out (a model of the press's static and slow behaviour only).
     """
     res = fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=on_stage, shaper=shaper)
-    drive = {} if limits is None else {"drive_min_v": float(limits.drive_min_v), "drive_max_v": float(limits.drive_max_v)}
+    drive = (
+        {} if limits is None else {"drive_min_v": float(limits.drive_min_v), "drive_max_v": float(limits.drive_max_v)}
+    )
     doc = assemble(res.sections, compensation_settings(res.sections, max_rate_per_s=max_rate_per_s, **drive))
     Bundle.from_dict(doc, "the fitted bundle")  # a bundle that would not be read back is never written
     return FittedBundle(doc, res)

@@ -40,19 +40,20 @@ from __future__ import annotations
 import math
 import shutil
 import tempfile
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from piezopress.pipelines.files import new_output_dir
-from piezopress.resources import shipped
 from piezopress import runformat
-from piezopress.analysis import profile
-from piezopress.pipelines.profiles import read_measured
 from piezopress.acquisition.rig_config import RigConfig, _effect_values, parse_rig
+from piezopress.analysis import profile
+from piezopress.pipelines.files import new_output_dir
+from piezopress.pipelines.profiles import read_measured
+from piezopress.resources import shipped
 
 TRACKING_PLAN = shipped("protocols", "tracking.toml")
 GAIN_CSV = "compensated_gain.csv"
@@ -144,8 +145,13 @@ def _row_id(run: runformat.Run, metric: str) -> str | None:
         if f is None:
             return None
         return "static_hysteresis" if f <= 0.1 * 1.02 else f"hysteresis_{float(f'{f:.2g}'):g}hz"
-    return {("creep", "creep"): "creep", ("step", "overshoot"): "overshoot", ("staircase", "tracking_relative"): "tracking_staircase",
-            ("staircase", "tracking_absolute"): "tracking_staircase_abs", ("custom", "tracking_rms"): "tracking_random"}.get((run.kind, metric))
+    return {
+        ("creep", "creep"): "creep",
+        ("step", "overshoot"): "overshoot",
+        ("staircase", "tracking_relative"): "tracking_staircase",
+        ("staircase", "tracking_absolute"): "tracking_staircase_abs",
+        ("custom", "tracking_rms"): "tracking_random",
+    }.get((run.kind, metric))
 
 
 def row_values(run_dirs: Iterable[str | Path]) -> dict[str, float]:
@@ -218,11 +224,14 @@ def sample(base_path: str | Path, ext_path: str | Path, cfg: RigConfig, work: st
 
     work = Path(work)
     applied, findings = extension_causes(read_document(ext_path, "bundle"))
-    return Sample(validate_rows(base_path, cfg, work / "base"), validate_rows(ext_path, cfg, work / "extended"), applied, findings)
+    return Sample(
+        validate_rows(base_path, cfg, work / "base"), validate_rows(ext_path, cfg, work / "extended"), applied, findings
+    )
 
 
-def chain_sample(cfg: RigConfig, work: str | Path, *, plan_path: str | Path | None = None,
-                 causes: Sequence[str] | None = None) -> Sample:
+def chain_sample(
+    cfg: RigConfig, work: str | Path, *, plan_path: str | Path | None = None, causes: Sequence[str] | None = None
+) -> Sample:
     """characterize -> fit --base -> diagnose -> validate both bundles, on the rig ``cfg``."""
     from piezopress.acquisition.virtual_rig import VirtualRig
     from piezopress.pipelines import characterize as char
@@ -262,8 +271,16 @@ def resolution(cfg: RigConfig) -> dict[str, float]:
 
     lsb = force_lsb_n(cfg)
     lim = cfg.limits
-    plan = load_plan(DEFAULT_VALIDATION_PLAN, type(lim)(drive_min_v=0.0, drive_max_v=lim.max_force_n, max_sample_rate_hz=lim.max_sample_rate_hz,
-                                                        max_force_n=lim.max_force_n), unit="N")
+    plan = load_plan(
+        DEFAULT_VALIDATION_PLAN,
+        type(lim)(
+            drive_min_v=0.0,
+            drive_max_v=lim.max_force_n,
+            max_sample_rate_hz=lim.max_sample_rate_hz,
+            max_force_n=lim.max_force_n,
+        ),
+        unit="N",
+    )
     steps = [abs(p.params["level_v"] - p.params["base_v"]) for p in plan.protocols if p.kind == "step"]
     out = {"tracking_staircase": 100.0 * lsb / TRACKING_MIN_REFERENCE_N, "tracking_staircase_abs": lsb}
     if steps and min(steps) > 0:
@@ -354,23 +371,53 @@ class GainResult:
         if due:
             parts.append("; ".join(f"{r.row} {r.change_pct:+.0f} %" for r in due))
         if worse:
-            parts.append("worse than the base beyond the noise: " + ", ".join(
-                f"{r.row} ({r.base:.3g} -> {r.extended:.3g}, noise {r.noise:.2g}"
-                + ("; no worse than without the effect" if math.isfinite(r.clean) and r.extended <= r.clean + _noise(r.noise) else "") + ")"
-                for r in worse))
+            parts.append(
+                "worse than the base beyond the noise: "
+                + ", ".join(
+                    f"{r.row} ({r.base:.3g} -> {r.extended:.3g}, noise {r.noise:.2g}"
+                    + (
+                        "; no worse than without the effect"
+                        if math.isfinite(r.clean) and r.extended <= r.clean + _noise(r.noise)
+                        else ""
+                    )
+                    + ")"
+                    for r in worse
+                )
+            )
         if not due:
-            msg = f"the effect costs none of its rows {MIN_TARGET_GAIN_PCT:g} % (beyond the noise): nothing that large to gain"
+            msg = (
+                f"the effect costs none of its rows {MIN_TARGET_GAIN_PCT:g} % (beyond the noise): "
+                "nothing that large to gain"
+            )
             return (False if worse else None), msg + (f"; {parts[-1]}" if worse else "")
         met = not short and not worse
         return met, f"{'met' if met else 'NOT met'}: " + "; ".join(parts)
 
     def as_rows(self) -> list[dict[str, Any]]:
         met, why = self.verdict()
-        return [{"cause": self.cause or "", "row": r.row, "label": r.label, "unit": r.unit, "clean": r.clean, "base": r.base,
-                 "extended": r.extended, "noise": r.noise, "change_pct": r.change_pct, "targeted": r.targeted, "hurt": r.hurt,
-                 "worse": r.worse, "applied": " ".join(self.applied), "findings": " ".join(self.findings), "seeds": self.seeds,
-                 "prediction_gain_pct": self.prediction_gain.get(self.cause or "", float("nan")),
-                 "verdict": "" if met is None else ("met" if met else "not met"), "why": why} for r in self.rows]
+        return [
+            {
+                "cause": self.cause or "",
+                "row": r.row,
+                "label": r.label,
+                "unit": r.unit,
+                "clean": r.clean,
+                "base": r.base,
+                "extended": r.extended,
+                "noise": r.noise,
+                "change_pct": r.change_pct,
+                "targeted": r.targeted,
+                "hurt": r.hurt,
+                "worse": r.worse,
+                "applied": " ".join(self.applied),
+                "findings": " ".join(self.findings),
+                "seeds": self.seeds,
+                "prediction_gain_pct": self.prediction_gain.get(self.cause or "", float("nan")),
+                "verdict": "" if met is None else ("met" if met else "not met"),
+                "why": why,
+            }
+            for r in self.rows
+        ]
 
 
 def targets_of(cause: str | None, applied: Iterable[str] = ()) -> tuple[str, ...]:
@@ -386,8 +433,12 @@ def extension_causes(bundle: dict[str, Any]) -> tuple[tuple[str, ...], tuple[str
     return tuple(bundle.get("extensions_applied_by_compensator", ())), tuple(bundle.get("extensions", {}))
 
 
-def combine(samples: Sequence[Sample], clean: dict[str, float] | None, cause: str | None = None,
-            floor: dict[str, float] | None = None) -> GainResult:
+def combine(
+    samples: Sequence[Sample],
+    clean: dict[str, float] | None,
+    cause: str | None = None,
+    floor: dict[str, float] | None = None,
+) -> GainResult:
     """The table from one or more samples: means over them, and each row's noise the larger
     range of its base and its extended values over them (NaN from a single sample), at
     least ``floor`` (:func:`resolution`)."""
@@ -403,27 +454,48 @@ def combine(samples: Sequence[Sample], clean: dict[str, float] | None, cause: st
     findings = tuple(dict.fromkeys(c for s in samples for c in s.findings))
     targets = set(targets_of(cause, applied))
     nan = float("nan")
-    rows = tuple(RowResult(k, base[k], ext.get(k, nan), (clean or {}).get(k, nan), noise.get(k, nan), k in targets) for k in base)
-    pred = {c: float(np.mean([s.prediction_gain[c] for s in samples if c in s.prediction_gain]))
-            for c in dict.fromkeys(c for s in samples for c in s.prediction_gain)}
+    rows = tuple(
+        RowResult(k, base[k], ext.get(k, nan), (clean or {}).get(k, nan), noise.get(k, nan), k in targets) for k in base
+    )
+    pred = {
+        c: float(np.mean([s.prediction_gain[c] for s in samples if c in s.prediction_gain]))
+        for c in dict.fromkeys(c for s in samples for c in s.prediction_gain)
+    }
     return GainResult(cause, applied, findings, rows, len(samples), pred)
 
 
-def compensated_gain(cfg: RigConfig, work: str | Path, *, cause: str | None = None, seeds: int = 3,
-                     plan_path: str | Path | None = None, causes: Sequence[str] | None = None) -> GainResult:
+def compensated_gain(
+    cfg: RigConfig,
+    work: str | Path,
+    *,
+    cause: str | None = None,
+    seeds: int = 3,
+    plan_path: str | Path | None = None,
+    causes: Sequence[str] | None = None,
+) -> GainResult:
     """The whole measurement on the virtual rig ``cfg``, ``seeds`` times (the rig's noise seed
     and the next ones): characterize, fit --base, diagnose, validate both bundles; and the
     base pipeline once on the rig without its effects (the ``clean`` column). ``work`` must
     not exist (or be empty); everything is written there."""
     work = new_output_dir(work)
-    samples = [chain_sample(with_seed(cfg, cfg.rig.seed + i), work / f"seed-{i}", plan_path=plan_path, causes=causes)
-               for i in range(seeds)]
+    samples = [
+        chain_sample(with_seed(cfg, cfg.rig.seed + i), work / f"seed-{i}", plan_path=plan_path, causes=causes)
+        for i in range(seeds)
+    ]
     clean = base_pipeline_rows(without_effects(cfg), work / "clean", plan_path) if cfg.effects_on() else None
     return combine(samples, clean, cause, resolution(cfg))
 
 
-def gain_for_runs(paths: Sequence[str | Path], base_path: str | Path, ext_path: str | Path, out_dir: str | Path, *,
-                  seeds: int = 2, keep_runs: bool = False, causes: Sequence[str] | None = None) -> tuple[GainResult, Path]:
+def gain_for_runs(
+    paths: Sequence[str | Path],
+    base_path: str | Path,
+    ext_path: str | Path,
+    out_dir: str | Path,
+    *,
+    seeds: int = 2,
+    keep_runs: bool = False,
+    causes: Sequence[str] | None = None,
+) -> tuple[GainResult, Path]:
     """The compensated gain of a diagnosis of virtual-rig runs, on the rig they came from (its
     configuration is in every run's metadata); writes ``out_dir/compensated_gain.csv``.
 
@@ -437,8 +509,10 @@ def gain_for_runs(paths: Sequence[str | Path], base_path: str | Path, ext_path: 
     work = out_dir / "gain" if keep_runs else Path(tempfile.mkdtemp(prefix="piezopress-gain-"))
     try:
         samples = [sample(base_path, ext_path, cfg, work / "seed-0")]
-        samples += [chain_sample(with_seed(cfg, cfg.rig.seed + i), work / f"seed-{i}", plan_path=plan, causes=causes)
-                    for i in range(1, seeds)]
+        samples += [
+            chain_sample(with_seed(cfg, cfg.rig.seed + i), work / f"seed-{i}", plan_path=plan, causes=causes)
+            for i in range(1, seeds)
+        ]
         effects = cfg.effects_on()
         clean = base_pipeline_rows(without_effects(cfg), work / "clean", plan) if effects else None
         res = combine(samples, clean, effects[0] if len(effects) == 1 else None, resolution(cfg))
@@ -457,8 +531,10 @@ def rig_of_runs(paths: Sequence[str | Path]) -> tuple[RigConfig, Path | None]:
     runs = collect_runs(paths)
     rigs = [r.meta.get("rig") if isinstance(r.meta.get("rig"), dict) else {} for r in runs]
     if not runs or any(g.get("backend") != "virtual" or not isinstance(g.get("config"), dict) for g in rigs):
-        raise PiezopressError("the compensated gain is measured on the virtual rig the runs came from; these runs do not all come "
-                              "from the virtual rig (their metadata names no virtual rig configuration)")
+        raise PiezopressError(
+            "the compensated gain is measured on the virtual rig the runs came from; these runs do not all come "
+            "from the virtual rig (their metadata names no virtual rig configuration)"
+        )
     cfg = parse_rig(rigs[0]["config"], source="the runs' metadata")
     plan = None
     for p in map(Path, paths):
@@ -473,8 +549,26 @@ def rig_of_runs(paths: Sequence[str | Path]) -> tuple[RigConfig, Path | None]:
 # --------------------------------------------------------------------------- files and text
 
 
-COLUMNS = ["cause", "row", "label", "unit", "clean", "base", "extended", "noise", "change_pct", "targeted", "hurt", "worse",
-           "applied", "findings", "seeds", "prediction_gain_pct", "verdict", "why"]
+COLUMNS = [
+    "cause",
+    "row",
+    "label",
+    "unit",
+    "clean",
+    "base",
+    "extended",
+    "noise",
+    "change_pct",
+    "targeted",
+    "hurt",
+    "worse",
+    "applied",
+    "findings",
+    "seeds",
+    "prediction_gain_pct",
+    "verdict",
+    "why",
+]
 
 
 def write_csv(results: Sequence[GainResult], path: str | Path) -> Path:
@@ -502,8 +596,19 @@ def table_lines(df: pd.DataFrame) -> list[tuple[str, ...]]:
     for r in df.itertuples(index=False):
         mark = "*" if str(r.targeted).lower() == "true" else ""
         flag = "worse" if str(r.worse).lower() == "true" else ("hurt" if str(r.hurt).lower() == "true" else "")
-        out.append((r.cause or "-", f"{r.label}{mark}", str(r.unit), _num(r.clean), _num(r.base), _num(r.extended), _num(r.noise, 2),
-                    _num(r.change_pct, 3) if math.isfinite(float(r.change_pct)) else "-", flag))
+        out.append(
+            (
+                r.cause or "-",
+                f"{r.label}{mark}",
+                str(r.unit),
+                _num(r.clean),
+                _num(r.base),
+                _num(r.extended),
+                _num(r.noise, 2),
+                _num(r.change_pct, 3) if math.isfinite(float(r.change_pct)) else "-",
+                flag,
+            )
+        )
     return out
 
 
@@ -527,12 +632,35 @@ def format_table(df: pd.DataFrame, prediction_gain: dict[str, float] | None = No
         for cells in table_lines(g):
             lines.append(" ".join(c.ljust(w) if i < 3 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))))
         n = int(g["seeds"].iloc[0])
-        lines.append(f"  verdict: {g['why'].iloc[0]} (base and extended: means over {n} seed{'s' if n > 1 else ''}; "
-                     f"noise: each row's range over them, at least one step of the force reading)")
+        lines.append(
+            f"  verdict: {g['why'].iloc[0]} (base and extended: means over {n} seed{'s' if n > 1 else ''}; "
+            f"noise: each row's range over them, at least one step of the force reading)"
+        )
         lines.append("")
     return "\n".join(lines).rstrip()
 
 
-__all__ = ["ROWS", "TARGETS", "GAIN_MAGNITUDES", "MIN_TARGET_GAIN_PCT", "GAIN_CSV", "TRACKING_PLAN", "effect_rig", "row_values",
-           "validate_rows", "fit_base", "sample", "chain_sample", "combine", "compensated_gain", "gain_for_runs", "resolution",
-           "write_csv", "read_csv", "format_table", "GainResult", "RowResult", "Sample"]
+__all__ = [
+    "ROWS",
+    "TARGETS",
+    "GAIN_MAGNITUDES",
+    "MIN_TARGET_GAIN_PCT",
+    "GAIN_CSV",
+    "TRACKING_PLAN",
+    "effect_rig",
+    "row_values",
+    "validate_rows",
+    "fit_base",
+    "sample",
+    "chain_sample",
+    "combine",
+    "compensated_gain",
+    "gain_for_runs",
+    "resolution",
+    "write_csv",
+    "read_csv",
+    "format_table",
+    "GainResult",
+    "RowResult",
+    "Sample",
+]

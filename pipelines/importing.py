@@ -23,15 +23,17 @@ from __future__ import annotations
 
 import math
 import os
-from datetime import datetime, timezone
+from collections.abc import Mapping
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from piezopress import __version__
 from piezopress.errors import ImportFormatError
+from piezopress.pipelines.files import check_output, write_output
 from piezopress.runformat import (
     KINDS,
     KNOWN_COLUMNS,
@@ -43,7 +45,6 @@ from piezopress.runformat import (
     sha256_file,
     write_run,
 )
-from piezopress.pipelines.files import check_output, write_output
 
 #: Delimiters by name; ``None`` (or ``"auto"``) picks one from the first line.
 DELIMITERS = {"comma": ",", "tab": "\t", "semicolon": ";", "whitespace": r"\s+"}
@@ -150,7 +151,8 @@ def import_table(
     hi = min([stop] + [n_rows - lag for lag in lags.values()])
     if hi - lo < 2:
         raise ImportFormatError(
-            f"{label}: rows {start}:{stop} with lag {_fmt_mapping(lags)} leave {max(hi - lo, 0)} sample(s); expected at least 2"
+            f"{label}: rows {start}:{stop} with lag {_fmt_mapping(lags)} leave {max(hi - lo, 0)} sample(s); expected "
+            "at least 2"
         )
 
     values: dict[str, np.ndarray] = {}
@@ -169,8 +171,10 @@ def import_table(
             with np.errstate(over="ignore", invalid="ignore"):
                 raw = raw * scale + offset
             if not np.isfinite(raw).all():
-                raise ImportFormatError(f"{label}: scale {target}={scale:g} with offset {offset:g} makes column {col + 1} overflow to "
-                                        "infinity; expected a scale and offset that convert to V, N, µm or s")
+                raise ImportFormatError(
+                    f"{label}: scale {target}={scale:g} with offset {offset:g} makes column {col + 1} overflow to "
+                    "infinity; expected a scale and offset that convert to V, N, µm or s"
+                )
         values[target] = raw
 
     time_info: dict[str, Any]
@@ -195,7 +199,7 @@ def import_table(
     provenance = {
         "importer": "piezopress.pipelines.importing",
         "importer_version": __version__,
-        "imported_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "imported_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "source_file": path.name,
         "source_sha256": sha256_file(path),
         "source_rows": n_rows,
@@ -217,8 +221,9 @@ def import_table(
     return make_run(ordered, meta, label=label)
 
 
-def import_file(source: str | os.PathLike[str], out: str | os.PathLike[str], *, replace: bool = False,
-                **options: Any) -> tuple[Run, str, Path | None]:
+def import_file(
+    source: str | os.PathLike[str], out: str | os.PathLike[str], *, replace: bool = False, **options: Any
+) -> tuple[Run, str, Path | None]:
     """Import ``source`` (see :func:`import_table`) and write it to ``out``; an existing ``out``
     is replaced only with ``replace``, its old version kept under a unique timestamped name.
 
@@ -262,7 +267,9 @@ def _fmt_mapping(mapping: Mapping[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in mapping.items()) or "none"
 
 
-def _check_options(label: str, columns: Mapping[str, Any], kind: str, name: str | None, sample_rate_hz: float | None) -> None:
+def _check_options(
+    label: str, columns: Mapping[str, Any], kind: str, name: str | None, sample_rate_hz: float | None
+) -> None:
     if kind not in KINDS:
         raise ImportFormatError(f"{label}: kind {kind!r} is not known; expected one of {', '.join(KINDS)}")
     if name is not None and not str(name).strip():
@@ -283,16 +290,20 @@ def _check_options(label: str, columns: Mapping[str, Any], kind: str, name: str 
         raise ImportFormatError(f"{label}: sample rate {sample_rate_hz!r} Hz; expected a positive number")
     if "t_s" not in columns and sample_rate_hz is None:
         raise ImportFormatError(
-            f"{label}: no time column mapped and no sample rate given; expected t_s=N in the column mapping or a sample rate"
+            f"{label}: no time column mapped and no sample rate given; expected t_s=N in the column mapping or a "
+            "sample rate"
         )
 
 
-def _check_numbers(label: str, what: str, given: Mapping[str, float] | None, columns: Mapping[str, Any], *, nonzero: bool) -> dict[str, float]:
+def _check_numbers(
+    label: str, what: str, given: Mapping[str, float] | None, columns: Mapping[str, Any], *, nonzero: bool
+) -> dict[str, float]:
     out: dict[str, float] = {}
     for target, value in (given or {}).items():
         if target not in columns:
             raise ImportFormatError(
-                f"{label}: {what} {target}={value} for a column that is not mapped; expected one of {', '.join(columns)}"
+                f"{label}: {what} {target}={value} for a column that is not mapped; expected one of "
+                f"{', '.join(columns)}"
             )
         try:
             number = float(value)
@@ -314,7 +325,9 @@ def _check_lags(label: str, given: Mapping[str, int] | None, columns: Mapping[st
                 f"(lags count against command_v)"
             )
         if target not in columns:
-            raise ImportFormatError(f"{label}: lag {target}={value} for a column that is not mapped; expected one of {', '.join(columns)}")
+            raise ImportFormatError(
+                f"{label}: lag {target}={value} for a column that is not mapped; expected one of {', '.join(columns)}"
+            )
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise ImportFormatError(f"{label}: lag {target}={value!r}; expected a whole number of samples")
         out[target] = int(value)
@@ -343,7 +356,9 @@ def _first_line(path: Path, label: str) -> tuple[str | None, int]:
                 if line.strip():
                     return line.rstrip("\r\n"), i
     except UnicodeDecodeError as exc:
-        raise ImportFormatError(f"{label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file") from None
+        raise ImportFormatError(
+            f"{label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file"
+        ) from None
     return None, 0
 
 
@@ -369,7 +384,14 @@ class _Table:
     """A CSV/TSV source, read a chunk at a time: its delimiter, header and shape."""
 
     def __init__(self, path: Path, sep: str, delim_name: str, header: bool, skipped: int):
-        self.path, self.label, self.sep, self.delim_name, self.header, self.skipped = path, str(path), sep, delim_name, header, skipped
+        self.path, self.label, self.sep, self.delim_name, self.header, self.skipped = (
+            path,
+            str(path),
+            sep,
+            delim_name,
+            header,
+            skipped,
+        )
         first = self._read(nrows=1)
         if len(first) == 0:
             raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers")
@@ -378,19 +400,32 @@ class _Table:
 
     def _read(self, **options: Any) -> Any:
         try:
-            return pd.read_csv(self.path, sep=self.sep, header=None, dtype=str, keep_default_na=False, skip_blank_lines=False,
-                               encoding="utf-8-sig", engine="c", **{"skiprows": self.skipped, **options})
+            return pd.read_csv(
+                self.path,
+                sep=self.sep,
+                header=None,
+                dtype=str,
+                keep_default_na=False,
+                skip_blank_lines=False,
+                encoding="utf-8-sig",
+                engine="c",
+                **{"skiprows": self.skipped, **options},
+            )
         except pd.errors.EmptyDataError:
             raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers") from None
         except pd.errors.ParserError as exc:
             raise self._parser_error(exc) from None
         except UnicodeDecodeError as exc:
-            raise ImportFormatError(f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file") from None
+            raise ImportFormatError(
+                f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file"
+            ) from None
 
     def _parser_error(self, exc: Exception) -> ImportFormatError:
         first = str(exc).strip().splitlines()[0]
-        return ImportFormatError(f"{self.label}: cannot be split into columns with delimiter {self.delim_name} ({first}); "
-                                 "expected the same number of fields on every line")
+        return ImportFormatError(
+            f"{self.label}: cannot be split into columns with delimiter {self.delim_name} ({first}); "
+            "expected the same number of fields on every line"
+        )
 
     def read_columns(self, cols: list[int]) -> tuple[dict[int, np.ndarray], int]:
         """Columns ``cols`` (0-based) of every data row as float64 (NaN where a cell is not a
@@ -398,17 +433,23 @@ class _Table:
         parts: dict[int, list[np.ndarray]] = {c: [] for c in cols}
         last, offset = -1, 0
         try:
-            for chunk in self._read(chunksize=CHUNK_ROWS):  # every field (a line with too many is refused), one chunk at a time
+            for chunk in self._read(
+                chunksize=CHUNK_ROWS
+            ):  # every field (a line with too many is refused), one chunk at a time
                 filled = (chunk.notna() & (chunk != "")).any(axis=1).to_numpy()
                 if filled.any():
                     last = offset + int(np.flatnonzero(filled)[-1])
                 for c in cols:
-                    parts[c].append(pd.to_numeric(chunk[c].astype(str).str.strip(), errors="coerce").to_numpy(dtype=np.float64))
+                    parts[c].append(
+                        pd.to_numeric(chunk[c].astype(str).str.strip(), errors="coerce").to_numpy(dtype=np.float64)
+                    )
                 offset += len(chunk)
         except pd.errors.ParserError as exc:
             raise self._parser_error(exc) from None
         except UnicodeDecodeError as exc:
-            raise ImportFormatError(f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file") from None
+            raise ImportFormatError(
+                f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file"
+            ) from None
         if last < 0:
             raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers")
         head = 1 if self.header else 0
@@ -431,8 +472,11 @@ def _read_table(path: Path, delimiter: str | None, header: bool | None) -> _Tabl
         raise ImportFormatError(f"{label}: is not a file; expected a CSV/TSV measurement")
     size = path.stat().st_size
     if size > MAX_IMPORT_BYTES:
-        raise ImportFormatError(f"{label}: is {size / 1e9:.3g} GB, above the import limit of {MAX_IMPORT_BYTES / 1e9:g} GB (a run of that "
-                                "length would not fit in memory); expected a smaller file: cut the segment you need first (head/tail, split)")
+        raise ImportFormatError(
+            f"{label}: is {size / 1e9:.3g} GB, above the import limit of {MAX_IMPORT_BYTES / 1e9:g} GB (a run of that "
+            "length would not fit in memory); expected a smaller file: cut the segment you need first (head/tail, "
+            "split)"
+        )
     line, skipped = _first_line(path, label)
     if line is None:
         raise ImportFormatError(f"{label}: is empty; expected rows of numbers separated by commas, tabs or whitespace")
@@ -456,7 +500,8 @@ def _read_table(path: Path, delimiter: str | None, header: bool | None) -> _Tabl
             header = True
         else:
             raise ImportFormatError(
-                f"{label}: line 1 mixes numbers and text ({line[:60]!r}); expected to be told whether it is a header (--header/--no-header)"
+                f"{label}: line 1 mixes numbers and text ({line[:60]!r}); expected to be told whether it is a header "
+                "(--header/--no-header)"
             )
     return _Table(path, sep, delim_name, bool(header), skipped)
 
@@ -519,7 +564,9 @@ def _uniform_step(label: str, t: np.ndarray, col: int, row0: int, first_line: in
     i = int(np.argmax(dev))
     if dev[i] > UNIFORM_RTOL:
         raise ImportFormatError(
-            f"{label}: time column {col + 1} is not uniformly sampled: step {dt[i]:.6g} s at {where(i)} against a mean of "
-            f"{step:.6g} s; expected every step within {UNIFORM_RTOL:.0e} of the mean (a gap? select a segment with rows)"
+            f"{label}: time column {col + 1} is not uniformly sampled: step {dt[i]:.6g} s at {where(i)} against a "
+            "mean of "
+            f"{step:.6g} s; expected every step within {UNIFORM_RTOL:.0e} of the mean (a gap? select a segment with "
+            "rows)"
         )
     return float(t[0]), float(step), float(dev[i])

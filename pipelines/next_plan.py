@@ -19,20 +19,21 @@ from __future__ import annotations
 
 import os
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from piezopress.analysis import profile
-from piezopress.resources import shipped
 from piezopress import runformat
 from piezopress.acquisition.daq_config import parse_daq_rig
 from piezopress.acquisition.plan import DriveLimits, Plan, parse_plan
 from piezopress.acquisition.rig_config import load_rig, parse_rig
 from piezopress.analysis import diagnosis as dg
+from piezopress.analysis import profile
 from piezopress.errors import PiezopressError
+from piezopress.resources import shipped
 
 DEFAULT_RIG = shipped("rigs", "thesis-press.toml")
 PLAN_FILE = "next-plan.toml"
@@ -63,7 +64,11 @@ def rig_of_runs(runs: Sequence[runformat.Run]) -> RigInfo:
             continue
         source = str(rig.get("source") or "<runs>")
         try:
-            cfg = parse_daq_rig(rig["config"], source) if rig.get("backend") == "nidaq" else parse_rig(rig["config"], source)
+            cfg = (
+                parse_daq_rig(rig["config"], source)
+                if rig.get("backend") == "nidaq"
+                else parse_rig(rig["config"], source)
+            )
         except PiezopressError:
             continue
         name = getattr(getattr(cfg, "rig", None), "name", "") or rig.get("backend", "rig")
@@ -103,29 +108,104 @@ def _groups(lo: float, hi: float, rest: float, fs_max: float) -> list[Group]:
     out: list[Group] = []
     span = hi - lo
     if fs_max >= 20 * 0.1:
-        out.append(Group("rest", "zero drive held (the sensor's offset and its drift on their own)",
-                         [{"name": "rest", "kind": "custom", "points": [[0.0, rest], [REST_S, rest]], "sample_rate_hz": min(100.0, fs_max)}]))
+        out.append(
+            Group(
+                "rest",
+                "zero drive held (the sensor's offset and its drift on their own)",
+                [
+                    {
+                        "name": "rest",
+                        "kind": "custom",
+                        "points": [[0.0, rest], [REST_S, rest]],
+                        "sample_rate_hz": min(100.0, fs_max),
+                    }
+                ],
+            )
+        )
     fs_step = min(STEP_RATE_HZ, fs_max)
     if fs_step >= 5000.0 and hi > rest:
-        levels = sorted({float(f"{rest + (hi - rest) * f:.3g}") for f in (2 / 15, 1 / 3, 2 / 3, 1.0)})  # 20, 50, 100, 150 V of 150
-        out.append(Group("steps", f"steps of {', '.join(f'{v:g}' for v in levels)} V sampled at {fs_step / 1e3:g} kHz "
-                                  "(the small one identifies the mode; large ones show the slew and a second mode)",
-                         [{"name": f"step-{v:g}v", "kind": "step", "base_v": rest, "level_v": v, "pre_s": 0.01, "hold_s": 0.1, "post_s": 0.05,
-                           "sample_rate_hz": fs_step} for v in levels], enables_model=("mode",)))
+        levels = sorted(
+            {float(f"{rest + (hi - rest) * f:.3g}") for f in (2 / 15, 1 / 3, 2 / 3, 1.0)}
+        )  # 20, 50, 100, 150 V of 150
+        out.append(
+            Group(
+                "steps",
+                f"steps of {', '.join(f'{v:g}' for v in levels)} V sampled at {fs_step / 1e3:g} kHz "
+                "(the small one identifies the mode; large ones show the slew and a second mode)",
+                [
+                    {
+                        "name": f"step-{v:g}v",
+                        "kind": "step",
+                        "base_v": rest,
+                        "level_v": v,
+                        "pre_s": 0.01,
+                        "hold_s": 0.1,
+                        "post_s": 0.05,
+                        "sample_rate_hz": fs_step,
+                    }
+                    for v in levels
+                ],
+                enables_model=("mode",),
+            )
+        )
     for f, cycles, fs in ((10.0, 10, 20_000.0), (50.0, 20, 50_000.0)):
         fs = min(fs, fs_max)
         if fs >= 200 * f and span > 0:
-            out.append(Group(f"triangle-{f:g}hz", f"triangles {lo:g} -> {hi:g} V at {f:g} Hz (the loop at a fast drive rate)",
-                             [{"name": f"triangle-{f:g}hz", "kind": "triangle", "freq_hz": f, "cycles": cycles, "low_v": lo, "peak_v": hi,
-                               "sample_rate_hz": fs}]))
+            out.append(
+                Group(
+                    f"triangle-{f:g}hz",
+                    f"triangles {lo:g} -> {hi:g} V at {f:g} Hz (the loop at a fast drive rate)",
+                    [
+                        {
+                            "name": f"triangle-{f:g}hz",
+                            "kind": "triangle",
+                            "freq_hz": f,
+                            "cycles": cycles,
+                            "low_v": lo,
+                            "peak_v": hi,
+                            "sample_rate_hz": fs,
+                        }
+                    ],
+                )
+            )
     if hi > rest and fs_max >= 100.0:
-        out.append(Group("creep", f"{hi:g} V held {CREEP_HOLD_S:g} s (creep over two decades of time)",
-                         [{"name": f"creep-{hi:g}v", "kind": "creep", "base_v": rest, "level_v": hi, "pre_s": 1.0, "hold_s": CREEP_HOLD_S, "post_s": 0.0,
-                           "sample_rate_hz": min(1000.0, fs_max)}], enables_model=("creep",)))
+        out.append(
+            Group(
+                "creep",
+                f"{hi:g} V held {CREEP_HOLD_S:g} s (creep over two decades of time)",
+                [
+                    {
+                        "name": f"creep-{hi:g}v",
+                        "kind": "creep",
+                        "base_v": rest,
+                        "level_v": hi,
+                        "pre_s": 1.0,
+                        "hold_s": CREEP_HOLD_S,
+                        "post_s": 0.0,
+                        "sample_rate_hz": min(1000.0, fs_max),
+                    }
+                ],
+                enables_model=("creep",),
+            )
+        )
     if span > 0 and fs_max >= 500.0:
-        out.append(Group("triangle-0.1hz", f"slow triangles {lo:g} -> {hi:g} V at 0.1 Hz (the quasi-static loop)",
-                         [{"name": "triangle-0.1hz", "kind": "triangle", "freq_hz": 0.1, "cycles": 3, "low_v": lo, "peak_v": hi,
-                           "sample_rate_hz": 500.0}]))
+        out.append(
+            Group(
+                "triangle-0.1hz",
+                f"slow triangles {lo:g} -> {hi:g} V at 0.1 Hz (the quasi-static loop)",
+                [
+                    {
+                        "name": "triangle-0.1hz",
+                        "kind": "triangle",
+                        "freq_hz": 0.1,
+                        "cycles": 3,
+                        "low_v": lo,
+                        "peak_v": hi,
+                        "sample_rate_hz": 500.0,
+                    }
+                ],
+            )
+        )
     return sorted(out, key=lambda g: g.samples)
 
 
@@ -136,8 +216,18 @@ def _as_runs(protocols: Sequence[dict[str, Any]], limits: DriveLimits) -> list[d
     out = []
     for p in plan.protocols:
         t, x = p.waveform()
-        out.append(dg.RunData(p.name, p.run_kind, t, x, np.zeros_like(x), p.sample_rate_hz, meta={"protocol": p.as_dict()},
-                              key=f"next-plan:{p.name}"))
+        out.append(
+            dg.RunData(
+                p.name,
+                p.run_kind,
+                t,
+                x,
+                np.zeros_like(x),
+                p.sample_rate_hz,
+                meta={"protocol": p.as_dict()},
+                key=f"next-plan:{p.name}",
+            )
+        )
     return out
 
 
@@ -190,7 +280,9 @@ def choose(ctx: dg.Context, not_tested: Sequence[str], rig: RigInfo, drive: tupl
         fake = runs_of(groups)
         parts = {m for g in groups for m in g.enables_model}
         fitted = ctx.fitted_runs | {r.key for r in fake if refit_would_fit(r)}
-        c = dg.Context(ctx.runs + fake, ctx.model, frozenset(fitted), {**ctx.floor, **{r.name: floor for r in fake}}, shared_cache)
+        c = dg.Context(
+            ctx.runs + fake, ctx.model, frozenset(fitted), {**ctx.floor, **{r.name: floor for r in fake}}, shared_cache
+        )
         for need in dg.CAUSES[cid].needs:
             missing = [m for m in need.model if not dg.MODEL_PARTS[m][1](ctx.model)]
             if any(m not in parts for m in missing):
@@ -229,10 +321,12 @@ def plan_text(plan: NextPlan, checks: dict[str, dg.Testability], run_paths: Sequ
     rig = plan.rig
     lim = rig.limits
     dirs = " ".join(run_paths) or "runs/"
-    lines = ["# Next experiment, written by `piezopress diagnose`: the smallest set of protocols found that makes testable",
-             "# the causes these runs could not test.",
-             f"# Runs diagnosed: {dirs}",
-             "#"]
+    lines = [
+        "# Next experiment, written by `piezopress diagnose`: the smallest set of protocols found that makes testable",
+        "# the causes these runs could not test.",
+        f"# Runs diagnosed: {dirs}",
+        "#",
+    ]
     for cid in plan.serves:
         t = checks[cid]
         lines += [f"#   {cid}: needs {t.needs}", f"#     have: {t.have}"]
@@ -240,22 +334,40 @@ def plan_text(plan: NextPlan, checks: dict[str, dg.Testability], run_paths: Sequ
         lines.append(f"#   {cid}: needs {checks[cid].needs}; no protocol on this rig provides it")
     lines.append("#")
     if rig.from_runs:
-        lines.append(f"# Rig: {rig.name} (the configuration recorded in the runs{', file ' + rig.rig_file if rig.rig_file else ''}):")
+        lines.append(
+            f"# Rig: {rig.name} (the configuration recorded in the "
+            f"runs{', file ' + rig.rig_file if rig.rig_file else ''}):"
+        )
     else:
-        lines += ["# Rig: the runs hold no rig configuration (imported), so this plan assumes the default rig",
-                  f"# rigs/{DEFAULT_RIG.name} ({rig.name}); check its limits against your press before running it:"]
-    lines += [f"# drive {lim.drive_min_v:g} to {lim.drive_max_v:g} V, sampling up to {lim.max_sample_rate_hz / 1e3:g} kHz "
-              "(the protocols keep to the runs' own drive range within it).",
-              "#",
-              "# Then:",
-              f"#   piezopress characterize --plan {PLAN_FILE}{' --rig ' + rig.rig_file if rig.rig_file else ''} --out more/"]
+        lines += [
+            "# Rig: the runs hold no rig configuration (imported), so this plan assumes the default rig",
+            f"# rigs/{DEFAULT_RIG.name} ({rig.name}); check its limits against your press before running it:",
+        ]
+    lines += [
+        f"# drive {lim.drive_min_v:g} to {lim.drive_max_v:g} V, sampling up to {lim.max_sample_rate_hz / 1e3:g} kHz "
+        "(the protocols keep to the runs' own drive range within it).",
+        "#",
+        "# Then:",
+        f"#   piezopress characterize --plan {PLAN_FILE}{' --rig ' + rig.rig_file if rig.rig_file else ''} --out more/",
+    ]
     if plan.refit_for:
-        lines += [f"#   piezopress fit {dirs} more/ --base --out base-2.json      # {', '.join(plan.refit_for)} need the base model refitted with these runs",
-                  f"#   piezopress diagnose {dirs} more/ --bundle base-2.json --out diagnosis-2/"]
+        lines += [
+            f"#   piezopress fit {dirs} more/ --base --out base-2.json      # {', '.join(plan.refit_for)} need the "
+            "base model refitted with these runs",
+            f"#   piezopress diagnose {dirs} more/ --bundle base-2.json --out diagnosis-2/",
+        ]
     else:
-        lines.append(f"#   piezopress diagnose {dirs} more/ --bundle BUNDLE --out diagnosis-2/      # the bundle diagnosed here")
-    lines += ["", "[plan]", 'name = "next-experiment"',
-              f'description = "Makes testable: {", ".join(plan.serves)}"', f"preload_n = {preload_n:g}", ""]
+        lines.append(
+            f"#   piezopress diagnose {dirs} more/ --bundle BUNDLE --out diagnosis-2/      # the bundle diagnosed here"
+        )
+    lines += [
+        "",
+        "[plan]",
+        'name = "next-experiment"',
+        f'description = "Makes testable: {", ".join(plan.serves)}"',
+        f"preload_n = {preload_n:g}",
+        "",
+    ]
     for g in plan.groups:
         lines.append(f"# --- serves {', '.join(g.serves)}: {g.what}")
         for p in g.protocols:
@@ -291,25 +403,40 @@ def write_plan(out_dir: Path, text: str, limits: DriveLimits) -> tuple[Path, Pla
     return path, plan
 
 
-def next_plan(runs: Sequence[runformat.Run], ctx: dg.Context, result: dg.Diagnosis, out_dir: Path,
-              run_paths: Sequence[str]) -> dict[str, Any] | None:
+def next_plan(
+    runs: Sequence[runformat.Run], ctx: dg.Context, result: dg.Diagnosis, out_dir: Path, run_paths: Sequence[str]
+) -> dict[str, Any] | None:
     """Write ``next-plan.toml`` for the causes ``result`` could not test; its description for
     ``diagnosis.json`` (None when every cause was tested: no plan is needed)."""
     if not result.not_tested:
         return None
     rig = rig_of_runs(runs)
     xs = [r.x for r in ctx.runs if r.x.size]
-    drive = (float(min(np.min(x) for x in xs)), float(max(np.max(x) for x in xs))) if xs else (rig.limits.drive_min_v, rig.limits.drive_max_v)
+    drive = (
+        (float(min(np.min(x) for x in xs)), float(max(np.max(x) for x in xs)))
+        if xs
+        else (rig.limits.drive_min_v, rig.limits.drive_max_v)
+    )
     checks = {t.cause: t for t in result.not_tested}
     plan = choose(ctx, list(checks), rig, drive)
-    info: dict[str, Any] = {"serves": plan.serves, "unservable": plan.unservable, "refit_for": plan.refit_for,
-                            "rig": {"name": rig.name, "file": rig.rig_file, "from_runs": rig.from_runs}}
+    info: dict[str, Any] = {
+        "serves": plan.serves,
+        "unservable": plan.unservable,
+        "refit_for": plan.refit_for,
+        "rig": {"name": rig.name, "file": rig.rig_file, "from_runs": rig.from_runs},
+    }
     if not plan.groups:
         info["file"] = None
         return info
     preloads = [float(r.meta["preload_n"]) for r in runs if isinstance(r.meta.get("preload_n"), (int, float))]
     text = plan_text(plan, checks, run_paths, preloads[0] if preloads else 50.0)
     path, checked = write_plan(out_dir, text, rig.limits)
-    info.update(file=str(path), protocols=[p.name for p in checked.protocols], duration_s=checked.duration_s,
-                groups=[{"protocols": [p["name"] for p in g.protocols], "serves": g.serves, "what": g.what} for g in plan.groups])
+    info.update(
+        file=str(path),
+        protocols=[p.name for p in checked.protocols],
+        duration_s=checked.duration_s,
+        groups=[
+            {"protocols": [p["name"] for p in g.protocols], "serves": g.serves, "what": g.what} for g in plan.groups
+        ],
+    )
     return info

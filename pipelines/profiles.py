@@ -59,8 +59,10 @@ def measured(run: runformat.Run) -> runformat.Run:
         col = run.output_column
         g = list(p.glitches)
         where = ", ".join(f"{run.t_s[i]:.6g} s" for i in g[:5]) + (f" and {len(g) - 5} more" if len(g) > 5 else "")
-        note(f"{label}: {len(g)} glitched sample(s) of {col} (isolated jumps, as a lost or saturated ADC reading), "
-              f"at {where}; each replaced by the mean of its neighbours")
+        note(
+            f"{label}: {len(g)} glitched sample(s) of {col} (isolated jumps, as a lost or saturated ADC reading), "
+            f"at {where}; each replaced by the mean of its neighbours"
+        )
         data = data.copy()
         data[col] = prof_mod.without_glitches(run.output, g)
     return runformat.Run(data, meta, run.path, profile=p)

@@ -28,19 +28,47 @@ from typing import Any
 import pandas as pd
 
 from piezopress.errors import OutputExistsError
-from piezopress.pipelines import summary
+from piezopress.pipelines import report_frequency, summary
 from piezopress.pipelines.bundle import read_document
 from piezopress.pipelines.files import keep_previous, status_notes, writable_folder
-from piezopress.pipelines import report_frequency
-from piezopress.pipelines.report_doc import (CSS, Block, Bullets, Contents, FigureBlock, Heading, Para, Table, _md_table,
-                                             render_html, render_markdown)
-from piezopress.pipelines.report_figures import (_creep_figure, _drive_figure, _frequency_loops_figure, _loops_figure,
-                                                 _residuals_figure, _steps_figure, _tracking_figure)
-from piezopress.pipelines.report_verdict import Verdict, verdict_blocks
+from piezopress.pipelines.report_doc import (
+    CSS,
+    Block,
+    Bullets,
+    Contents,
+    FigureBlock,
+    Heading,
+    Para,
+    Table,
+    _md_table,
+    render_html,
+    render_markdown,
+)
+from piezopress.pipelines.report_figures import (
+    _creep_figure,
+    _drive_figure,
+    _frequency_loops_figure,
+    _loops_figure,
+    _residuals_figure,
+    _steps_figure,
+    _tracking_figure,
+)
 from piezopress.pipelines.report_inputs import STATIC_FREQ_HZ, UNCONTROLLED_STEP_V, ReportError, _load_dir, _Source
 from piezopress.pipelines.report_model import _diagnosis_blocks, _model_quality
-from piezopress.pipelines.report_tables import (COLUMNS, CSV_FLOAT, TESTS_6_13, _basis, _char_table_id, _detail_table,
-                                                _rows_6_13, _val_table_id, comparison_table, metrics_csv, metrics_table)
+from piezopress.pipelines.report_tables import (
+    COLUMNS,
+    CSV_FLOAT,
+    TESTS_6_13,
+    _basis,
+    _char_table_id,
+    _detail_table,
+    _rows_6_13,
+    _val_table_id,
+    comparison_table,
+    metrics_csv,
+    metrics_table,
+)
+from piezopress.pipelines.report_verdict import Verdict, verdict_blocks
 
 #: Files a report directory holds; a directory holding one of them is a report (``--replace``).
 REPORT_FILES = ("metrics.csv", "report.md", "report.html")
@@ -85,26 +113,42 @@ class ReportResult:
         return self.out_dir / "report.html"
 
 
-def build_report(characterization: str | Path | None = None, validation: str | Path | None = None,
-                 bundle: str | Path | None = None, diagnosis: str | Path | None = None) -> Report:
+def build_report(
+    characterization: str | Path | None = None,
+    validation: str | Path | None = None,
+    bundle: str | Path | None = None,
+    diagnosis: str | Path | None = None,
+) -> Report:
     """Read the inputs given and lay out the report (nothing is written)."""
     if characterization is None and validation is None and bundle is None and diagnosis is None:
-        raise ReportError("nothing to report: give at least one of --characterization, --validation, --bundle, --diagnosis")
+        raise ReportError(
+            "nothing to report: give at least one of --characterization, --validation, --bundle, --diagnosis"
+        )
     missing: list[str] = []
-    char = _load_dir(characterization, "characterization", "characterize", summary.characterization_table) if characterization is not None else None
+    char = (
+        _load_dir(characterization, "characterization", "characterize", summary.characterization_table)
+        if characterization is not None
+        else None
+    )
     val = _load_dir(validation, "validation", "validate", summary.validation_table) if validation is not None else None
     bundle_doc = read_document(bundle, "bundle") if bundle is not None else None
 
     if char is None:
-        missing.append("No characterization runs given: uncontrolled figures are missing (run `piezopress characterize`).")
+        missing.append(
+            "No characterization runs given: uncontrolled figures are missing (run `piezopress characterize`)."
+        )
     elif not char.runs:
-        missing.append(f"The characterization directory {char.path} holds no complete run: uncontrolled figures are missing.")
+        missing.append(
+            f"The characterization directory {char.path} holds no complete run: uncontrolled figures are missing."
+        )
     if val is None:
         missing.append("No validation runs given: controlled figures are missing (run `piezopress validate`).")
     elif not val.runs:
         missing.append(f"The validation directory {val.path} holds no complete run: controlled figures are missing.")
     if bundle_doc is None:
-        missing.append("No bundle given: the model-quality section and the model residuals are missing (run `piezopress fit`).")
+        missing.append(
+            "No bundle given: the model-quality section and the model residuals are missing (run `piezopress fit`)."
+        )
     for src in (char, val):
         if src is not None:
             for r in src.table.itertuples(index=False):
@@ -120,25 +164,55 @@ def build_report(characterization: str | Path | None = None, validation: str | P
     comparison = comparison_table(rows)
 
     verdict_section, verdict = verdict_blocks(rows, char, val, bundle, bundle_doc)
-    blocks: list[Block] = [Heading("piezopress report", 1), Contents(), *verdict_section,
-                           Heading("Inputs"), Bullets(tuple(_inputs_lines(char, val, bundle, bundle_doc)))]
-    blocks += [Heading("Table 6.13: uncontrolled and controlled, beside the thesis"), comparison, Bullets(tuple(_basis(rows)))]
+    blocks: list[Block] = [
+        Heading("piezopress report", 1),
+        Contents(),
+        *verdict_section,
+        Heading("Inputs"),
+        Bullets(tuple(_inputs_lines(char, val, bundle, bundle_doc))),
+    ]
+    blocks += [
+        Heading("Table 6.13: uncontrolled and controlled, beside the thesis"),
+        comparison,
+        Bullets(tuple(_basis(rows))),
+    ]
 
-    figures = [f for f in (_loops_figure(char, val, missing, bundle_doc), _frequency_loops_figure(val, missing),
-                           _creep_figure(char, val, missing), _steps_figure(char, val, missing), _tracking_figure(val, missing),
-                           _drive_figure(val, missing)) if f is not None]
+    figures = [
+        f
+        for f in (
+            _loops_figure(char, val, missing, bundle_doc),
+            _frequency_loops_figure(val, missing),
+            _creep_figure(char, val, missing),
+            _steps_figure(char, val, missing),
+            _tracking_figure(val, missing),
+            _drive_figure(val, missing),
+        )
+        if f is not None
+    ]
     if figures:
         blocks += [Heading("Before and after: the figures"), *figures]
     mode_fig, _ = report_frequency.mode_figure(bundle_doc, char, missing)
-    spectral = [f for f in (mode_fig, report_frequency.shaper_figure(bundle_doc, missing),
-                            report_frequency.creep_figure(bundle_doc, missing)) if f is not None]
+    spectral = [
+        f
+        for f in (
+            mode_fig,
+            report_frequency.shaper_figure(bundle_doc, missing),
+            report_frequency.creep_figure(bundle_doc, missing),
+        )
+        if f is not None
+    ]
     if spectral:
         blocks += [Heading("The frequency domain"), *spectral]
     if char is not None and len(char.table):
-        blocks += [Heading("Characterization (uncontrolled; Tables 5.1-5.3)"), _detail_table(char.table, lambda r: _char_table_id(r.kind))]
+        blocks += [
+            Heading("Characterization (uncontrolled; Tables 5.1-5.3)"),
+            _detail_table(char.table, lambda r: _char_table_id(r.kind)),
+        ]
     if val is not None and len(val.table):
-        blocks += [Heading("Validation (compensated; Tables 6.5-6.12, Sec. 6.6)"),
-                   _detail_table(val.table, lambda r: _val_table_id(val.runs.get(r.run), r.kind, val.shaper))]
+        blocks += [
+            Heading("Validation (compensated; Tables 6.5-6.12, Sec. 6.6)"),
+            _detail_table(val.table, lambda r: _val_table_id(val.runs.get(r.run), r.kind, val.shaper)),
+        ]
     if bundle_doc is not None:
         blocks += _model_quality(bundle_doc, Path(bundle), missing)
         residuals = _residuals_figure(bundle_doc, char, missing)
@@ -150,21 +224,30 @@ def build_report(characterization: str | Path | None = None, validation: str | P
     return Report(metrics_table(char, val), comparison, blocks, missing, verdict)
 
 
-def _inputs_lines(char: _Source | None, val: _Source | None, bundle: str | Path | None, doc: dict[str, Any] | None) -> list[str]:
+def _inputs_lines(
+    char: _Source | None, val: _Source | None, bundle: str | Path | None, doc: dict[str, Any] | None
+) -> list[str]:
     lines = []
     lines.append(f"Characterization: `{char.path}` ({len(char.runs)} runs)" if char else "Characterization: not given")
     if val:
-        skipped = sum(any(str(n).startswith("shaper skipped") for n in (r.meta.get("compensation") or {}).get("notes", []))
-                      for r in val.runs.values())
+        skipped = sum(
+            any(str(n).startswith("shaper skipped") for n in (r.meta.get("compensation") or {}).get("notes", []))
+            for r in val.runs.values()
+        )
         shaper = "with the input shaper" if val.shaper else "without the input shaper"
         if val.shaper and skipped:
-            shaper += f" on {len(val.runs) - skipped} of them (skipped on {skipped}: their sample rate cannot resolve the mode)"
+            shaper += (
+                f" on {len(val.runs) - skipped} of them (skipped on {skipped}: "
+                "their sample rate cannot resolve the mode)"
+            )
         lines.append(f"Validation: `{val.path}` ({len(val.runs)} runs, {shaper})")
     else:
         lines.append("Validation: not given")
     if doc is not None:
-        lines.append(f"Bundle: `{bundle}` (sections: {', '.join(k for k in ('hysteresis', 'creep', 'shaper') if k in doc)}; "
-                     f"software {doc.get('software_version', '?')})")
+        lines.append(
+            f"Bundle: `{bundle}` (sections: {', '.join(k for k in ('hysteresis', 'creep', 'shaper') if k in doc)}; "
+            f"software {doc.get('software_version', '?')})"
+        )
     else:
         lines.append("Bundle: not given")
     lines += [f"Incomplete input: {note}" for note in status_notes()]  # accepted with --accept-incomplete
@@ -185,15 +268,21 @@ def check_output_dir(out_dir: str | Path, replace: bool = False) -> None:
         writable_folder(out.parent)
         return
     if not out.is_dir():
-        raise OutputExistsError(f"{out}: exists and is not a directory; expected a new or empty directory for the report")
+        raise OutputExistsError(
+            f"{out}: exists and is not a directory; expected a new or empty directory for the report"
+        )
     writable_folder(out.parent)
     if not any(out.iterdir()):
         return
     if not replace:
-        raise OutputExistsError(f"{out}: already exists and is not empty; choose a new directory, or pass --replace to replace "
-                                f"an old report (kept as {out.name}.replaced-<UTC time>)")
+        raise OutputExistsError(
+            f"{out}: already exists and is not empty; choose a new directory, or pass --replace to replace "
+            f"an old report (kept as {out.name}.replaced-<UTC time>)"
+        )
     if not _is_report_dir(out):
-        raise OutputExistsError(f"{out}: is not a piezopress report (none of {', '.join(REPORT_FILES)}); refusing to replace it")
+        raise OutputExistsError(
+            f"{out}: is not a piezopress report (none of {', '.join(REPORT_FILES)}); refusing to replace it"
+        )
 
 
 def write_report(report: Report, out_dir: str | Path, *, replace: bool = False) -> ReportResult:
@@ -238,13 +327,42 @@ def expected_table(report: Report) -> pd.DataFrame:
     return df[["table", "test", "metric", "unit", "value", "tolerance"]]
 
 
-def generate(out_dir: str | Path, *, characterization: str | Path | None = None, validation: str | Path | None = None,
-             bundle: str | Path | None = None, diagnosis: str | Path | None = None, replace: bool = False) -> ReportResult:
+def generate(
+    out_dir: str | Path,
+    *,
+    characterization: str | Path | None = None,
+    validation: str | Path | None = None,
+    bundle: str | Path | None = None,
+    diagnosis: str | Path | None = None,
+    replace: bool = False,
+) -> ReportResult:
     """Check the output directory, build the report and write it."""
     check_output_dir(out_dir, replace)
     return write_report(build_report(characterization, validation, bundle, diagnosis), out_dir, replace=replace)
 
 
-__all__ = ["build_report", "write_report", "generate", "check_output_dir", "metrics_csv", "metrics_table", "Report",
-           "ReportResult", "ReportError", "COLUMNS", "CSV_FLOAT", "CSS", "STATIC_FREQ_HZ", "UNCONTROLLED_STEP_V", "TESTS_6_13",
-           "Heading", "Para", "Bullets", "Table", "FigureBlock", "render_markdown", "render_html", "expected_table"]
+__all__ = [
+    "build_report",
+    "write_report",
+    "generate",
+    "check_output_dir",
+    "metrics_csv",
+    "metrics_table",
+    "Report",
+    "ReportResult",
+    "ReportError",
+    "COLUMNS",
+    "CSV_FLOAT",
+    "CSS",
+    "STATIC_FREQ_HZ",
+    "UNCONTROLLED_STEP_V",
+    "TESTS_6_13",
+    "Heading",
+    "Para",
+    "Bullets",
+    "Table",
+    "FigureBlock",
+    "render_markdown",
+    "render_html",
+    "expected_table",
+]

@@ -11,8 +11,8 @@ from __future__ import annotations
 import base64
 import html
 import re
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
 
 # --------------------------------------------------------------------------- document model
 
@@ -102,7 +102,9 @@ def render_markdown(blocks: Iterable[Block]) -> str:
     n_fig = 0
     for b in blocks:
         if isinstance(b, Contents):
-            parts.append("**Contents**\n\n" + "\n".join(f"- [{h.text}](#{h.anchor})" for h in _contents(blocks, b.level)))
+            parts.append(
+                "**Contents**\n\n" + "\n".join(f"- [{h.text}](#{h.anchor})" for h in _contents(blocks, b.level))
+            )
         elif isinstance(b, Heading):
             parts.append("#" * b.level + " " + b.text)
         elif isinstance(b, Para):
@@ -113,7 +115,9 @@ def render_markdown(blocks: Iterable[Block]) -> str:
             parts.append(_md_table(b))
         elif isinstance(b, FigureBlock):
             n_fig += 1
-            parts.append(f"**Figure {n_fig}. {b.title}** ([{b.file}]({b.file}))\n\n![{b.title}]({b.file})\n\n_{b.caption}_")
+            parts.append(
+                f"**Figure {n_fig}. {b.title}** ([{b.file}]({b.file}))\n\n![{b.title}]({b.file})\n\n_{b.caption}_"
+            )
     return "\n\n".join(parts) + "\n"
 
 
@@ -152,8 +156,14 @@ def _inline(text: str) -> str:
 def _html_table(t: Table) -> str:
     align = t.align or ("l",) * len(t.header)
     head = "".join(f"<th>{_inline(c)}</th>" for c in t.header)
-    body = "\n".join("<tr>" + "".join(f'<td class="r">{_inline(c)}</td>' if a == "r" else f"<td>{_inline(c)}</td>" for c, a in zip(row, align)) + "</tr>"
-                     for row in t.rows)
+    body = "\n".join(
+        "<tr>"
+        + "".join(
+            f'<td class="r">{_inline(c)}</td>' if a == "r" else f"<td>{_inline(c)}</td>" for c, a in zip(row, align)
+        )
+        + "</tr>"
+        for row in t.rows
+    )
     return f'<div class="table-wrap"><table>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody></table></div>'
 
 
@@ -164,8 +174,11 @@ def render_html(blocks: Iterable[Block]) -> str:
     n_fig = 0
     for b in blocks:
         if isinstance(b, Contents):
-            parts.append('<nav class="toc"><b>Contents</b>\n<ul>\n' + "\n".join(
-                f'<li><a href="#{h.anchor}">{_inline(h.text)}</a></li>' for h in _contents(blocks, b.level)) + "\n</ul></nav>")
+            parts.append(
+                '<nav class="toc"><b>Contents</b>\n<ul>\n'
+                + "\n".join(f'<li><a href="#{h.anchor}">{_inline(h.text)}</a></li>' for h in _contents(blocks, b.level))
+                + "\n</ul></nav>"
+            )
         elif isinstance(b, Heading):
             parts.append(f'<h{b.level} id="{b.anchor}">{_inline(b.text)}</h{b.level}>')
         elif isinstance(b, Para):
@@ -177,9 +190,12 @@ def render_html(blocks: Iterable[Block]) -> str:
         elif isinstance(b, FigureBlock):
             n_fig += 1
             data = base64.b64encode(b.png).decode("ascii")
-            parts.append(f'<figure id="figure-{b.name}"><img alt="{html.escape(b.title)}" src="data:image/png;base64,{data}">'
-                         f"<figcaption><b>Figure {n_fig}. {_inline(b.title)}.</b> {_inline(b.caption)}</figcaption></figure>")
-    return ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
-            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
-            f"<title>{title}</title>\n<style>{CSS}</style>\n</head>\n<body>\n" + "\n".join(parts) + "\n</body>\n</html>\n")
-
+            parts.append(
+                f'<figure id="figure-{b.name}"><img alt="{html.escape(b.title)}" src="data:image/png;base64,{data}">'
+                f"<figcaption><b>Figure {n_fig}. {_inline(b.title)}.</b> {_inline(b.caption)}</figcaption></figure>"
+            )
+    return (
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+        f"<title>{title}</title>\n<style>{CSS}</style>\n</head>\n<body>\n" + "\n".join(parts) + "\n</body>\n</html>\n"
+    )

@@ -42,16 +42,22 @@ def _creep_curve(run: runformat.Run, drive: np.ndarray, prefix: str) -> plotting
     t_after = run.t_s - c.step_time_s
     i = _log_spaced(t_after)
     i = i[t_after[i] >= c.t_ss_s]
-    return plotting.Curve(t_after[i], 100.0 * (run.output[i] - c.steady_state) / c.step_size,
-                          f"{prefix}: {run.name} (creep {c.percent:.2f} % after {c.hold_s:.0f} s)")
+    return plotting.Curve(
+        t_after[i],
+        100.0 * (run.output[i] - c.steady_state) / c.step_size,
+        f"{prefix}: {run.name} (creep {c.percent:.2f} % after {c.hold_s:.0f} s)",
+    )
 
 
 def _step_curve(run: runformat.Run, drive: np.ndarray, **kw) -> plotting.Curve:
     s = metrics.overshoot(run.t_s, run.output, drive=drive, **kw)
     t_ms = (run.t_s - s.step_time_s) * 1e3
     w = (t_ms >= STEP_WINDOW_MS[0]) & (t_ms <= STEP_WINDOW_MS[1])
-    return plotting.Curve(t_ms[w], (run.output[w] - s.baseline) / s.step_size,
-                          f"{run.name}: {s.step_size:.0f} {units.label(run.output_unit)}, overshoot {s.percent:.1f} %")
+    return plotting.Curve(
+        t_ms[w],
+        (run.output[w] - s.baseline) / s.step_size,
+        f"{run.name}: {s.step_size:.0f} {units.label(run.output_unit)}, overshoot {s.percent:.1f} %",
+    )
 
 
 def _figure_block(name: str, title: str, caption: str, fig) -> FigureBlock:
@@ -105,10 +111,14 @@ def _before_panel(run: runformat.Run, model: H.PIModel | None) -> plotting.LoopP
         pred, _ = model.forward(run.command_v)
         model_curve = plotting.Curve(run.command_v, pred, f"model (RMS {_rms(run.output - pred):.2f} {u})")
     h = metrics.max_hysteresis(run.command_v, run.output)
-    return plotting.LoopPanel(f"Before: {run.name} (uncompensated, {h.percent:.2f} %)",
-                              plotting.Curve(run.command_v, run.output, "measured"),
-                              plotting.Curve(run.command_v, _straight_line_deviation(run.command_v, run.output)),
-                              "drive command_v (V)", f"measured - straight line ({u})", model=model_curve)
+    return plotting.LoopPanel(
+        f"Before: {run.name} (uncompensated, {h.percent:.2f} %)",
+        plotting.Curve(run.command_v, run.output, "measured"),
+        plotting.Curve(run.command_v, _straight_line_deviation(run.command_v, run.output)),
+        "drive command_v (V)",
+        f"measured - straight line ({u})",
+        model=model_curve,
+    )
 
 
 def _after_panel(run: runformat.Run, title: str | None = None) -> plotting.LoopPanel:
@@ -118,13 +128,20 @@ def _after_panel(run: runformat.Run, title: str | None = None) -> plotting.LoopP
         pct = f", {metrics.max_hysteresis(ref, run.output).percent:.2f} %"
     except PiezopressError:
         pct = ""
-    return plotting.LoopPanel(title or f"After: {run.name} (compensated{pct})", plotting.Curve(ref, run.output, "measured"),
-                              plotting.Curve(ref, run.output - ref), f"reference ({u})", f"measured - reference ({u})",
-                              ideal=True, compensated=True)
+    return plotting.LoopPanel(
+        title or f"After: {run.name} (compensated{pct})",
+        plotting.Curve(ref, run.output, "measured"),
+        plotting.Curve(ref, run.output - ref),
+        f"reference ({u})",
+        f"measured - reference ({u})",
+        ideal=True,
+        compensated=True,
+    )
 
 
-def _loops_figure(char: _Source | None, val: _Source | None, missing: list[str],
-                  bundle: dict[str, Any] | None = None) -> FigureBlock | None:
+def _loops_figure(
+    char: _Source | None, val: _Source | None, missing: list[str], bundle: dict[str, Any] | None = None
+) -> FigureBlock | None:
     before = _pick_loop_before(char) if char else None
     after = _pick_loop_after(val) if val else None
     if char and before is None:
@@ -138,12 +155,16 @@ def _loops_figure(char: _Source | None, val: _Source | None, missing: list[str],
     unit = (before or after).output_unit
     fig = plotting.loops_with_error(panels, unit=unit, title="Hysteresis loops (0.1 Hz triangles), before and after")
     q, u = units.quantity(unit), units.label(unit)
-    return _figure_block("hysteresis_loops", "Hysteresis loops, before and after",
-                         f"Left: measured {q} against the drive, uncompensated, with the fitted hysteresis model dashed over it "
-                         f"(look for the dashed line to stay on the loop); below it the loop's width, measured minus the straight "
-                         f"line through its ends. Right: measured {q} against the reference with the compensation; the dashed line "
-                         f"is a perfect press, and below it the error measured - reference ({u}) on its own zoomed scale: what "
-                         f"remains of the loop.", fig)
+    return _figure_block(
+        "hysteresis_loops",
+        "Hysteresis loops, before and after",
+        f"Left: measured {q} against the drive, uncompensated, with the fitted hysteresis model dashed over it "
+        f"(look for the dashed line to stay on the loop); below it the loop's width, measured minus the straight "
+        f"line through its ends. Right: measured {q} against the reference with the compensation; the dashed line "
+        f"is a perfect press, and below it the error measured - reference ({u}) on its own zoomed scale: what "
+        f"remains of the loop.",
+        fig,
+    )
 
 
 def _frequency_loops_figure(val: _Source | None, missing: list[str]) -> FigureBlock | None:
@@ -160,7 +181,9 @@ def _frequency_loops_figure(val: _Source | None, missing: list[str]) -> FigureBl
         if best is None or _span(r) > _span(best):
             by_freq[f] = r
     if len(by_freq) < 2:
-        missing.append("Fewer than two triangle frequencies in the validation: the loops across frequencies are missing.")
+        missing.append(
+            "Fewer than two triangle frequencies in the validation: the loops across frequencies are missing."
+        )
         return None
     panels = []
     for f in sorted(by_freq):
@@ -172,12 +195,16 @@ def _frequency_loops_figure(val: _Source | None, missing: list[str]) -> FigureBl
         panels.append(_after_panel(r, f"{f:g} Hz: {r.name}\nhysteresis {pct}"))
     unit = next(iter(by_freq.values())).output_unit
     fig = plotting.loops_with_error(panels, unit=unit, title="Compensated loops at every validated frequency")
-    return _figure_block("loops_by_frequency", "Compensated loops at every validated frequency",
-                         "Each column one validated triangle frequency: measured against reference (top, dashed: a perfect "
-                         f"press) and the error measured - reference ({units.label(unit)}) below, each on its own scale. Look at "
-                         "how the error loop opens with frequency: the inverse hysteresis model is rate-independent, fitted "
-                         "on 0.1 Hz sweeps, so the fastest rows are the weakest controlled figures. A drop at the top of a loop is "
-                         "where the drive was clipped at the actuator's limit (see the warnings).", fig)
+    return _figure_block(
+        "loops_by_frequency",
+        "Compensated loops at every validated frequency",
+        "Each column one validated triangle frequency: measured against reference (top, dashed: a perfect "
+        f"press) and the error measured - reference ({units.label(unit)}) below, each on its own scale. Look at "
+        "how the error loop opens with frequency: the inverse hysteresis model is rate-independent, fitted "
+        "on 0.1 Hz sweeps, so the fastest rows are the weakest controlled figures. A drop at the top of a loop is "
+        "where the drive was clipped at the actuator's limit (see the warnings).",
+        fig,
+    )
 
 
 def _creep_figure(char: _Source | None, val: _Source | None, missing: list[str]) -> FigureBlock | None:
@@ -187,7 +214,10 @@ def _creep_figure(char: _Source | None, val: _Source | None, missing: list[str])
             continue
         runs = [r for r in src.runs.values() if r.kind == "creep"]
         if not runs:
-            missing.append(f"No creep run in the {'characterization' if src is char else 'validation'}: the {prefix} creep curve is missing.")
+            missing.append(
+                f"No creep run in the {'characterization' if src is char else 'validation'}: the {prefix} creep curve "
+                "is missing."
+            )
         for r in runs:
             drive = r.command_v if src is char else r.column("reference_n")
             if drive is None:
@@ -200,11 +230,16 @@ def _creep_figure(char: _Source | None, val: _Source | None, missing: list[str])
     if not before and not after:
         return None
     fig = plotting.creep_relative(before, after, t_ss_s=min(float(c.x[0]) for c in before + after if c.x.size))
-    return _figure_block("creep", "Creep, before and after",
-                         "The force after F_ss (taken 1 s after the step) relative to the step size, (F - F_ss) / (F_ss - F_0) in %, on a "
-                         "log time axis: the creep metric is this curve's value at the end of the hold. Uncompensated, it rises "
-                         "steadily per decade of time; compensated, it should stay on the zero line (the uncompensated run's drive "
-                         "is a voltage step, the compensated run's reference a force step).", fig)
+    return _figure_block(
+        "creep",
+        "Creep, before and after",
+        "The force after F_ss (taken 1 s after the step) relative to the step size, (F - F_ss) / (F_ss - F_0) in %, "
+        "on a "
+        "log time axis: the creep metric is this curve's value at the end of the hold. Uncompensated, it rises "
+        "steadily per decade of time; compensated, it should stay on the zero line (the uncompensated run's drive "
+        "is a voltage step, the compensated run's reference a force step).",
+        fig,
+    )
 
 
 def _steps_figure(char: _Source | None, val: _Source | None, missing: list[str]) -> FigureBlock | None:
@@ -230,10 +265,14 @@ def _steps_figure(char: _Source | None, val: _Source | None, missing: list[str])
     if not unc and not comp:
         return None
     fig = plotting.step_responses(unc, comp)
-    return _figure_block("steps", "Step responses",
-                         "Force relative to the step against time from the step. Left: the characterization's voltage steps, "
-                         "uncompensated (no shaper). Right: the validation's force steps, compensated (shaper + inverse models); "
-                         "the centred shaper starts them slightly before the reference's step.", fig)
+    return _figure_block(
+        "steps",
+        "Step responses",
+        "Force relative to the step against time from the step. Left: the characterization's voltage steps, "
+        "uncompensated (no shaper). Right: the validation's force steps, compensated (shaper + inverse models); "
+        "the centred shaper starts them slightly before the reference's step.",
+        fig,
+    )
 
 
 def _stairs(ref: np.ndarray, err: np.ndarray, mask: np.ndarray, preload: float) -> list[plotting.Stair]:
@@ -245,7 +284,9 @@ def _stairs(ref: np.ndarray, err: np.ndarray, mask: np.ndarray, preload: float) 
     breaks = np.flatnonzero(np.diff(idx) > 1)
     for seg in np.split(idx, breaks + 1):
         e = err[seg]
-        out.append(plotting.Stair(float(np.median(ref[seg]) - preload), float(np.mean(e)), float(np.min(e)), float(np.max(e))))
+        out.append(
+            plotting.Stair(float(np.median(ref[seg]) - preload), float(np.mean(e)), float(np.min(e)), float(np.max(e)))
+        )
     return out
 
 
@@ -254,7 +295,9 @@ def _tracking_figure(val: _Source | None, missing: list[str]) -> FigureBlock | N
         return None
     runs = [r for r in val.runs.values() if r.kind == "staircase" and r.column("reference_n") is not None]
     if not runs:
-        missing.append("No staircase run in the validation: the tracking figure and the controlled tracking error are missing.")
+        missing.append(
+            "No staircase run in the validation: the tracking figure and the controlled tracking error are missing."
+        )
         return None
     r = runs[0]
     ref, y = r.column("reference_n"), r.output
@@ -266,15 +309,25 @@ def _tracking_figure(val: _Source | None, missing: list[str]) -> FigureBlock | N
         stairs = _stairs(ref, err, tr.mask, preload)
     except PiezopressError as exc:
         missing.append(f"{r.name}: the tracking metric does not suit it ({exc}); its stairs are not evaluated.")
-    fig = plotting.tracking_stairs(r.t_s, ref, y, stairs, title=f"Staircase tracking: {r.name} (compensated)", unit=r.output_unit,
-                                   evaluated_from=summary.TRACKING_MIN_REFERENCE_N)
+    fig = plotting.tracking_stairs(
+        r.t_s,
+        ref,
+        y,
+        stairs,
+        title=f"Staircase tracking: {r.name} (compensated)",
+        unit=r.output_unit,
+        evaluated_from=summary.TRACKING_MIN_REFERENCE_N,
+    )
     u = units.label(r.output_unit)
-    return _figure_block("tracking", "Staircase tracking",
-                         f"Top: reference and measured {units.quantity(r.output_unit)}. Bottom: per stair (its reference above the "
-                         f"preload) the mean error measured - reference ({u}) where the metric evaluates it (the plateaus, outside "
-                         f"the ramps, from {summary.TRACKING_MIN_REFERENCE_N:g} {u} above the preload up), whiskers from its minimum "
-                         "to its maximum: look for bars that grow with the stair (a gain error) or one stair apart (a local misfit).",
-                         fig)
+    return _figure_block(
+        "tracking",
+        "Staircase tracking",
+        f"Top: reference and measured {units.quantity(r.output_unit)}. Bottom: per stair (its reference above the "
+        f"preload) the mean error measured - reference ({u}) where the metric evaluates it (the plateaus, outside "
+        f"the ramps, from {summary.TRACKING_MIN_REFERENCE_N:g} {u} above the preload up), whiskers from its minimum "
+        "to its maximum: look for bars that grow with the stair (a gain error) or one stair apart (a local misfit).",
+        fig,
+    )
 
 
 def _fitting_runs(bundle: dict[str, Any], char: _Source | None, missing: list[str]) -> list[runformat.Run]:
@@ -289,8 +342,10 @@ def _fitting_runs(bundle: dict[str, Any], char: _Source | None, missing: list[st
         if entry.get("file") and f.is_file() and runformat.sha256_file(f) == entry.get("sha256"):
             runs.append(read_measured(f))
         else:
-            missing.append(f"Hysteresis fitting run {name!r} is neither in the characterization given nor at {entry.get('file')} "
-                           "(unchanged): its model residuals are missing.")
+            missing.append(
+                f"Hysteresis fitting run {name!r} is neither in the characterization given nor at {entry.get('file')} "
+                "(unchanged): its model residuals are missing."
+            )
     return runs
 
 
@@ -325,24 +380,50 @@ def _residuals_figure(bundle: dict[str, Any] | None, char: _Source | None, missi
         lim = _clip_level(res)
         t0, t1 = float(left.x[0]), float(left.x[-1])
         spans = ((t1 - holdout * (t1 - t0), t1, f"held out ({100 * holdout:g} %)"),) if holdout > 0 else ()
-        rows.append(plotting.ResidualRow(left.label.split(" (")[0], [_clipped(left, lim)], [_clipped(right, lim)], lim,
-                                         _clip_note([left.y], lim, unit), _clip_note([right.y], lim, unit), spans,
-                                         spans_right=cm is not None))
+        rows.append(
+            plotting.ResidualRow(
+                left.label.split(" (")[0],
+                [_clipped(left, lim)],
+                [_clipped(right, lim)],
+                lim,
+                _clip_note([left.y], lim, unit),
+                _clip_note([right.y], lim, unit),
+                spans,
+                spans_right=cm is not None,
+            )
+        )
     if cm is not None:
-        fig = plotting.residual_traces(rows, unit=unit, left_title="measured, as recorded", right_title="creep removed, as the fit saw it",
-                                       xlabel="time (s)", title="Hysteresis model: measured minus predicted, on its fitting runs")
-        note = (" The model was fitted on the sweeps with the creep removed (the creep model's compensator applied first): "
-                "left, the raw measurement, whose residual holds the creep (the sawtooth); right, what the fit saw.")
+        fig = plotting.residual_traces(
+            rows,
+            unit=unit,
+            left_title="measured, as recorded",
+            right_title="creep removed, as the fit saw it",
+            xlabel="time (s)",
+            title="Hysteresis model: measured minus predicted, on its fitting runs",
+        )
+        note = (
+            " The model was fitted on the sweeps with the creep removed (the creep model's compensator applied first): "
+            "left, the raw measurement, whose residual holds the creep (the sawtooth); right, what the fit saw."
+        )
     else:
-        fig = plotting.residual_traces(rows, unit=unit, left_title="against time", right_title="against the drive",
-                                       xlabel="time (s) | drive command_v (V)",
-                                       title="Hysteresis model: measured minus predicted, on its fitting runs")
+        fig = plotting.residual_traces(
+            rows,
+            unit=unit,
+            left_title="against time",
+            right_title="against the drive",
+            xlabel="time (s) | drive command_v (V)",
+            title="Hysteresis model: measured minus predicted, on its fitting runs",
+        )
         note = ""
-    return _figure_block("model_residuals", "Hysteresis model residuals",
-                         "Measured output minus the hysteresis model's prediction from the drive, one row per run it was fitted "
-                         "on; the shaded end of each run was held out of the fit that chose the model's structure (look for a "
-                         "residual there no larger than before it: the model predicts, it does not only fit). Spikes are clipped "
-                         "where a panel says so." + note, fig)
+    return _figure_block(
+        "model_residuals",
+        "Hysteresis model residuals",
+        "Measured output minus the hysteresis model's prediction from the drive, one row per run it was fitted "
+        "on; the shaded end of each run was held out of the fit that chose the model's structure (look for a "
+        "residual there no larger than before it: the model predicts, it does not only fit). Spikes are clipped "
+        "where a panel says so." + note,
+        fig,
+    )
 
 
 def _clip_level(residuals: list[np.ndarray]) -> float:
@@ -364,7 +445,6 @@ def _clip_note(residuals: list[np.ndarray], lim: float, unit: str) -> str:
     return f"{n} of {total} samples beyond ±{lim:.3g} {unit} clipped" if n else ""
 
 
-
 def _drive_figure(val: _Source | None, missing: list[str]) -> FigureBlock | None:
     """The compensated drive beside the reference: one triangle (the largest plain 0.1 Hz
     one) and one step (the largest), the step zoomed on its edge."""
@@ -375,8 +455,11 @@ def _drive_figure(val: _Source | None, missing: list[str]) -> FigureBlock | None
     steps.sort(key=lambda r: -(profile.of(r).step_size or 0.0))
     panels = []
     if tri is not None:
-        panels.append(plotting.DrivePanel(f"{tri.name}: triangle", tri.t_s, tri.column("reference_n"), tri.command_v,
-                                          measured=tri.output))
+        panels.append(
+            plotting.DrivePanel(
+                f"{tri.name}: triangle", tri.t_s, tri.column("reference_n"), tri.command_v, measured=tri.output
+            )
+        )
     if steps:
         r = steps[0]
         ref = r.column("reference_n")
@@ -386,14 +469,19 @@ def _drive_figure(val: _Source | None, missing: list[str]) -> FigureBlock | None
             t_step = float(r.t_s[int(np.argmax(np.diff(ref))) + 1])
         t_ms = (r.t_s - t_step) * 1e3
         w = (t_ms >= STEP_WINDOW_MS[0]) & (t_ms <= STEP_WINDOW_MS[1])
-        panels.append(plotting.DrivePanel(f"{r.name}: step, around its edge", t_ms[w], ref[w], r.command_v[w], "ms", r.output[w]))
+        panels.append(
+            plotting.DrivePanel(f"{r.name}: step, around its edge", t_ms[w], ref[w], r.command_v[w], "ms", r.output[w])
+        )
     if not panels:
         missing.append("No compensated triangle or step in the validation: the compensated drive figure is missing.")
         return None
     unit = (tri or steps[0]).output_unit
-    return _figure_block("compensated_drive", "The compensated drive beside its reference",
-                         "What the compensator sends to the amplifier (drive, right axis, V) for a reference (dashed, left axis), "
-                         "with the measured output. Look for the drive's shape: on the triangle, the inverse hysteresis bends each "
-                         "branch and jumps at the reversals; on the step, the rate limit ramps it and the shaper splits it into "
-                         "stairs a fraction of a millisecond apart, centred on the reference's edge so the press is not late.",
-                         plotting.drive_and_reference(panels, unit=unit, title="Compensated drive and reference"))
+    return _figure_block(
+        "compensated_drive",
+        "The compensated drive beside its reference",
+        "What the compensator sends to the amplifier (drive, right axis, V) for a reference (dashed, left axis), "
+        "with the measured output. Look for the drive's shape: on the triangle, the inverse hysteresis bends each "
+        "branch and jumps at the reversals; on the step, the rate limit ramps it and the shaper splits it into "
+        "stairs a fraction of a millisecond apart, centred on the reference's edge so the press is not late.",
+        plotting.drive_and_reference(panels, unit=unit, title="Compensated drive and reference"),
+    )

@@ -57,7 +57,9 @@ def _response(b: lti.Bode, label: str) -> plotting.Response:
     return plotting.Response(b.freq_hz, b.magnitude, b.phase_deg, label)
 
 
-def mode_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: list[str]) -> tuple[FigureBlock | None, list[ModeCheck]]:
+def mode_figure(
+    bundle: dict[str, Any] | None, char: _Source | None, missing: list[str]
+) -> tuple[FigureBlock | None, list[ModeCheck]]:
     """The mode's Bode plot (python-control) with the step runs' measured response as points."""
     if bundle is None or "shaper" not in bundle:
         return None, []
@@ -80,7 +82,9 @@ def mode_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: li
     band = (fn * (1 - FREQ_ERROR), fn * (1 + FREQ_ERROR))
     model = lti.bode(system, f)
     if char is not None and not steps:
-        missing.append("No step run in the characterization: the mode's measured response is missing from its Bode plot.")
+        missing.append(
+            "No step run in the characterization: the mode's measured response is missing from its Bode plot."
+        )
     for r in steps:
         drive = r.column(drive_col) if r.column(drive_col) is not None else r.command_v
         try:
@@ -94,17 +98,35 @@ def mode_figure(bundle: dict[str, Any] | None, char: _Source | None, missing: li
         measured.append(plotting.Response(f[k], m.magnitude[k], phase, f"{r.name} (measured, {drive_col})"))
         inside = k & (f >= band[0]) & (f <= band[1])
         if np.any(inside):
-            checks.append(ModeCheck(r.name, int(np.sum(inside)), float(np.max(np.abs(m.magnitude[inside] / model.magnitude[inside] - 1)))))
-    fig = plotting.bode([_response(model, f"mode: {fn:.0f} Hz, damping {zeta:.3f} (python-control)")], measured,
-                        band_hz=band, band_label=f"shaper's design band: +/-{100 * FREQ_ERROR:g} % of the mode",
-                        marks_hz=[(fn, f"{fn:.0f} Hz")], title="The identified mode over the step runs' measured response",
-                        magnitude_label="|output/drive| / low-f gain (1)")
-    inside = "; ".join(f"{c.run}: {c.points} points, within {100 * c.worst_ratio_error:.0f} %" for c in checks) or "no measured point"
-    caption = (f"The mode identified from the steps ({fn:.0f} Hz, damping {zeta:.3f}) as a transfer function, and as points the "
-               f"response each characterization step shows (output over {drive_col} from the runs' FFT, each normalised to its "
-               f"gain at {f[0]:.0f} Hz, phase aligned there). The shaded band is the frequency error the shaper was chosen to "
-               f"tolerate: look for the points to follow the line inside it (in the band, |measured/model| - 1: {inside}); "
-               "a resonance outside the band would ring through the shaper.")
+            checks.append(
+                ModeCheck(
+                    r.name,
+                    int(np.sum(inside)),
+                    float(np.max(np.abs(m.magnitude[inside] / model.magnitude[inside] - 1))),
+                )
+            )
+    fig = plotting.bode(
+        [_response(model, f"mode: {fn:.0f} Hz, damping {zeta:.3f} (python-control)")],
+        measured,
+        band_hz=band,
+        band_label=f"shaper's design band: +/-{100 * FREQ_ERROR:g} % of the mode",
+        marks_hz=[(fn, f"{fn:.0f} Hz")],
+        title="The identified mode over the step runs' measured response",
+        magnitude_label="|output/drive| / low-f gain (1)",
+    )
+    inside = (
+        "; ".join(f"{c.run}: {c.points} points, within {100 * c.worst_ratio_error:.0f} %" for c in checks)
+        or "no measured point"
+    )
+    caption = (
+        f"The mode identified from the steps ({fn:.0f} Hz, damping {zeta:.3f}) as a transfer function, and as points "
+        "the "
+        f"response each characterization step shows (output over {drive_col} from the runs' FFT, each normalised to "
+        "its "
+        f"gain at {f[0]:.0f} Hz, phase aligned there). The shaded band is the frequency error the shaper was chosen to "
+        f"tolerate: look for the points to follow the line inside it (in the band, |measured/model| - 1: {inside}); "
+        "a resonance outside the band would ring through the shaper."
+    )
     return _block("mode_bode", "The mode in the frequency domain", caption, fig), checks
 
 
@@ -122,24 +144,43 @@ def shaper_figure(bundle: dict[str, Any] | None, missing: list[str]) -> FigureBl
         return None
     ratios = np.linspace(1 - SENSITIVITY_SPAN, 1 + SENSITIVITY_SPAN, 241)
     x = 100 * (ratios - 1)
-    curves = [plotting.Curve(x, 100 * lti.shaper_sensitivity(chosen, ratios),
-                             f"{chosen.name} ({len(chosen.amplitudes)} impulses, {1e3 * chosen.delay_s:.2f} ms)")]
+    curves = [
+        plotting.Curve(
+            x,
+            100 * lti.shaper_sensitivity(chosen, ratios),
+            f"{chosen.name} ({len(chosen.amplitudes)} impulses, {1e3 * chosen.delay_s:.2f} ms)",
+        )
+    ]
     for c in s.get("choice", {}).get("candidates", []):
         name = c.get("name")
         if name == chosen.name or name not in S.SHAPERS:
             continue
         other = S.design_shaper(name, chosen.wn, chosen.zeta)
-        curves.append(plotting.Curve(x, 100 * lti.shaper_sensitivity(other, ratios),
-                                     f"{name} ({len(other.amplitudes)} impulses, {1e3 * other.delay_s:.2f} ms)"))
-    fig = plotting.shaper_sensitivity(curves, chosen=chosen.name, band=(-100 * FREQ_ERROR, 100 * FREQ_ERROR),
-                                      limit_pct=100 * MAX_RESIDUAL,
-                                      title=f"Input shaper: residual vibration against the mode's frequency error (damping {chosen.zeta:.3f})")
-    return _block("shaper_sensitivity", "The input shaper's tolerance of a frequency error",
-                  "Residual vibration left by each candidate shaper when the press's mode is off the identified frequency by the "
-                  "error on the x axis (at the identified damping; 100 % = no shaper). The bold curve is the chosen design; the "
-                  f"shaded band is the +/-{100 * FREQ_ERROR:g} % it was chosen over (with +/-50 % damping error), the dotted line "
-                  f"the {100 * MAX_RESIDUAL:g} % limit. Look for the bold curve to stay under the line across the band: a longer "
-                  "shaper tolerates more error at the cost of delay.", fig)
+        curves.append(
+            plotting.Curve(
+                x,
+                100 * lti.shaper_sensitivity(other, ratios),
+                f"{name} ({len(other.amplitudes)} impulses, {1e3 * other.delay_s:.2f} ms)",
+            )
+        )
+    fig = plotting.shaper_sensitivity(
+        curves,
+        chosen=chosen.name,
+        band=(-100 * FREQ_ERROR, 100 * FREQ_ERROR),
+        limit_pct=100 * MAX_RESIDUAL,
+        title=f"Input shaper: residual vibration against the mode's frequency error (damping {chosen.zeta:.3f})",
+    )
+    return _block(
+        "shaper_sensitivity",
+        "The input shaper's tolerance of a frequency error",
+        "Residual vibration left by each candidate shaper when the press's mode is off the identified frequency by the "
+        "error on the x axis (at the identified damping; 100 % = no shaper). The bold curve is the chosen design; the "
+        f"shaded band is the +/-{100 * FREQ_ERROR:g} % it was chosen over (with +/-50 % damping error), the dotted "
+        "line "
+        f"the {100 * MAX_RESIDUAL:g} % limit. Look for the bold curve to stay under the line across the band: a longer "
+        "shaper tolerates more error at the cost of delay.",
+        fig,
+    )
 
 
 def creep_figure(bundle: dict[str, Any] | None, missing: list[str]) -> FigureBlock | None:
@@ -155,17 +196,27 @@ def creep_figure(bundle: dict[str, Any] | None, missing: list[str]) -> FigureBlo
     f = np.geomspace(*CREEP_FREQ_HZ, 200)
     bp, bc = lti.bode(plant, f), lti.bode(comp, f)
     product = lti.bode(plant * comp, f)
-    fig = plotting.bode([_response(bp, f"creep model K_c + C(s) ({model.form}, {plant.nstates} states)"),
-                         _response(bc, "compensator 1 / (K_c + C(s))"), _response(product, "model x compensator")],
-                        title="Creep model and its compensator (python-control)", magnitude_label="gain (1)",
-                        log_magnitude=False)
+    fig = plotting.bode(
+        [
+            _response(bp, f"creep model K_c + C(s) ({model.form}, {plant.nstates} states)"),
+            _response(bc, "compensator 1 / (K_c + C(s))"),
+            _response(product, "model x compensator"),
+        ],
+        title="Creep model and its compensator (python-control)",
+        magnitude_label="gain (1)",
+        log_magnitude=False,
+    )
     u = units.label(bundle["hysteresis"]["model"].get("output_unit", units.FORCE)) if "hysteresis" in bundle else "N"
-    return _block("creep_bode", "The creep model and its compensator in the frequency domain",
-                  f"Gain and phase of the creep model ({u} out per {u} of the hysteresis model's static prediction) and of its "
-                  f"compensator, from {CREEP_FREQ_HZ[0]:g} Hz (a period of about a day) to {CREEP_FREQ_HZ[1]:g} Hz. The model's "
-                  f"gain falls from {bp.magnitude[0]:.4f} (creep settled) to {bp.magnitude[-1]:.4f} (K_c: the instant after a "
-                  "step); the compensator mirrors it, and their product stays at 1 (look for the flat line: the compensator is "
-                  "the model's exact inverse, with stable poles).", fig)
+    return _block(
+        "creep_bode",
+        "The creep model and its compensator in the frequency domain",
+        f"Gain and phase of the creep model ({u} out per {u} of the hysteresis model's static prediction) and of its "
+        f"compensator, from {CREEP_FREQ_HZ[0]:g} Hz (a period of about a day) to {CREEP_FREQ_HZ[1]:g} Hz. The model's "
+        f"gain falls from {bp.magnitude[0]:.4f} (creep settled) to {bp.magnitude[-1]:.4f} (K_c: the instant after a "
+        "step); the compensator mirrors it, and their product stays at 1 (look for the flat line: the compensator is "
+        "the model's exact inverse, with stable poles).",
+        fig,
+    )
 
 
 __all__ = ["mode_figure", "shaper_figure", "creep_figure", "ModeCheck", "FREQ_ERROR", "MAX_RESIDUAL"]

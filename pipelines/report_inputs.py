@@ -4,9 +4,9 @@ and which runs stand for which test of Table 6.13."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -26,7 +26,6 @@ UNCONTROLLED_STEP_V = 20.0
 
 class ReportError(PiezopressError, ValueError):
     """The report's inputs or output directory are unusable."""
-
 
 
 # --------------------------------------------------------------------------- inputs
@@ -65,9 +64,17 @@ def _freq(run: runformat.Run | None) -> float | None:
 
 def _is_static_triangle(run: runformat.Run | None) -> bool:
     f = _freq(run)
-    return run is not None and run.kind in ("triangle", "sine") and f is not None and math.isclose(f, STATIC_FREQ_HZ, rel_tol=0.01)
+    return (
+        run is not None
+        and run.kind in ("triangle", "sine")
+        and f is not None
+        and math.isclose(f, STATIC_FREQ_HZ, rel_tol=0.01)
+    )
 
 
 def _is_uncontrolled_step(run: runformat.Run | None) -> bool:
-    return run is not None and run.kind == "step" and math.isclose(float(np.max(run.command_v)), UNCONTROLLED_STEP_V, abs_tol=0.5)
-
+    return (
+        run is not None
+        and run.kind == "step"
+        and math.isclose(float(np.max(run.command_v)), UNCONTROLLED_STEP_V, abs_tol=0.5)
+    )

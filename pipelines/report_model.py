@@ -24,13 +24,18 @@ def _pct(part: float, whole: float) -> float:
 def _unit_key(d: dict[str, Any], prefix: str) -> tuple[float, str]:
     for k, v in d.items():
         if k.startswith(prefix):
-            return (float(v) if v is not None else math.nan), k[len(prefix):]
+            return (float(v) if v is not None else math.nan), k[len(prefix) :]
     return math.nan, "n"
 
 
 def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]) -> list[Block]:
-    blocks: list[Block] = [Heading("Model quality"), Para(f"From the bundle `{bundle_path}`: each model's error on the data it was "
-                                                         "fitted on and on data held out of the fit.")]
+    blocks: list[Block] = [
+        Heading("Model quality"),
+        Para(
+            f"From the bundle `{bundle_path}`: each model's error on the data it was "
+            "fitted on and on data held out of the fit."
+        ),
+    ]
     h = bundle["hysteresis"]
     fit, model = h.get("fit", {}), h.get("model", {})
     code = model.get("output_unit")
@@ -41,64 +46,123 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     runs = ", ".join(r.get("name", "?") for r in h.get("runs", []))
     blocks += [
         Heading("Hysteresis (modified Prandtl-Ishlinskii)", 3),
-        Para(f"Model `{fit.get('chosen', '?')}`: {len(model.get('play_thresholds', []))} play operators, "
-             f"{len(model.get('dead_zone_thresholds', []))} dead zones; fitted on {runs or 'no run named'}, the last "
-             f"{100 * float(fit.get('holdout_fraction', math.nan)):g} % of each run held out"
-             + ("; creep removed from the sweeps first." if h.get("creep_removed") else ".")),
-        Table(("data", f"RMS error ({unit})", "% of output range"),
-              (("fitting (train)", _num(train, 3), _num(_pct(train, rng), 3)), ("held out", _num(held, 3), _num(_pct(held, rng), 3))),
-              ("l", "r", "r")),
+        Para(
+            f"Model `{fit.get('chosen', '?')}`: {len(model.get('play_thresholds', []))} play operators, "
+            f"{len(model.get('dead_zone_thresholds', []))} dead zones; fitted on {runs or 'no run named'}, the last "
+            f"{100 * float(fit.get('holdout_fraction', math.nan)):g} % of each run held out"
+            + ("; creep removed from the sweeps first." if h.get("creep_removed") else ".")
+        ),
+        Table(
+            ("data", f"RMS error ({unit})", "% of output range"),
+            (
+                ("fitting (train)", _num(train, 3), _num(_pct(train, rng), 3)),
+                ("held out", _num(held, 3), _num(_pct(held, rng), 3)),
+            ),
+            ("l", "r", "r"),
+        ),
         Para(f"Output range {_num(rng, 1)} {unit}. Why this model: {fit.get('reason', 'not recorded')}."),
     ]
     if "creep" in bundle:
         c = bundle["creep"]
         cf = c.get("fit", {})
         chosen = cf.get("chosen_form")
-        rows = tuple((str(k.get("form")), _num(k.get("train_rms"), 3), _num(k.get("holdout_rms"), 3), "yes" if k.get("form") == chosen else "")
-                     for k in cf.get("candidates", []))
+        rows = tuple(
+            (
+                str(k.get("form")),
+                _num(k.get("train_rms"), 3),
+                _num(k.get("holdout_rms"), 3),
+                "yes" if k.get("form") == chosen else "",
+            )
+            for k in cf.get("candidates", [])
+        )
         blocks += [
             Heading("Creep", 3),
-            Para(f"Fitted on {', '.join(r.get('name', '?') for r in c.get('runs', []))}, the end "
-                 f"({100 * float(cf.get('holdout_fraction', math.nan)):g} %) of the hold held out."),
+            Para(
+                f"Fitted on {', '.join(r.get('name', '?') for r in c.get('runs', []))}, the end "
+                f"({100 * float(cf.get('holdout_fraction', math.nan)):g} %) of the hold held out."
+            ),
             Table(("form", f"train RMS ({unit})", f"held-out RMS ({unit})", "chosen"), rows, ("l", "r", "r", "l")),
             Para(f"Chosen: `{chosen}`. Why: {cf.get('reason', 'not recorded')}."),
         ]
     else:
-        missing.append("The bundle has no creep section: the creep model's quality is missing (run `piezopress fit` with a creep run).")
+        missing.append(
+            "The bundle has no creep section: the creep model's quality is missing (run `piezopress fit` with a creep "
+            "run)."
+        )
     if "shaper" in bundle:
         s = bundle["shaper"]
         mode, sh, choice = s.get("mode", {}), s.get("shaper", {}), s.get("choice", {})
         wn, zeta = float(mode.get("natural_freq_rad_s", math.nan)), float(mode.get("damping", math.nan))
         mfit = mode.get("fit", {})
-        resid = ", ".join(f"{_num(r, 3)} {unit} ({_num(p, 2)} % of the step)" for r, p in zip(mfit.get("rms_residual", []), mfit.get("residual_pct_of_step", [])))
-        rows = tuple((str(k.get("name")), str(k.get("impulses")), _num(k.get("delay_ms"), 3), _num(k.get("nominal_residual_pct"), 2),
-                      _num(k.get("worst_residual_pct"), 2), "yes" if k.get("name") == sh.get("name") else "")
-                     for k in choice.get("candidates", []))
+        resid = ", ".join(
+            f"{_num(r, 3)} {unit} ({_num(p, 2)} % of the step)"
+            for r, p in zip(mfit.get("rms_residual", []), mfit.get("residual_pct_of_step", []))
+        )
+        rows = tuple(
+            (
+                str(k.get("name")),
+                str(k.get("impulses")),
+                _num(k.get("delay_ms"), 3),
+                _num(k.get("nominal_residual_pct"), 2),
+                _num(k.get("worst_residual_pct"), 2),
+                "yes" if k.get("name") == sh.get("name") else "",
+            )
+            for k in choice.get("candidates", [])
+        )
         blocks += [
             Heading("Vibration mode and input shaper", 3),
-            Para(f"Mode identified from {', '.join(r.get('name', '?') for r in s.get('runs', []))} against `{mode.get('drive_used', '?')}`: "
-                 f"wn = {_num(wn, 0)} rad/s ({_num(wn / (2 * math.pi), 1)} Hz), damping {_num(zeta, 4)}; "
-                 f"fit residual (RMS) {resid or 'not recorded'}."),
-            Table(("shaper", "impulses", "delay (ms)", "residual at the mode (%)", "worst residual, wn +/-15 %, zeta +/-50 % (%)", "chosen"),
-                  rows, ("l", "r", "r", "r", "r", "l")),
-            Para(f"Chosen: `{sh.get('name', '?')}` ({len(sh.get('times_s', []))} impulses, delay {_num(sh.get('delay_ms'), 3)} ms, "
-                 f"designed at {_num(choice.get('designed_at_hz'), 0)} Hz). Why: {choice.get('reason', 'not recorded')}."),
+            Para(
+                f"Mode identified from {', '.join(r.get('name', '?') for r in s.get('runs', []))} against "
+                f"`{mode.get('drive_used', '?')}`: "
+                f"wn = {_num(wn, 0)} rad/s ({_num(wn / (2 * math.pi), 1)} Hz), damping {_num(zeta, 4)}; "
+                f"fit residual (RMS) {resid or 'not recorded'}."
+            ),
+            Table(
+                (
+                    "shaper",
+                    "impulses",
+                    "delay (ms)",
+                    "residual at the mode (%)",
+                    "worst residual, wn +/-15 %, zeta +/-50 % (%)",
+                    "chosen",
+                ),
+                rows,
+                ("l", "r", "r", "r", "r", "l"),
+            ),
+            Para(
+                f"Chosen: `{sh.get('name', '?')}` ({len(sh.get('times_s', []))} impulses, delay "
+                f"{_num(sh.get('delay_ms'), 3)} ms, "
+                f"designed at {_num(choice.get('designed_at_hz'), 0)} Hz). Why: {choice.get('reason', 'not recorded')}."
+            ),
         ]
         t68 = s.get("thesis_table_6_8")
         if t68:
-            blocks.append(Para(f"The thesis's printed Table 6.8 shaper would leave {_num(100 * t68.get('printed', math.nan), 1)} % residual "
-                               f"vibration on this mode (with its amplitudes reversed, as ZV^4 gives them: "
-                               f"{_num(100 * t68.get('reversed_amplitudes', math.nan), 1)} %; at whole damped periods: "
-                               f"{_num(100 * t68.get('whole_period_spacing', math.nan), 1)} %; a correct ZV^4: "
-                               f"{_num(100 * t68.get('correct_zv4', math.nan), 2)} %)."))
+            blocks.append(
+                Para(
+                    f"The thesis's printed Table 6.8 shaper would leave {_num(100 * t68.get('printed', math.nan), 1)} "
+                    "% residual "
+                    f"vibration on this mode (with its amplitudes reversed, as ZV^4 gives them: "
+                    f"{_num(100 * t68.get('reversed_amplitudes', math.nan), 1)} %; at whole damped periods: "
+                    f"{_num(100 * t68.get('whole_period_spacing', math.nan), 1)} %; a correct ZV^4: "
+                    f"{_num(100 * t68.get('correct_zv4', math.nan), 2)} %)."
+                )
+            )
     else:
-        missing.append("The bundle has no shaper section: the mode and shaper quality are missing (run `piezopress fit` with a low-amplitude step).")
+        missing.append(
+            "The bundle has no shaper section: the mode and shaper quality are missing (run `piezopress fit` with a "
+            "low-amplitude step)."
+        )
     comp = bundle.get("compensation")
     if comp:
         rate = units.keyed(comp, "max_rate_", code)  # max_rate_n_per_s or max_rate_um_per_s; null: no limit
         rate_text = f"rate limit {_num(float(rate) / 1e3, 1)} {unit}/ms" if rate else "no rate limit"
-        blocks.append(Para(f"Compensation settings: drive {_num(comp.get('drive_min_v'), 0)} to {_num(comp.get('drive_max_v'), 0)} V, "
-                           f"{rate_text}, lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms."))
+        blocks.append(
+            Para(
+                f"Compensation settings: drive {_num(comp.get('drive_min_v'), 0)} to "
+                f"{_num(comp.get('drive_max_v'), 0)} V, "
+                f"{rate_text}, lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms."
+            )
+        )
     return blocks
 
 
@@ -117,13 +181,22 @@ def _gain_blocks(csv_path: Path, missing: list[str]) -> list[Block]:
     except (pd.errors.ParserError, ValueError, KeyError) as exc:
         missing.append(f"{csv_path}: unreadable ({exc}); the compensated-gain table is missing.")
         return []
-    blocks: list[Block] = [Heading("The gain on the press: compensated performance, base bundle against extended", 3),
-                           Para("Each row validated on the virtual rig with the effect on (lower is better): the base bundle, the "
-                                "extended one, the base pipeline without the effect (clean), and the row's noise (its range over "
-                                "repeated passes with other noise seeds). * marks the rows the extension is for.")]
+    blocks: list[Block] = [
+        Heading("The gain on the press: compensated performance, base bundle against extended", 3),
+        Para(
+            "Each row validated on the virtual rig with the effect on (lower is better): the base bundle, the "
+            "extended one, the base pipeline without the effect (clean), and the row's noise (its range over "
+            "repeated passes with other noise seeds). * marks the rows the extension is for."
+        ),
+    ]
     for cause, g in df.groupby("cause", sort=False):
         blocks.append(Table(gain.HEADER, tuple(gain.table_lines(g)), ("l", "l", "l", "r", "r", "r", "r", "r", "l")))
-        blocks.append(Para(f"{cause or 'The runs rig'}: extensions applied {g['applied'].iloc[0] or 'none'}; verdict: {g['why'].iloc[0]}."))
+        blocks.append(
+            Para(
+                f"{cause or 'The runs rig'}: extensions applied {g['applied'].iloc[0] or 'none'}; verdict: "
+                f"{g['why'].iloc[0]}."
+            )
+        )
     return blocks
 
 
@@ -144,10 +217,15 @@ def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
     code = d.get("output_unit", units.FORCE)  # diagnoses written before the unit was carried are in N
     k, un = units.key(code), units.label(code)
     nan = float("nan")
-    blocks: list[Block] = [Heading("Diagnosis: what the model gets wrong"), Para(d.get("summary", "")),
-                           Para(f"Residual over all runs {d.get(f'residual_rms_{k}', nan):.3g} {un} RMS; "
-                                f"sensor noise floor {d.get(f'noise_floor_{k}', nan):.3g} {un} RMS. Gains are measured on runs or "
-                                "segments not used to fit the extension.")]
+    blocks: list[Block] = [
+        Heading("Diagnosis: what the model gets wrong"),
+        Para(d.get("summary", "")),
+        Para(
+            f"Residual over all runs {d.get(f'residual_rms_{k}', nan):.3g} {un} RMS; "
+            f"sensor noise floor {d.get(f'noise_floor_{k}', nan):.3g} {un} RMS. Gains are measured on runs or "
+            "segments not used to fit the extension."
+        ),
+    ]
     findings = d.get("findings", [])
     if findings:
         # whether the compensator applies an extension: the cause catalogue says (one source of truth)
@@ -155,32 +233,88 @@ def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
             c = dg.CAUSES.get(cause)
             return "?" if c is None else "applied" if c.in_compensator else "recorded only"
 
-        rows = tuple((f["cause"], f"{f[f'baseline_rms_{k}']:.3g}", f"{f[f'extended_rms_{k}']:.3g}", f"{f['gain_pct']:.0f}",
-                      ", ".join(f"{k_} = {v:.4g}" for k_, v in f["parameters"].items()), compensator(f["cause"]), f["evidence"])
-                     for f in findings)
-        blocks.append(Table(("cause", f"held-out RMS base ({un})", f"extended ({un})", "gain (%)", "parameters", "compensator", "evidence"),
-                            rows, ("l", "r", "r", "r", "l", "l", "l")))
+        rows = tuple(
+            (
+                f["cause"],
+                f"{f[f'baseline_rms_{k}']:.3g}",
+                f"{f[f'extended_rms_{k}']:.3g}",
+                f"{f['gain_pct']:.0f}",
+                ", ".join(f"{k_} = {v:.4g}" if v is not None else f"{k_} = -" for k_, v in f["parameters"].items()),
+                compensator(f["cause"]),
+                f["evidence"],
+            )
+            for f in findings
+        )
+        blocks.append(
+            Table(
+                (
+                    "cause",
+                    f"held-out RMS base ({un})",
+                    f"extended ({un})",
+                    "gain (%)",
+                    "parameters",
+                    "compensator",
+                    "evidence",
+                ),
+                rows,
+                ("l", "r", "r", "r", "l", "l", "l"),
+            )
+        )
     if d.get("tested"):
-        blocks.append(Para("Tested: " + "; ".join(
-            f"{t['cause']} ({t['result']}" + (f", held-out gain {t['gain_pct']:.0f} %" if "gain_pct" in t else "") + ")" for t in d["tested"]) + "."))
+        blocks.append(
+            Para(
+                "Tested: "
+                + "; ".join(
+                    f"{t['cause']} ({t['result']}"
+                    + (f", held-out gain {t['gain_pct']:.0f} %" if t.get("gain_pct") is not None else "")
+                    + ")"
+                    for t in d["tested"]
+                )
+                + "."
+            )
+        )
     if d.get("not_tested"):
-        blocks.append(Bullets(tuple(f"Not tested: {t['cause']}. Needs {t['needs']}; have {t['have']}." for t in d["not_tested"])))
+        blocks.append(
+            Bullets(tuple(f"Not tested: {t['cause']}. Needs {t['needs']}; have {t['have']}." for t in d["not_tested"]))
+        )
     plan = d.get("next_plan") or {}
     if plan.get("file"):
-        blocks.append(Para(f"Next experiment: {Path(plan['file']).name} ({len(plan.get('protocols', []))} protocols, "
-                           f"{plan.get('duration_s', math.nan):.0f} s) makes testable {', '.join(plan.get('serves', []))}."))
+        blocks.append(
+            Para(
+                f"Next experiment: {Path(plan['file']).name} ({len(plan.get('protocols', []))} protocols, "
+                f"{plan.get('duration_s', math.nan):.0f} s) makes testable {', '.join(plan.get('serves', []))}."
+            )
+        )
     if d.get("unexplained"):
-        blocks.append(Bullets(tuple(f"Unexplained: {u['run']}, {u[f'rms_{k}']:.3g} {un} RMS ({u['ratio']:.1f} x the noise floor), largest at "
-                                    f"{u['where_s']:.4g} s, dominant frequency {u['dominant_freq_hz']:.4g} Hz" for u in d["unexplained"])))
+        blocks.append(
+            Bullets(
+                tuple(
+                    f"Unexplained: {u['run']}, {u[f'rms_{k}']:.3g} {un} RMS ({u['ratio']:.1f} x the noise floor), "
+                    "largest at "
+                    f"{u['where_s']:.4g} s, dominant frequency {u['dominant_freq_hz']:.4g} Hz"
+                    for u in d["unexplained"]
+                )
+            )
+        )
     blocks += _gain_blocks(path / "compensated_gain.csv", missing)
     png = path / "residuals.png"
     if png.is_file():
-        blocks.append(FigureBlock("diagnosis_residuals", "Residuals before and after the diagnosis's extensions",
-                                  "RMS residual of every run, base model and extended, against its noise floor.", png.read_bytes()))
+        blocks.append(
+            FigureBlock(
+                "diagnosis_residuals",
+                "Residuals before and after the diagnosis's extensions",
+                "RMS residual of every run, base model and extended, against its noise floor.",
+                png.read_bytes(),
+            )
+        )
     png = path / "residual_traces.png"
     if png.is_file():
-        blocks.append(FigureBlock("diagnosis_residual_traces", "Residual traces per run kind",
-                                  "Measured minus model for every run, on each run's own time axis; spikes clipped as each panel notes.",
-                                  png.read_bytes()))
+        blocks.append(
+            FigureBlock(
+                "diagnosis_residual_traces",
+                "Residual traces per run kind",
+                "Measured minus model for every run, on each run's own time axis; spikes clipped as each panel notes.",
+                png.read_bytes(),
+            )
+        )
     return blocks
-

@@ -7,8 +7,9 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -40,15 +41,50 @@ class _Test:
 
 
 TESTS_6_13 = (
-    _Test("max_static_hysteresis", "Maximum static hysteresis, 0.1 Hz triangles (%)", "max_hysteresis", _is_static_triangle,
-          "max_hysteresis", _is_static_triangle, thesis.TABLE_6_13["max_static_hysteresis_pct"]["uncontrolled"],
-          thesis.TABLE_6_13["max_static_hysteresis_pct"]["controlled"], "Table 6.13"),
-    _Test("creep", "Creep after the hold (%)", "creep", None, "creep", None,
-          thesis.TABLE_6_13["creep_pct"]["uncontrolled"], thesis.TABLE_6_13["creep_pct"]["controlled"], "Table 6.13"),
-    _Test("overshoot", "Step overshoot (%): 20 V step / compensated steps", "overshoot", _is_uncontrolled_step, "overshoot", None,
-          thesis.TABLE_6_13["overshoot_pct"]["uncontrolled"], thesis.TABLE_6_13["overshoot_pct"]["controlled"], "Table 6.13"),
-    _Test("tracking_error", "Staircase tracking error, relative (%)", None, None, "tracking_relative", None,
-          None, thesis.TRACKING_RELATIVE_ERROR_PCT, "Sec. 6.6"),
+    _Test(
+        "max_static_hysteresis",
+        "Maximum static hysteresis, 0.1 Hz triangles (%)",
+        "max_hysteresis",
+        _is_static_triangle,
+        "max_hysteresis",
+        _is_static_triangle,
+        thesis.TABLE_6_13["max_static_hysteresis_pct"]["uncontrolled"],
+        thesis.TABLE_6_13["max_static_hysteresis_pct"]["controlled"],
+        "Table 6.13",
+    ),
+    _Test(
+        "creep",
+        "Creep after the hold (%)",
+        "creep",
+        None,
+        "creep",
+        None,
+        thesis.TABLE_6_13["creep_pct"]["uncontrolled"],
+        thesis.TABLE_6_13["creep_pct"]["controlled"],
+        "Table 6.13",
+    ),
+    _Test(
+        "overshoot",
+        "Step overshoot (%): 20 V step / compensated steps",
+        "overshoot",
+        _is_uncontrolled_step,
+        "overshoot",
+        None,
+        thesis.TABLE_6_13["overshoot_pct"]["uncontrolled"],
+        thesis.TABLE_6_13["overshoot_pct"]["controlled"],
+        "Table 6.13",
+    ),
+    _Test(
+        "tracking_error",
+        "Staircase tracking error, relative (%)",
+        None,
+        None,
+        "tracking_relative",
+        None,
+        None,
+        thesis.TRACKING_RELATIVE_ERROR_PCT,
+        "Sec. 6.6",
+    ),
 )
 
 
@@ -82,7 +118,10 @@ class _Row613:
 
 
 def _rows_6_13(char: _Source | None, val: _Source | None) -> list[_Row613]:
-    return [_Row613(t, _picked(char, t.unc_metric, t.unc_select), _picked(val, t.ctrl_metric, t.ctrl_select)) for t in TESTS_6_13]
+    return [
+        _Row613(t, _picked(char, t.unc_metric, t.unc_select), _picked(val, t.ctrl_metric, t.ctrl_select))
+        for t in TESTS_6_13
+    ]
 
 
 def _char_table_id(kind: str) -> str:
@@ -103,14 +142,35 @@ def metrics_table(char: _Source | None, val: _Source | None) -> pd.DataFrame:
         for side, vals, ref in (("uncontrolled", r.unc, t.thesis_unc), ("controlled", r.ctrl, t.thesis_ctrl)):
             lo, hi = _range(vals)
             for end, v, th in (("min", lo, ref[0] if ref else math.nan), ("max", hi, ref[1] if ref else math.nan)):
-                rows.append({"table": "6.13", "test": t.key, "metric": f"{side}_{end}", "unit": "%", "value": v,
-                             "thesis": th, "thesis_source": t.source if ref else ""})
-    for src, table_id in ((char, lambda s, r: _char_table_id(r.kind)), (val, lambda s, r: _val_table_id(s.runs.get(r.run), r.kind, s.shaper))):
+                rows.append(
+                    {
+                        "table": "6.13",
+                        "test": t.key,
+                        "metric": f"{side}_{end}",
+                        "unit": "%",
+                        "value": v,
+                        "thesis": th,
+                        "thesis_source": t.source if ref else "",
+                    }
+                )
+    for src, table_id in (
+        (char, lambda s, r: _char_table_id(r.kind)),
+        (val, lambda s, r: _val_table_id(s.runs.get(r.run), r.kind, s.shaper)),
+    ):
         if src is None:
             continue
         for r in src.table.itertuples(index=False):
-            rows.append({"table": table_id(src, r), "test": str(r.run), "metric": str(r.metric), "unit": str(r.unit),
-                         "value": float(r.value), "thesis": float(r.thesis), "thesis_source": str(r.thesis_source)})
+            rows.append(
+                {
+                    "table": table_id(src, r),
+                    "test": str(r.run),
+                    "metric": str(r.metric),
+                    "unit": str(r.unit),
+                    "value": float(r.value),
+                    "thesis": float(r.thesis),
+                    "thesis_source": str(r.thesis_source),
+                }
+            )
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -139,14 +199,31 @@ def _range_text(lo: float, hi: float) -> str:
 
 
 def comparison_table(rows: list[_Row613]) -> Table:
-    """Table 6.13 beside piezopress: quantity | uncontrolled (piezopress) | (thesis) | controlled (piezopress) | (thesis)."""
+    """Table 6.13 beside piezopress: quantity | uncontrolled (piezopress) | (thesis) |
+    controlled (piezopress) | (thesis)."""
     body = []
     for r in rows:
         t = r.test
-        body.append((t.quantity, _range_text(*_range(r.unc)), _range_text(*t.thesis_unc) if t.thesis_unc else "n/a",
-                     _range_text(*_range(r.ctrl)), _range_text(*t.thesis_ctrl)))
-    return Table(("quantity", "uncontrolled (piezopress)", "uncontrolled (thesis)", "controlled (piezopress)", "controlled (thesis)"),
-                 tuple(body), ("l", "r", "r", "r", "r"))
+        body.append(
+            (
+                t.quantity,
+                _range_text(*_range(r.unc)),
+                _range_text(*t.thesis_unc) if t.thesis_unc else "n/a",
+                _range_text(*_range(r.ctrl)),
+                _range_text(*t.thesis_ctrl),
+            )
+        )
+    return Table(
+        (
+            "quantity",
+            "uncontrolled (piezopress)",
+            "uncontrolled (thesis)",
+            "controlled (piezopress)",
+            "controlled (thesis)",
+        ),
+        tuple(body),
+        ("l", "r", "r", "r", "r"),
+    )
 
 
 def _basis(rows: list[_Row613]) -> list[str]:
@@ -155,13 +232,30 @@ def _basis(rows: list[_Row613]) -> list[str]:
         for side, vals in (("uncontrolled", r.unc), ("controlled", r.ctrl)):
             if vals:
                 out.append(f"{r.test.quantity}, {side}: " + ", ".join(f"{n} ({_num(v)})" for n, v in vals))
-    out.append("Tracking: piezopress gives the largest |error|/reference on the stairs from "
-               f"{summary.TRACKING_MIN_REFERENCE_N:g} N up (outside the ramps); the thesis prints the signed range of the relative error.")
+    out.append(
+        "Tracking: piezopress gives the largest |error|/reference on the stairs from "
+        f"{summary.TRACKING_MIN_REFERENCE_N:g} N up (outside the ramps); the thesis prints the signed range of the "
+        "relative error."
+    )
     return out
 
 
 def _detail_table(table: pd.DataFrame, table_id: Callable[[Any], str]) -> Table:
-    rows = tuple((table_id(r), str(r.run), str(r.metric), _num(r.value), str(r.unit), _num(r.thesis), str(r.thesis_source), str(r.note))
-                 for r in table.itertuples(index=False))
-    return Table(("table", "run", "metric", "value", "unit", "thesis", "source", "note"), rows, ("l", "l", "l", "r", "l", "r", "l", "l"))
-
+    rows = tuple(
+        (
+            table_id(r),
+            str(r.run),
+            str(r.metric),
+            _num(r.value),
+            str(r.unit),
+            _num(r.thesis),
+            str(r.thesis_source),
+            str(r.note),
+        )
+        for r in table.itertuples(index=False)
+    )
+    return Table(
+        ("table", "run", "metric", "value", "unit", "thesis", "source", "note"),
+        rows,
+        ("l", "l", "l", "r", "l", "r", "l", "l"),
+    )

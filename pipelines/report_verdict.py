@@ -19,9 +19,10 @@ import json
 import math
 import re
 from collections import defaultdict
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -123,20 +124,32 @@ def metadata_warnings(char: _Source | None, val: _Source | None) -> list[Warning
             if "cannot be reached" in text and n:
                 continue  # counted with the clipped samples
             skipped = _SKIPPED.match(text)
-            key = f"shaper skipped: the run's sample rate cannot resolve {skipped.group(2)}" if skipped else _NUMBER.sub("#", text)
+            key = (
+                f"shaper skipped: the run's sample rate cannot resolve {skipped.group(2)}"
+                if skipped
+                else _NUMBER.sub("#", text)
+            )
             groups[key].append(r.name)
             texts[key].add(text)
     out = []
     if clipped:
         total = sum(clipped.values())
-        out.append(Warning_("drive clipped: the reference cannot be reached within the actuator's drive range",
-                            tuple(f"{k} ({v} sample{'s' if v != 1 else ''})" for k, v in clipped.items()), len(clipped),
-                            detail=f"{total} samples in all"))
+        out.append(
+            Warning_(
+                "drive clipped: the reference cannot be reached within the actuator's drive range",
+                tuple(f"{k} ({v} sample{'s' if v != 1 else ''})" for k, v in clipped.items()),
+                len(clipped),
+                detail=f"{total} samples in all",
+            )
+        )
     for key, names in groups.items():
         variants = sorted(texts[key])
         if key.startswith("shaper skipped"):
             rates = sorted({m.group(1) for m in map(_SKIPPED.match, variants) if m}, key=lambda x: float(x.split()[0]))
-            detail = f"sample rates {', '.join(rates)}: below twice the mode's frequency, the shaper is left out (the drive's steps are too slow to ring the mode)"
+            detail = (
+                f"sample rates {', '.join(rates)}: below twice the mode's frequency, the shaper is left out "
+                "(the drive's steps are too slow to ring the mode)"
+            )
         else:
             detail = "; ".join(variants) if len(variants) <= 3 else f"{len(variants)} variants, e.g. {variants[0]}"
         out.append(Warning_(key, tuple(dict.fromkeys(names)), len(set(names)), detail=detail))
@@ -166,24 +179,47 @@ def extrapolation_warnings(bundle: dict[str, Any] | None, char: _Source | None, 
             if ref is not None and float(np.max(ref)) > top + EXTRAPOLATION_TOLERANCE * float(span):
                 beyond.append(f"{r.name} (to {float(np.max(ref)):.1f} {u})")
         if beyond:
-            out.append(Warning_(f"hysteresis model extrapolated: reference above its fitted output range ({float(y0):.1f} to "
-                                f"{top:.1f} {u})", tuple(beyond), len(beyond)))
+            out.append(
+                Warning_(
+                    f"hysteresis model extrapolated: reference above its fitted output range ({float(y0):.1f} to "
+                    f"{top:.1f} {u})",
+                    tuple(beyond),
+                    len(beyond),
+                )
+            )
     fitted = [f for f in (_freq(r) for r in _fitted_runs(bundle, "hysteresis", char)) if f is not None]
     if fitted:
         fmax = max(fitted)
-        faster = [f"{r.name} ({_freq(r):g} Hz)" for r in val.runs.values()
-                  if r.kind in ("triangle", "sine") and _freq(r) is not None and _freq(r) > 1.5 * fmax]
+        faster = [
+            f"{r.name} ({_freq(r):g} Hz)"
+            for r in val.runs.values()
+            if r.kind in ("triangle", "sine") and _freq(r) is not None and _freq(r) > 1.5 * fmax
+        ]
         if faster:
-            out.append(Warning_(f"hysteresis model extrapolated in rate: fitted on sweeps up to {fmax:g} Hz, used faster "
-                                "(the model is rate-independent)", tuple(faster), len(faster)))
+            out.append(
+                Warning_(
+                    f"hysteresis model extrapolated in rate: fitted on sweeps up to {fmax:g} Hz, used faster "
+                    "(the model is rate-independent)",
+                    tuple(faster),
+                    len(faster),
+                )
+            )
     if "creep" in bundle:
         fitted_s = [float(r.t_s[-1] - r.t_s[0]) for r in _fitted_runs(bundle, "creep", char)]
         if fitted_s:
-            longer = [f"{r.name} ({float(r.t_s[-1] - r.t_s[0]):.0f} s)" for r in val.runs.values()
-                      if float(r.t_s[-1] - r.t_s[0]) > 1.05 * max(fitted_s)]
+            longer = [
+                f"{r.name} ({float(r.t_s[-1] - r.t_s[0]):.0f} s)"
+                for r in val.runs.values()
+                if float(r.t_s[-1] - r.t_s[0]) > 1.05 * max(fitted_s)
+            ]
             if longer:
-                out.append(Warning_(f"creep model extrapolated in time: fitted on {max(fitted_s):.0f} s, runs longer",
-                                    tuple(longer), len(longer)))
+                out.append(
+                    Warning_(
+                        f"creep model extrapolated in time: fitted on {max(fitted_s):.0f} s, runs longer",
+                        tuple(longer),
+                        len(longer),
+                    )
+                )
     return out
 
 
@@ -201,17 +237,31 @@ def consistency_warnings(bundle_path: Path | None, char: _Source | None, val: _S
     out = []
     if bundle_path is not None and val is not None and bundle_path.is_file():
         digest = _sha256(bundle_path)
-        other = [r.name for r in val.runs.values() if (r.meta.get("compensation") or {}).get("bundle_sha256") not in (None, digest)]
+        other = [
+            r.name
+            for r in val.runs.values()
+            if (r.meta.get("compensation") or {}).get("bundle_sha256") not in (None, digest)
+        ]
         if other:
-            out.append(Warning_(f"validated with another bundle than {bundle_path} (sha256 {digest[:DIGEST_CHARS]}): the model "
-                                "quality shown is not that of these runs", tuple(other), len(other)))
+            out.append(
+                Warning_(
+                    f"validated with another bundle than {bundle_path} (sha256 {digest[:DIGEST_CHARS]}): the model "
+                    "quality shown is not that of these runs",
+                    tuple(other),
+                    len(other),
+                )
+            )
     rigs: dict[str, list[str]] = defaultdict(list)
     for r in _all_runs(char, val):
         rigs[config_digest(runformat.meta_get(r.meta, "rig", "config"))[:DIGEST_CHARS]].append(r.name)
     if len(rigs) > 1:
-        out.append(Warning_(f"the runs come from {len(rigs)} rig configurations", tuple(f"{d}: {', '.join(n[:3])}"
-                                                                                          + (" ..." if len(n) > 3 else "") for d, n in rigs.items()),
-                            sum(len(n) for n in rigs.values())))
+        out.append(
+            Warning_(
+                f"the runs come from {len(rigs)} rig configurations",
+                tuple(f"{d}: {', '.join(n[:3])}" + (" ..." if len(n) > 3 else "") for d, n in rigs.items()),
+                sum(len(n) for n in rigs.values()),
+            )
+        )
     return out
 
 
@@ -226,18 +276,24 @@ def _manifest_date(src: _Source | None) -> str:
     return started[0] if started else "unknown"
 
 
-def provenance(char: _Source | None, val: _Source | None, bundle_path: Path | None, bundle: dict[str, Any] | None) -> str:
+def provenance(
+    char: _Source | None, val: _Source | None, bundle_path: Path | None, bundle: dict[str, Any] | None
+) -> str:
     """One line: rig (name, file, configuration digest), backend, dates, software, bundle digest."""
     runs = _all_runs(char, val)
     rig_names = sorted({str(runformat.meta_get(r.meta, "rig", "config", "rig", "name", default="?")) for r in runs})
     sources = sorted({str(runformat.meta_get(r.meta, "rig", "source", default="?")) for r in runs})
     digests = sorted({config_digest(runformat.meta_get(r.meta, "rig", "config"))[:DIGEST_CHARS] for r in runs})
     backends = sorted({str(r.meta.get("backend", "?")) for r in runs})
-    versions = sorted({str(r.meta.get("software_version")) for r in runs if r.meta.get("software_version")}
-                      | ({str(bundle["software_version"])} if bundle and bundle.get("software_version") else set()))
+    versions = sorted(
+        {str(r.meta.get("software_version")) for r in runs if r.meta.get("software_version")}
+        | ({str(bundle["software_version"])} if bundle and bundle.get("software_version") else set())
+    )
     parts = []
     if runs:
-        parts.append(f"Rig {', '.join(rig_names)} (file {', '.join(sources)}; configuration sha256 {', '.join(digests)})")
+        parts.append(
+            f"Rig {', '.join(rig_names)} (file {', '.join(sources)}; configuration sha256 {', '.join(digests)})"
+        )
         simulated = " (simulated: not measurements of a real press)" if backends == ["virtual"] else ""
         parts.append(f"backend {', '.join(backends)}{simulated}")
     else:
@@ -260,10 +316,32 @@ def verdict_table(rows: list[VerdictRow]) -> Table:
         worst_thesis = max(abs(lo), abs(hi))
         gap = worst_thesis - v.value
         vs = "-" if v.passed is None else f"{_num(abs(gap))} pp {'below' if gap >= 0 else 'above'} its worst"
-        body.append((v.quantity, _num(v.value), v.worst_run or "-", f"<= {_num(v.target)}", _num(v.margin) if v.passed is not None else "-",
-                     verdict, f"{_num(lo)} to {_num(hi)}", vs))
-    return Table(("Table 6.13 row (controlled)", "piezopress (%)", "run nearest its target", "target (%)", "margin (pp)", "verdict",
-                  "thesis (%)", "against the thesis"), tuple(body), ("l", "r", "l", "r", "r", "l", "r", "l"))
+        body.append(
+            (
+                v.quantity,
+                _num(v.value),
+                v.worst_run or "-",
+                f"<= {_num(v.target)}",
+                _num(v.margin) if v.passed is not None else "-",
+                verdict,
+                f"{_num(lo)} to {_num(hi)}",
+                vs,
+            )
+        )
+    return Table(
+        (
+            "Table 6.13 row (controlled)",
+            "piezopress (%)",
+            "run nearest its target",
+            "target (%)",
+            "margin (pp)",
+            "verdict",
+            "thesis (%)",
+            "against the thesis",
+        ),
+        tuple(body),
+        ("l", "r", "l", "r", "r", "l", "r", "l"),
+    )
 
 
 def warnings_table(warnings: Iterable[Warning_]) -> Table:
@@ -285,36 +363,73 @@ class Verdict:
         return [self.summary, self.provenance] + [f"  warning ({w.count} {w.unit}): {w.what}" for w in self.warnings]
 
 
-def verdict_blocks(rows: list[_Row613], char: _Source | None, val: _Source | None, bundle_path: str | Path | None,
-                   bundle: dict[str, Any] | None) -> tuple[list[Block], Verdict]:
+def verdict_blocks(
+    rows: list[_Row613],
+    char: _Source | None,
+    val: _Source | None,
+    bundle_path: str | Path | None,
+    bundle: dict[str, Any] | None,
+) -> tuple[list[Block], Verdict]:
     """The verdict section: the rows against the targets, the warnings, the provenance."""
     path = Path(bundle_path) if bundle_path is not None else None
     vrows = verdict_rows(rows)
-    warnings = metadata_warnings(char, val) + extrapolation_warnings(bundle, char, val) + consistency_warnings(path, char, val)
+    warnings = (
+        metadata_warnings(char, val) + extrapolation_warnings(bundle, char, val) + consistency_warnings(path, char, val)
+    )
     failed = [v for v in vrows if v.passed is False]
     untested = [v for v in vrows if v.passed is None]
     if failed:
-        overall = f"FAIL: {len(failed)} of {len(vrows)} controlled figures miss their target ({', '.join(v.key for v in failed)})"
+        overall = (
+            f"FAIL: {len(failed)} of {len(vrows)} controlled figures miss their target "
+            f"({', '.join(v.key for v in failed)})"
+        )
     elif untested:
-        overall = f"INCOMPLETE: {len(untested)} of {len(vrows)} controlled figures not measured ({', '.join(v.key for v in untested)})"
+        overall = (
+            f"INCOMPLETE: {len(untested)} of {len(vrows)} controlled figures not measured "
+            f"({', '.join(v.key for v in untested)})"
+        )
     else:
         overall = f"PASS: all {len(vrows)} controlled figures within their targets"
-    overall += f", with {len(warnings)} kind{'s' if len(warnings) != 1 else ''} of warning below." if warnings else ", no warning."
+    overall += (
+        f", with {len(warnings)} kind{'s' if len(warnings) != 1 else ''} of warning below."
+        if warnings
+        else ", no warning."
+    )
     prov = provenance(char, val, path, bundle)
     blocks: list[Block] = [
         Heading("Verdict"),
         Para(f"**{overall}**"),
         Para(prov),
         verdict_table(vrows),
-        Para("Targets: piezopress's own (static hysteresis at most 1.0 % on every 0.1 Hz triangle, 1.5 % on the 75 N one "
-             "where the load cell's quantization weighs most; creep at most 0.3 % after 120 s; overshoot at most 3 %; the "
-             "staircase's relative tracking error at most 3 %); margin = target - figure, in percentage points. "
-             "Each figure is that of the run nearest its target (the runs are listed under Table 6.13 below)."),
+        Para(
+            "Targets: piezopress's own (static hysteresis at most 1.0 % on every 0.1 Hz triangle, 1.5 % on the 75 N "
+            "one "
+            "where the load cell's quantization weighs most; creep at most 0.3 % after 120 s; overshoot at most 3 %; "
+            "the "
+            "staircase's relative tracking error at most 3 %); margin = target - figure, in percentage points. "
+            "Each figure is that of the run nearest its target (the runs are listed under Table 6.13 below)."
+        ),
         Heading("Warnings that qualify the verdict", 3),
     ]
-    blocks.append(warnings_table(warnings) if warnings else Para("None: no run records a warning, and no model is used beyond its data."))
+    blocks.append(
+        warnings_table(warnings)
+        if warnings
+        else Para("None: no run records a warning, and no model is used beyond its data.")
+    )
     return blocks, Verdict(f"Verdict: {overall}", prov, tuple(vrows), tuple(warnings))
 
 
-__all__ = ["verdict_blocks", "Verdict", "TARGETS_PCT", "RUN_TARGETS_PCT", "target_pct", "VerdictRow", "Warning_", "metadata_warnings", "extrapolation_warnings",
-           "consistency_warnings", "provenance", "config_digest"]
+__all__ = [
+    "verdict_blocks",
+    "Verdict",
+    "TARGETS_PCT",
+    "RUN_TARGETS_PCT",
+    "target_pct",
+    "VerdictRow",
+    "Warning_",
+    "metadata_warnings",
+    "extrapolation_warnings",
+    "consistency_warnings",
+    "provenance",
+    "config_digest",
+]

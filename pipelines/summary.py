@@ -55,7 +55,18 @@ def run_metrics(run: runformat.Run) -> list[dict]:
 
     def row(metric: str, value: float, unit: str, note: str = "", with_thesis: bool = True) -> None:
         ref, src = _thesis_for(run, metric) if with_thesis else (float("nan"), "")
-        rows.append({"run": run.name, "kind": run.kind, "metric": metric, "value": value, "unit": unit, "thesis": ref, "thesis_source": src, "note": note})
+        rows.append(
+            {
+                "run": run.name,
+                "kind": run.kind,
+                "metric": metric,
+                "value": value,
+                "unit": unit,
+                "thesis": ref,
+                "thesis_source": src,
+                "note": note,
+            }
+        )
 
     try:
         if run.kind in ("triangle", "sine"):
@@ -63,20 +74,48 @@ def run_metrics(run: runformat.Run) -> list[dict]:
             x_unit = "V" if x is None else "N"  # against the drive, or the reference force of a compensated run
             x = run.command_v if x is None else x
             h = metrics.max_hysteresis(x, y)
-            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {unit_out} at {h.x_at_max:.1f} {x_unit}")
+            row(
+                "max_hysteresis",
+                h.percent,
+                "%",
+                f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {unit_out} at {h.x_at_max:.1f} {x_unit}",
+            )
         elif run.kind == "creep":
             c = metrics.creep(run.t_s, y, drive=run.command_v)
-            row("creep", c.percent, "%", f"F_ss taken {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step size")
+            row(
+                "creep",
+                c.percent,
+                "%",
+                f"F_ss taken {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step size",
+            )
         elif run.kind == "step":
             s = metrics.overshoot(run.t_s, y, drive=run.command_v)
             note = f"step {s.step_size:.1f} {unit_out}" + ("" if s.significant else "; not above the noise")
             row("overshoot", s.percent, "%", note)
             settle_note = "2 % band below 3x noise" if s.band_below_noise else ("" if s.settled else "did not settle")
-            row("settling_time", s.settling_time_s * 1e3 if s.settled else float("nan"), "ms", settle_note, with_thesis=False)
+            row(
+                "settling_time",
+                s.settling_time_s * 1e3 if s.settled else float("nan"),
+                "ms",
+                settle_note,
+                with_thesis=False,
+            )
         elif np.ptp(run.command_v) == 0:  # a rest run: the sensor alone
             k = np.polyfit(run.t_s, y, 1)
-            row("noise_rms", float(np.std(y - np.polyval(k, run.t_s))), unit_out, f"at rest, {run.t_s[-1]:.0f} s", with_thesis=False)
-            row("drift_per_min", float(k[0] * 60.0), f"{unit_out}/min", f"offset {np.mean(y):.2f} {unit_out} at zero drive", with_thesis=False)
+            row(
+                "noise_rms",
+                float(np.std(y - np.polyval(k, run.t_s))),
+                unit_out,
+                f"at rest, {run.t_s[-1]:.0f} s",
+                with_thesis=False,
+            )
+            row(
+                "drift_per_min",
+                float(k[0] * 60.0),
+                f"{unit_out}/min",
+                f"offset {np.mean(y):.2f} {unit_out} at zero drive",
+                with_thesis=False,
+            )
         else:
             row("-", float("nan"), "", f"no characterization metric for kind {run.kind!r}", with_thesis=False)
     except MetricError as exc:
@@ -94,13 +133,17 @@ def characterization_table(run_dir: str | Path) -> pd.DataFrame:
 
 def format_table(table: pd.DataFrame, title: str = "Characterization") -> str:
     """A fixed-width text table for the terminal."""
+
     def num(v: float, digits: int = 2) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
 
     head = f"{'run':<28} {'metric':<15} {'value':>9} {'unit':<4} {'thesis':>8}  {'source':<30} note"
     lines = [title, head, "-" * len(head)]
     for r in table.itertuples(index=False):
-        lines.append(f"{r.run:<28} {r.metric:<15} {num(r.value):>9} {r.unit:<4} {num(r.thesis):>8}  {r.thesis_source:<30} {r.note}")
+        lines.append(
+            f"{r.run:<28} {r.metric:<15} {num(r.value):>9} {r.unit:<4} {num(r.thesis):>8}  {r.thesis_source:<30} "
+            f"{r.note}"
+        )
     return "\n".join(lines)
 
 
@@ -118,7 +161,11 @@ def _validation_thesis(run: runformat.Run, metric: str, shaper: bool) -> tuple[f
         peak = round(prof.high - prof.low)
         if _snap(f, (0.1,)) is not None and f"{peak:g}N" in thesis.HYSTERESIS_COMPENSATED_PCT:
             return thesis.HYSTERESIS_COMPENSATED_PCT[f"{peak:g}N"], f"Table 6.6 ({peak:g} N)"
-        table = thesis.HYSTERESIS_COMPENSATED_BY_FREQ_WITH_SHAPER_PCT if shaper else thesis.HYSTERESIS_COMPENSATED_BY_FREQ_NO_SHAPER_PCT
+        table = (
+            thesis.HYSTERESIS_COMPENSATED_BY_FREQ_WITH_SHAPER_PCT
+            if shaper
+            else thesis.HYSTERESIS_COMPENSATED_BY_FREQ_NO_SHAPER_PCT
+        )
         f = _snap(f, table)
         if f is not None:
             return table[f], f"Table {'6.11' if shaper else '6.12'} ({f:g} Hz)"
@@ -151,39 +198,95 @@ def validation_metrics(run: runformat.Run, shaper: bool = True) -> list[dict]:
 
     def row(metric, value, unit, note="", with_thesis=True):
         th, src = _validation_thesis(run, metric, shaper) if with_thesis else (float("nan"), "")
-        rows.append({"run": run.name, "kind": run.kind, "metric": metric, "value": value, "unit": unit, "thesis": th, "thesis_source": src, "note": note})
+        rows.append(
+            {
+                "run": run.name,
+                "kind": run.kind,
+                "metric": metric,
+                "value": value,
+                "unit": unit,
+                "thesis": th,
+                "thesis_source": src,
+                "note": note,
+            }
+        )
 
     if ref is None:
-        return [{"run": run.name, "kind": run.kind, "metric": "-", "value": float("nan"), "unit": "", "thesis": float("nan"),
-                 "thesis_source": "", "note": "no reference_n column: not a compensated run"}]
+        return [
+            {
+                "run": run.name,
+                "kind": run.kind,
+                "metric": "-",
+                "value": float("nan"),
+                "unit": "",
+                "thesis": float("nan"),
+                "thesis_source": "",
+                "note": "no reference_n column: not a compensated run",
+            }
+        ]
     preload = float(run.meta.get("preload_n", ref[0]))
     try:
         if run.kind == "triangle":
             h = metrics.max_hysteresis(ref, y)
-            row("max_hysteresis", h.percent, "%", f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {u} of {h.output_range:.1f} {u}")
+            row(
+                "max_hysteresis",
+                h.percent,
+                "%",
+                f"{h.n_cycles} cycles, gap {h.max_gap:.2f} {u} of {h.output_range:.1f} {u}",
+            )
         elif run.kind == "creep":
             c = metrics.creep(run.t_s, y, drive=ref)
-            row("creep", c.percent, "%", f"F_ss {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step")
+            row(
+                "creep",
+                c.percent,
+                "%",
+                f"F_ss {c.t_ss_s:g} s after the step, F_f after {c.hold_s:.0f} s; relative to the step",
+            )
         elif run.kind == "step":
             st = metrics.overshoot(run.t_s, y, drive=ref, end_margin_s=STEP_END_MARGIN_S)
-            row("overshoot", st.percent, "%", f"step {st.step_size:.1f} {u}" + ("" if st.significant else "; not above the noise"))
-            row("settling_time", st.settling_time_s * 1e3 if st.settled else float("nan"), "ms",
-                "2 % band below 3x noise" if st.band_below_noise else ("" if st.settled else "did not settle"))
+            row(
+                "overshoot",
+                st.percent,
+                "%",
+                f"step {st.step_size:.1f} {u}" + ("" if st.significant else "; not above the noise"),
+            )
+            row(
+                "settling_time",
+                st.settling_time_s * 1e3 if st.settled else float("nan"),
+                "ms",
+                "2 % band below 3x noise" if st.band_below_noise else ("" if st.settled else "did not settle"),
+            )
         elif run.kind == "staircase":
             tr = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=TRACKING_MIN_REFERENCE_N)
-            row("tracking_relative", tr.max_abs_relative_percent, "%",
-                f"max |error|/reference from {TRACKING_MIN_REFERENCE_N:g} {u} up, outside the ramps; range {tr.min_relative_percent:.2f} to {tr.max_relative_percent:.2f} %")
+            row(
+                "tracking_relative",
+                tr.max_abs_relative_percent,
+                "%",
+                f"max |error|/reference from {TRACKING_MIN_REFERENCE_N:g} {u} up, outside the ramps; range "
+                f"{tr.min_relative_percent:.2f} to {tr.max_relative_percent:.2f} %",
+            )
             full = metrics.tracking_error(run.t_s, ref - preload, y - preload, min_reference=1e-9)
-            row("tracking_absolute", max(abs(full.max_error_n), abs(full.min_error_n)), u,
-                f"max |error| outside the ramps, all stairs; {full.min_error_n:.2f} to {full.max_error_n:.2f} {u}, RMS {full.rms_error_n:.2f} {u}")
+            row(
+                "tracking_absolute",
+                max(abs(full.max_error_n), abs(full.min_error_n)),
+                u,
+                f"max |error| outside the ramps, all stairs; {full.min_error_n:.2f} to {full.max_error_n:.2f} {u}, "
+                f"RMS {full.rms_error_n:.2f} {u}",
+            )
         elif run.kind == "custom":  # a trajectory (random force): the RMS error over the whole run
             err = y - ref
             span = float(np.ptp(ref))
             if span <= 0:
                 raise MetricError("the reference is constant: nothing to track")
             e_rms = float(np.sqrt(np.mean(err**2)))
-            row("tracking_rms", 100.0 * e_rms / span, "%",
-                f"RMS error {e_rms:.2f} {u} over a {span:.0f} {u} range; max |error| {float(np.max(np.abs(err))):.2f} {u}", with_thesis=False)
+            row(
+                "tracking_rms",
+                100.0 * e_rms / span,
+                "%",
+                f"RMS error {e_rms:.2f} {u} over a {span:.0f} {u} range; max |error| {float(np.max(np.abs(err))):.2f} "
+                f"{u}",
+                with_thesis=False,
+            )
         else:
             row("-", float("nan"), "", f"no validation metric for kind {run.kind!r}", with_thesis=False)
     except MetricError as exc:

@@ -8,11 +8,9 @@ directory with a manifest, exactly like a characterization.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
-
-from piezopress.resources import shipped
 from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.drive_check import check_drive
@@ -26,6 +24,7 @@ from piezopress.pipelines.characterize import (
     execute_plan,
     make_backend,
 )
+from piezopress.resources import shipped
 
 DEFAULT_VALIDATION_PLAN = shipped("protocols", "validate.toml")
 
@@ -47,32 +46,53 @@ def validate(
     checked = read_bundle(bundle_path)
     unit = checked.unit
     if not units.is_force(unit):
-        raise BundleError(f"{bundle_path}: its model's output is {units.quantity(unit)} ({units.label(unit)}); validate plays the "
-                          "validation plan's force references (N above the preload) on a press that measures force, "
-                          "expected a force bundle (compensate takes references in the bundle's unit)")
+        raise BundleError(
+            f"{bundle_path}: its model's output is {units.quantity(unit)} ({units.label(unit)}); validate plays the "
+            "validation plan's force references (N above the preload) on a press that measures force, "
+            "expected a force bundle (compensate takes references in the bundle's unit)"
+        )
     comp = checked.compensator(use_shaper=use_shaper, use_creep=use_creep)
     backend = backend or make_backend(backend_name, rig_path)
     lim = backend.limits
     checked.check_drive_range(lim.drive_min_v, lim.drive_max_v, str(rig_path))
     # references are forces above the preload: bounded by the stack's maximum load
-    ref_limits = DriveLimits(drive_min_v=0.0, drive_max_v=lim.max_force_n, max_sample_rate_hz=lim.max_sample_rate_hz,
-                             max_force_n=lim.max_force_n, max_duration_s=lim.max_duration_s, max_samples=lim.max_samples)
+    ref_limits = DriveLimits(
+        drive_min_v=0.0,
+        drive_max_v=lim.max_force_n,
+        max_sample_rate_hz=lim.max_sample_rate_hz,
+        max_force_n=lim.max_force_n,
+        max_duration_s=lim.max_duration_s,
+        max_samples=lim.max_samples,
+    )
     plan = load_plan(plan_path, ref_limits, unit="N")
     for proto in plan.protocols:  # every reference checked against the bundle before anything is played
-        checked.check_reference(int(round(proto.duration_s * proto.sample_rate_hz)) + 1, proto.sample_rate_hz,
-                                f"{plan_path}: protocol {proto.name}", use_creep=use_creep)
+        checked.check_reference(
+            int(round(proto.duration_s * proto.sample_rate_hz)) + 1,
+            proto.sample_rate_hz,
+            f"{plan_path}: protocol {proto.name}",
+            use_creep=use_creep,
+        )
     bundle_sha = runformat.sha256_file(bundle_path)
 
     def compensated(proto: Protocol) -> Drive:
         t, ref = proto.waveform()
         res = comp.drive(ref, proto.sample_rate_hz)
-        check_drive(res.command_v, proto.sample_rate_hz, lim, f"{plan_path}: protocol '{proto.name}' through {bundle_path}")
+        check_drive(
+            res.command_v, proto.sample_rate_hz, lim, f"{plan_path}: protocol '{proto.name}' through {bundle_path}"
+        )
         for w in res.warnings:
             if on_warning:
                 on_warning(f"{proto.name}: {w}")
-        meta = {"compensation": {"bundle_sha256": bundle_sha, "shaper": use_shaper and comp.shaper is not None,
-                                 "creep": use_creep and comp.creep is not None, "clipped_samples": res.clipped_samples,
-                                 "warnings": list(res.warnings), "notes": list(res.notes)}}
+        meta = {
+            "compensation": {
+                "bundle_sha256": bundle_sha,
+                "shaper": use_shaper and comp.shaper is not None,
+                "creep": use_creep and comp.creep is not None,
+                "clipped_samples": res.clipped_samples,
+                "warnings": list(res.warnings),
+                "notes": list(res.notes),
+            }
+        }
         return Drive(t, res.command_v, {"reference_n": proto.preload_n + ref}, meta)
 
     # every drive computed and checked before the directory is made or the rig touched
@@ -81,9 +101,20 @@ def validate(
     def drive_for(proto: Protocol) -> Drive:
         return drives[proto.name]
 
-    extra = {"bundle": {"file": str(bundle_path), "sha256": bundle_sha}, "compensation_options": {"shaper": use_shaper, "creep": use_creep}}
-    return execute_plan(out_dir, plan, Path(plan_path), backend, kind="validation", drive_for=drive_for,
-                        manifest_extra=extra, on_progress=on_progress)
+    extra = {
+        "bundle": {"file": str(bundle_path), "sha256": bundle_sha},
+        "compensation_options": {"shaper": use_shaper, "creep": use_creep},
+    }
+    return execute_plan(
+        out_dir,
+        plan,
+        Path(plan_path),
+        backend,
+        kind="validation",
+        drive_for=drive_for,
+        manifest_extra=extra,
+        on_progress=on_progress,
+    )
 
 
 __all__ = ["validate", "DEFAULT_VALIDATION_PLAN"]

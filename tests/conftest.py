@@ -4,8 +4,9 @@ Tests against a real NI-DAQmx board run only when asked for: ``pytest --daq Dev1
 tests marked ``daq`` on device ``Dev1``; without the option they are skipped.
 """
 
-import piezopress  # noqa: F401  (sets OPENBLAS_NUM_THREADS before numpy is imported)
 import pytest
+
+import piezopress  # noqa: F401  (sets OPENBLAS_NUM_THREADS before numpy is imported)
 
 
 def pytest_addoption(parser):

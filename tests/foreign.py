@@ -16,8 +16,14 @@ import numpy as np
 from piezopress import runformat
 
 
-def foreign_run(run: runformat.Run, *, custom: bool = False, drop_monitor: bool = False,
-                glitch_every: int | None = None, seed: int = 0) -> runformat.Run:
+def foreign_run(
+    run: runformat.Run,
+    *,
+    custom: bool = False,
+    drop_monitor: bool = False,
+    glitch_every: int | None = None,
+    seed: int = 0,
+) -> runformat.Run:
     """``run`` with its metadata cut to the required fields (``custom``: every kind ``custom``),
     optionally without its ``monitor_v`` column and with one glitched output sample in
     ``glitch_every`` (read as 0 or as the ADC's top code, alternately, at seeded places)."""

@@ -32,9 +32,10 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from scipy import signal
@@ -213,19 +214,33 @@ class IndependentPress:
         params["elements"] = [asdict(e) for e in self.ELEMENTS]
         # what a rig's configuration file states of its chain: the load cell's analog filter
         config = {"load_cell": {"lowpass_hz": self.antialias_hz}}
-        return {"backend": self.name, "simulation": "tests/independent_press.py", "parameters": params, "config": config}
+        return {
+            "backend": self.name,
+            "simulation": "tests/independent_press.py",
+            "parameters": params,
+            "config": config,
+        }
 
     def zero_output(self) -> None:
         self.output_v = 0.0
 
-    def run(self, command_v: np.ndarray, sample_rate_hz: float, *, preload_n: float, label: str,
-            progress: Callable[[float], None] | None = None) -> Measurement:
+    def run(
+        self,
+        command_v: np.ndarray,
+        sample_rate_hz: float,
+        *,
+        preload_n: float,
+        label: str,
+        progress: Callable[[float], None] | None = None,
+    ) -> Measurement:
         u = np.asarray(command_v, dtype=np.float64)
         lim = self.limits
         if u.ndim != 1 or u.size < 2 or not np.all(np.isfinite(u)):
             raise BackendError(f"{self.name}: expected a finite 1-D drive of at least 2 samples")
         if u.min() < lim.drive_min_v - 1e-9 or u.max() > lim.drive_max_v + 1e-9:
-            raise BackendError(f"{self.name}: drive {u.min():g} to {u.max():g} V outside {lim.drive_min_v:g} to {lim.drive_max_v:g} V")
+            raise BackendError(
+                f"{self.name}: drive {u.min():g} to {u.max():g} V outside {lim.drive_min_v:g} to {lim.drive_max_v:g} V"
+            )
         if not 0.0 < sample_rate_hz <= lim.max_sample_rate_hz:
             raise BackendError(f"{self.name}: sample rate {sample_rate_hz:g} Hz outside the board's range")
         rng = np.random.default_rng([self.seed, _label_seed(label)])
@@ -242,7 +257,9 @@ class IndependentPress:
 
     def _amplifier(self, u: np.ndarray, fs: float) -> np.ndarray:
         lsb = 2.0 * self.dac_range_v / 2**self.dac_bits
-        dac = np.clip(np.round(u / self.amp_gain / lsb), -(2 ** (self.dac_bits - 1)), 2 ** (self.dac_bits - 1) - 1) * lsb
+        dac = (
+            np.clip(np.round(u / self.amp_gain / lsb), -(2 ** (self.dac_bits - 1)), 2 ** (self.dac_bits - 1) - 1) * lsb
+        )
         v = dac * self.amp_gain
         if self.slew_v_per_ms is not None:
             step = self.slew_v_per_ms * 1e3 / fs
@@ -306,6 +323,7 @@ class IndependentPress:
 
     def _modes(self, f: np.ndarray, fs: float) -> np.ndarray:
         """Unit-gain mode(s) as a ZOH-discretised state space, started at rest under ``f[0]``."""
+
         def mode(hz: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
             wn = 2.0 * math.pi * hz
             A = np.array([[0.0, 1.0], [-wn * wn, -2.0 * zeta * wn]])
@@ -321,7 +339,9 @@ class IndependentPress:
             y += share2 * _settled_lfilter(*mode(self.second_mode_hz, self.second_mode_damping), f)
         return y
 
-    def simulate(self, command_v: np.ndarray, fs: float, preload_n: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    def simulate(
+        self, command_v: np.ndarray, fs: float, preload_n: float, rng: np.random.Generator
+    ) -> dict[str, np.ndarray]:
         amp, held = self._amplifier(command_v, fs)
         t = np.arange(amp.size) / fs
         v = held if self.input_delay_s <= 0.0 else np.interp(t - self.input_delay_s, t, held, left=held[0])
@@ -335,10 +355,19 @@ class IndependentPress:
             current_a = self.capacitance_uf * 1e-6 * np.diff(v, prepend=v[0]) * fs
             force = force - self.interference_n_per_a * _first_order(current_a, 2e-4, fs, 0.0)
         reading = _first_order_sampled(force, 1.0 / (2.0 * math.pi * self.antialias_hz), fs, float(force[0]))
-        drift = self.drift_n_per_min / 60.0 * self.drift_tau_s * -np.expm1(-t / self.drift_tau_s)  # rate drift_n_per_min at t = 0
+        drift = (
+            self.drift_n_per_min / 60.0 * self.drift_tau_s * -np.expm1(-t / self.drift_tau_s)
+        )  # rate drift_n_per_min at t = 0
         reading = reading + drift + self.noise_n * rng.standard_normal(amp.size)
         lsb = 2.0 * self.adc_range_v / 2**self.adc_bits
-        volts = np.clip(np.round(self.sensitivity_v_per_n * reading / lsb), -(2 ** (self.adc_bits - 1)), 2 ** (self.adc_bits - 1) - 1) * lsb
+        volts = (
+            np.clip(
+                np.round(self.sensitivity_v_per_n * reading / lsb),
+                -(2 ** (self.adc_bits - 1)),
+                2 ** (self.adc_bits - 1) - 1,
+            )
+            * lsb
+        )
         monitor = amp + 0.02 * rng.standard_normal(amp.size)
         return {"force_n": volts / self.sensitivity_v_per_n, "monitor_v": monitor}
 
@@ -377,7 +406,11 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "amplifier_slew_limit": {"slew_v_per_ms": (20.0, 60.0)},
     "drive_coupled_interference": {"interference_n_per_a": (30.0, 100.0)},
     "logarithmic_creep": {"log_creep_per_decade": (0.008, 0.02)},
-    "second_resonance": {"second_mode_share": (0.1, 0.3), "second_mode_hz": (2500.0, 4500.0), "second_mode_damping": (0.02, 0.06)},
+    "second_resonance": {
+        "second_mode_share": (0.1, 0.3),
+        "second_mode_hz": (2500.0, 4500.0),
+        "second_mode_damping": (0.02, 0.06),
+    },
     "sensor_offset_drift": {"drift_n_per_min": (4.0, 10.0)},
     "input_delay": {"input_delay_s": (1e-4, 6e-4)},
     "hysteresis_order": {"s_curve": (0.2, 0.5)},

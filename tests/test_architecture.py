@@ -72,8 +72,10 @@ def test_start_up_imports_no_heavy_library(args):
     import subprocess
     import sys
 
-    code = ("import sys; from piezopress.piezocli.main import cli\n"
-            "try:\n    cli.main(%r, standalone_mode=False)\nexcept SystemExit:\n    pass\n"
-            "print(sorted(m for m in ('numpy', 'scipy', 'pandas', 'matplotlib', 'cvxpy', 'pyarrow') if m in sys.modules))") % (args,)
+    code = (
+        "import sys; from piezopress.piezocli.main import cli\n"
+        f"try:\n    cli.main({args!r}, standalone_mode=False)\nexcept SystemExit:\n    pass\n"
+        "print(sorted(m for m in ('numpy', 'scipy', 'pandas', 'matplotlib', 'cvxpy', 'pyarrow') if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
     assert out.strip().splitlines()[-1] == "[]", out

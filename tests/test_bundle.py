@@ -57,8 +57,10 @@ def ref_csv(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def tiny_plan(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("plan") / "tiny.toml"
-    path.write_text('[plan]\nname = "tiny"\npreload_n = 50.0\n\n[[protocol]]\nname = "step-30n"\nkind = "step"\nlevel_n = 30.0\n'
-                    'hold_s = 0.05\nsample_rate_hz = 5000.0\n')
+    path.write_text(
+        '[plan]\nname = "tiny"\npreload_n = 50.0\n\n[[protocol]]\nname = "step-30n"\nkind = "step"\nlevel_n = 30.0\n'
+        "hold_s = 0.05\nsample_rate_hz = 5000.0\n"
+    )
     return path
 
 
@@ -82,13 +84,22 @@ def test_compensator_is_the_one_the_bundle_describes():
     doc = base_doc()
     comp = doc["compensation"]
     b = Bundle.from_dict(doc)
-    by_hand = Compensator(hysteresis=b.hysteresis, creep=b.creep, shaper=b.shaper, drive_min_v=comp["drive_min_v"],
-                          drive_max_v=comp["drive_max_v"], max_rate_per_s=comp["max_rate_n_per_s"], lead_s=comp["lead_s"])
+    by_hand = Compensator(
+        hysteresis=b.hysteresis,
+        creep=b.creep,
+        shaper=b.shaper,
+        drive_min_v=comp["drive_min_v"],
+        drive_max_v=comp["drive_max_v"],
+        max_rate_per_s=comp["max_rate_n_per_s"],
+        lead_s=comp["lead_s"],
+    )
     rng = np.random.default_rng(5)
     fs = 5000.0
     for _ in range(3):  # random staircases inside the press's range
         ref = np.repeat(rng.uniform(0, 250, 6), 800)
-        np.testing.assert_allclose(b.compensator().drive(ref, fs).command_v, by_hand.drive(ref, fs).command_v, atol=1e-12, rtol=0)
+        np.testing.assert_allclose(
+            b.compensator().drive(ref, fs).command_v, by_hand.drive(ref, fs).command_v, atol=1e-12, rtol=0
+        )
     no_shaper = b.compensator(use_shaper=False, use_creep=False)
     assert no_shaper.shaper is None and no_shaper.creep is None and no_shaper.lead_s == 0.0
 
@@ -115,7 +126,9 @@ def test_forward_model_and_extended():
     b = Bundle.from_dict(base_doc())
     m = b.forward_model()
     assert m.hysteresis == b.hysteresis and m.creep == b.creep and m.wn == b.mode[0] and m.zeta == b.mode[1]
-    finding = dg.Finding("amplifier_slew_limit", "test", 1.0, 0.5, 50.0, {"slew_rate_v_per_s": 12_000.0}, [], [], 1.0, 0.1, m)
+    finding = dg.Finding(
+        "amplifier_slew_limit", "test", 1.0, 0.5, 50.0, {"slew_rate_v_per_s": 12_000.0}, [], [], 1.0, 0.1, m
+    )
     ext = b.extended([finding])
     assert ext.settings.slew_v_per_s == 12_000.0 and ext.compensator().slew_v_per_s == 12_000.0
     assert ext.to_dict()["extensions"] == {"amplifier_slew_limit": {"slew_rate_v_per_s": 12_000.0}}
@@ -133,6 +146,7 @@ def _set(path: str, value):
             d = d[p]
         d[last] = value
         return doc
+
     return change
 
 
@@ -156,28 +170,50 @@ def _weight(value):
     def change(doc):
         doc["hysteresis"]["model"]["play_weights"][3] = value
         return doc
+
     return change
 
 
 PROBES = {
     "y0 NaN": (_set("hysteresis.model.y0_n", float("nan")), "hysteresis.model.y0_n = nan; expected a finite number"),
-    "drive_max_v = 1e9": (_set("compensation.drive_max_v", 1e9), "compensation.drive_max_v = 1000000000.0; expected a drive limit in V"),
-    "lead_s = 100": (_set("compensation.lead_s", 100), "compensation.lead_s = 100; expected the drive's lead in s within [0, 1)"),
-    "max_rate = -1": (_set("compensation.max_rate_n_per_s", -1), "compensation.max_rate_n_per_s = -1; expected null (no limit) or a positive rate"),
-    "um hysteresis, N creep": (_um_hysteresis, "creep.fit.rms_n = 0.4720032714239638; expected a creep fitted in µm (rms_um)"),
-    "um hysteresis, N creep (unit recorded)": (lambda d: (_um_hysteresis(d), d["creep"]["fit"].__setitem__("output_unit", "N"), d)[2],
-                                               "creep.fit.output_unit = 'N'; expected 'um', the hysteresis model's output unit"),
+    "drive_max_v = 1e9": (
+        _set("compensation.drive_max_v", 1e9),
+        "compensation.drive_max_v = 1000000000.0; expected a drive limit in V",
+    ),
+    "lead_s = 100": (
+        _set("compensation.lead_s", 100),
+        "compensation.lead_s = 100; expected the drive's lead in s within [0, 1)",
+    ),
+    "max_rate = -1": (
+        _set("compensation.max_rate_n_per_s", -1),
+        "compensation.max_rate_n_per_s = -1; expected null (no limit) or a positive rate",
+    ),
+    "um hysteresis, N creep": (
+        _um_hysteresis,
+        "creep.fit.rms_n = 0.4720032714239638; expected a creep fitted in µm (rms_um)",
+    ),
+    "um hysteresis, N creep (unit recorded)": (
+        lambda d: (_um_hysteresis(d), d["creep"]["fit"].__setitem__("output_unit", "N"), d)[2],
+        "creep.fit.output_unit = 'N'; expected 'um', the hysteresis model's output unit",
+    ),
     "um hysteresis, N shaper": (_um_hysteresis_n_shaper, "shaper.mode.output_unit = 'N'; expected 'um'"),
-    "um hysteresis, N rate limit": (lambda d: (_um_hysteresis(d), d.pop("creep"))[0],
-                                    "compensation.max_rate_n_per_s = 40000.0; expected no rate limit in N/s"),
+    "um hysteresis, N rate limit": (
+        lambda d: (_um_hysteresis(d), d.pop("creep"))[0],
+        "compensation.max_rate_n_per_s = 40000.0; expected no rate limit in N/s",
+    ),
     "a JSON list": (lambda d: [d], "the document is a JSON list; expected a JSON object"),
     "NaN play weight": (_weight(float("nan")), "hysteresis.model.play_weights[3] = nan; expected a finite number"),
     "inf play weight": (_weight(float("inf")), "hysteresis.model.play_weights[3] = inf; expected a finite number"),
     "1e300 play weight": (_weight(1e300), "hysteresis.model.play_weights[3] = 1e+300; expected weights in N/V within"),
-    "1e300 threshold": (lambda d: (d["hysteresis"]["model"]["play_thresholds"].__setitem__(-1, 1e300), d)[1],
-                        "hysteresis.model.play_thresholds[14] = 1e+300; expected thresholds in V within"),
+    "1e300 threshold": (
+        lambda d: (d["hysteresis"]["model"]["play_thresholds"].__setitem__(-1, 1e300), d)[1],
+        "hysteresis.model.play_thresholds[14] = 1e+300; expected thresholds in V within",
+    ),
     "not invertible": (_set("hysteresis.model.play_weights", [-0.5] + [0.1] * 14), "expected an invertible model"),
-    "shaper sum": (lambda d: (d["shaper"]["shaper"]["amplitudes"].__setitem__(0, 0.5), d)[1], "expected positive impulses summing to 1"),
+    "shaper sum": (
+        lambda d: (d["shaper"]["shaper"]["amplitudes"].__setitem__(0, 0.5), d)[1],
+        "expected positive impulses summing to 1",
+    ),
     "creep K_c < 0": (_set("creep.model.static_gain", -0.5), "creep.model.static_gain = -0.5; expected K_c > 0"),
     "schema 2": (_set("bundle_version", 2), "bundle_version = 2; expected 1"),
     "no hysteresis": (lambda d: (d.pop("hysteresis"), d)[1], "has no hysteresis section"),
@@ -227,13 +263,20 @@ def test_a_lead_longer_than_a_tenth_of_the_reference_is_refused(tmp_path):
     fs = 1e5
     t = np.arange(10) / fs
     pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 100, t.size)}).to_csv(tmp_path / "short.csv", index=False)
-    line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "short.csv", "--out", tmp_path / "d.csv"))
-    assert f"compensation.lead_s = {lead:.6g} s; expected less than {LEAD_MAX_FRACTION:g} of the reference's 9e-05 s" in line
+    line = one_error_line(
+        *invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "short.csv", "--out", tmp_path / "d.csv")
+    )
+    assert (
+        f"compensation.lead_s = {lead:.6g} s; expected less than {LEAD_MAX_FRACTION:g} of the reference's 9e-05 s"
+        in line
+    )
     # a reference ten leads long and more passes
     n = int(np.ceil(lead / LEAD_MAX_FRACTION * fs)) + 2
     t = np.arange(n) / fs
     pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 1, n)}).to_csv(tmp_path / "ok.csv", index=False)
-    code, out = invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "ok.csv", "--out", tmp_path / "d.csv")
+    code, out = invoke(
+        "compensate", "--bundle", BUNDLE, "--reference", tmp_path / "ok.csv", "--out", tmp_path / "d.csv"
+    )
     assert code == 0, out
 
 
@@ -242,8 +285,13 @@ def test_a_reference_faster_than_the_rig_is_refused_at_once(fs, tmp_path):
     """Issue 14: 100 rows at 1 MHz gave a constant drive; a reference at 1 GHz ran past 600 s."""
     t = np.arange(100) / fs
     pd.DataFrame({"t_s": t, "reference_n": np.linspace(0, 100, t.size)}).to_csv(tmp_path / "fast.csv", index=False)
-    line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "fast.csv", "--out", tmp_path / "d.csv"))
-    assert f"sample rate {fs:.6g} Hz is above the rig's maximum sample rate of 100000 Hz; expected at most 100000 Hz" in line
+    line = one_error_line(
+        *invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "fast.csv", "--out", tmp_path / "d.csv")
+    )
+    assert (
+        f"sample rate {fs:.6g} Hz is above the rig's maximum sample rate of 100000 Hz; expected at most 100000 Hz"
+        in line
+    )
 
 
 def test_a_long_lead_is_refused_by_validate_before_anything_runs(tmp_path):
@@ -261,9 +309,22 @@ def test_a_drive_range_outside_the_rigs_is_refused(tmp_path, ref_csv, tiny_plan)
     (tmp_path / "b.json").write_text(json.dumps(doc))
     rig = ROOT / "rigs" / "thesis-press.toml"
     expected = "compensation drive range -30 to 500 V; expected inside the rig's -30 to 150 V"
-    assert expected in one_error_line(*invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v"))
-    assert expected in one_error_line(*invoke("compensate", "--bundle", tmp_path / "b.json", "--rig", rig, "--reference", ref_csv,
-                                              "--out", tmp_path / "d.csv"))
+    assert expected in one_error_line(
+        *invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v")
+    )
+    assert expected in one_error_line(
+        *invoke(
+            "compensate",
+            "--bundle",
+            tmp_path / "b.json",
+            "--rig",
+            rig,
+            "--reference",
+            ref_csv,
+            "--out",
+            tmp_path / "d.csv",
+        )
+    )
 
 
 def _displacement_run(path: Path) -> Path:
@@ -286,13 +347,19 @@ def test_a_run_in_another_unit_than_the_bundle_is_refused(tmp_path):
 def test_a_reference_in_another_unit_names_the_column_it_needs(tmp_path):
     t = np.arange(500) / 1000.0
     pd.DataFrame({"t_s": t, "reference_um": np.linspace(0, 10, t.size)}).to_csv(tmp_path / "um.csv", index=False)
-    line = one_error_line(*invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "um.csv", "--out", tmp_path / "d.csv"))
+    line = one_error_line(
+        *invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "um.csv", "--out", tmp_path / "d.csv")
+    )
     assert "is in µm (displacement)" in line and "expected one unit: a force reference, column reference_n" in line
 
 
 def test_validate_refuses_a_drive_plan_read_as_references(tmp_path):
     """Issue 14: `validate --plan protocols/characterize.toml` read the `_v` keys as newtons."""
-    line = one_error_line(*invoke("validate", "--bundle", BUNDLE, "--plan", ROOT / "protocols" / "characterize.toml", "--out", tmp_path / "v"))
+    line = one_error_line(
+        *invoke(
+            "validate", "--bundle", BUNDLE, "--plan", ROOT / "protocols" / "characterize.toml", "--out", tmp_path / "v"
+        )
+    )
     assert "is in volts (_v); a reference plan's keys end in _n" in line and "expected a validation plan" in line
     assert not (tmp_path / "v").exists()
 
@@ -317,14 +384,29 @@ def test_a_creep_compensator_unstable_at_the_references_rate_is_refused(tmp_path
     """K_c > 0 and a positive long-time gain, but K_c + C(s) has zeros in the right half-plane
     (1 - 16 s + 10 s^2): its compensator diverges at every rate it would run."""
     doc = base_doc()
-    doc["creep"]["model"] = {"form": "poles", "static_gain": 1.0, "taus_s": [1.0, 10.0], "gains": [-3.0, 3.0], "params": {}}
+    doc["creep"]["model"] = {
+        "form": "poles",
+        "static_gain": 1.0,
+        "taus_s": [1.0, 10.0],
+        "gains": [-3.0, 3.0],
+        "params": {},
+    }
     (tmp_path / "b.json").write_text(json.dumps(doc))
     Bundle.from_dict(doc)  # nothing wrong with the numbers themselves
-    line = one_error_line(*invoke("compensate", "--bundle", tmp_path / "b.json", "--reference", ref_csv, "--out", tmp_path / "d.csv"))
-    assert "b.json: creep.model: creep compensator 1/(K_c + C) is unstable at fs_hz=1000" in line and "ramp.csv's rate 1000 Hz" in line
-    line = one_error_line(*invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v"))
+    line = one_error_line(
+        *invoke("compensate", "--bundle", tmp_path / "b.json", "--reference", ref_csv, "--out", tmp_path / "d.csv")
+    )
+    assert (
+        "b.json: creep.model: creep compensator 1/(K_c + C) is unstable at fs_hz=1000" in line
+        and "ramp.csv's rate 1000 Hz" in line
+    )
+    line = one_error_line(
+        *invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v")
+    )
     assert "is unstable at fs_hz=5000" in line and "protocol step-30n's rate 5000 Hz" in line
-    code, out = invoke("validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v2", "--no-creep")
+    code, out = invoke(
+        "validate", "--bundle", tmp_path / "b.json", "--plan", tiny_plan, "--out", tmp_path / "v2", "--no-creep"
+    )
     assert code == 0, out  # without the creep compensator nothing diverges
 
 
@@ -335,9 +417,18 @@ def test_creep_elements_may_cancel_with_large_gains_but_not_absurd_ones():
     from piezopress.analysis.bundle import MAX_CREEP_ELEMENT_GAIN
 
     doc = base_doc()
-    doc["creep"]["model"] = {"form": "poles", "static_gain": 1.0, "taus_s": [0.5, 0.6], "gains": [1797.5, -1797.49], "params": {}}
+    doc["creep"]["model"] = {
+        "form": "poles",
+        "static_gain": 1.0,
+        "taus_s": [0.5, 0.6],
+        "gains": [1797.5, -1797.49],
+        "params": {},
+    }
     b = Bundle.from_dict(doc, "b.json")
     assert b.creep.gains == (1797.5, -1797.49)
     doc["creep"]["model"]["gains"] = [10 * MAX_CREEP_ELEMENT_GAIN, 0.01]
-    with pytest.raises(BundleError, match=r"b.json: creep.model.gains\[0\] = 10000000.0; expected dimensionless gains within \[-1e\+06, 1e\+06\]"):
+    with pytest.raises(
+        BundleError,
+        match=r"b.json: creep.model.gains\[0\] = 10000000.0; expected dimensionless gains within \[-1e\+06, 1e\+06\]",
+    ):
         Bundle.from_dict(doc, "b.json")

@@ -31,7 +31,24 @@ SEED = 20261122
 #: The whole test's time limit (s); it takes about a third of it on an unloaded 2-core machine.
 TIME_LIMIT_S = 30.0
 
-BAD_VALUES = [float("nan"), float("inf"), float("-inf"), 1e300, -1e300, 1e-300, 0, -1, 1e9, -1e9, "12", None, True, [], {}, [1, "x"]]
+BAD_VALUES = [
+    float("nan"),
+    float("inf"),
+    float("-inf"),
+    1e300,
+    -1e300,
+    1e-300,
+    0,
+    -1,
+    1e9,
+    -1e9,
+    "12",
+    None,
+    True,
+    [],
+    {},
+    [1, "x"],
+]
 
 
 def _leaves(obj, path=()):
@@ -46,7 +63,13 @@ def _leaves(obj, path=()):
 
 
 #: Where corruption matters most: the models and settings (other leaves are picked too).
-MODEL_PREFIXES = (("hysteresis", "model"), ("creep", "model"), ("shaper", "shaper"), ("shaper", "mode"), ("compensation",))
+MODEL_PREFIXES = (
+    ("hysteresis", "model"),
+    ("creep", "model"),
+    ("shaper", "shaper"),
+    ("shaper", "mode"),
+    ("compensation",),
+)
 
 
 def _parent(doc, path):
@@ -141,7 +164,9 @@ def _check(res, what: str, outputs: list[tuple[Path, callable]]) -> str:
                 assert finite(path), f"{what}: non-finite value written to {path.name}"
         return "ok"
     lines = res.output.strip().splitlines()
-    assert res.exit_code in (1, 2) and lines and lines[-1].startswith("Error: "), f"{what}: exit {res.exit_code}: {res.output}"
+    assert res.exit_code in (1, 2) and lines and lines[-1].startswith("Error: "), (
+        f"{what}: exit {res.exit_code}: {res.output}"
+    )
     assert len([ln for ln in lines if ln.startswith("Error: ")]) == 1 and len(lines[-1]) < 600, f"{what}: {res.output}"
     return "error"
 
@@ -151,8 +176,10 @@ def test_corrupted_bundles_give_finite_output_or_one_line(tmp_path):
     ref = tmp_path / "ref.csv"
     pd.DataFrame({"t_s": t, "reference_n": 60.0 * (1 - np.cos(2 * np.pi * t))}).to_csv(ref, index=False)
     plan = tmp_path / "tiny.toml"
-    plan.write_text('[plan]\nname = "tiny"\npreload_n = 50.0\n\n[[protocol]]\nname = "step-30n"\nkind = "step"\nlevel_n = 30.0\n'
-                    'hold_s = 0.05\nsample_rate_hz = 5000.0\n')
+    plan.write_text(
+        '[plan]\nname = "tiny"\npreload_n = 50.0\n\n[[protocol]]\nname = "step-30n"\nkind = "step"\nlevel_n = 30.0\n'
+        "hold_s = 0.05\nsample_rate_hz = 5000.0\n"
+    )
     rng = np.random.default_rng(SEED)
     runner = CliRunner()
     outcomes = {"ok": 0, "error": 0}
@@ -164,18 +191,25 @@ def test_corrupted_bundles_give_finite_output_or_one_line(tmp_path):
         bundle = case / "bundle.json"
         bundle.write_bytes(data)
         label = f"case {i} ({what})"
-        res = runner.invoke(cli, ["compensate", "--bundle", str(bundle), "--reference", str(ref), "--out", str(case / "drive.csv")])
+        res = runner.invoke(
+            cli, ["compensate", "--bundle", str(bundle), "--reference", str(ref), "--out", str(case / "drive.csv")]
+        )
         outcomes[_check(res, f"{label} compensate", [(case / "drive.csv", _finite_csv)])] += 1
         res = runner.invoke(cli, ["simulate", str(STEP), "--bundle", str(bundle), "--out", str(case / "sim.parquet")])
         outcomes[_check(res, f"{label} simulate", [(case / "sim.parquet", _finite_run)])] += 1
         res = runner.invoke(cli, ["validate", "--bundle", str(bundle), "--plan", str(plan), "--out", str(case / "val")])
         outcomes[_check(res, f"{label} validate", [(case / "val" / "step-30n.parquet", _finite_run)])] += 1
         if i % 4 == 0:
-            res = runner.invoke(cli, ["diagnose", str(STEP), "--bundle", str(bundle), "--cause", "input_delay", "--out", str(case / "diag")])
+            res = runner.invoke(
+                cli,
+                ["diagnose", str(STEP), "--bundle", str(bundle), "--cause", "input_delay", "--out", str(case / "diag")],
+            )
             outcomes[_check(res, f"{label} diagnose", [(case / "diag" / "extended_bundle.json", _finite_json)])] += 1
     elapsed = time.perf_counter() - start
     # both outcomes occur: the generator corrupts, and not every corruption is fatal (a figure, a scaled weight)
-    assert outcomes["ok"] >= 0.05 * sum(outcomes.values()) and outcomes["error"] >= 0.5 * sum(outcomes.values()), outcomes
+    assert outcomes["ok"] >= 0.05 * sum(outcomes.values()) and outcomes["error"] >= 0.5 * sum(outcomes.values()), (
+        outcomes
+    )
     assert elapsed < TIME_LIMIT_S, f"{CASES} cases took {elapsed:.1f} s; expected under {TIME_LIMIT_S:g} s"
 
 

@@ -3,13 +3,12 @@
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
 from piezopress.acquisition.virtual_rig import VirtualRig
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import characterize as char
 
 SMALL_PLAN = """
@@ -148,7 +147,8 @@ def test_cli_prints_progress_and_table(tmp_path, plan):
     assert (tmp_path / "runs" / "characterization.csv").is_file()
 
 
-# --------------------------------------------------------------------------- backend from the rig file, progress (issue 12)
+# --------------------------------------------------------------------------- backend from the rig file, progress (issue
+# 12)
 
 
 def test_the_backend_comes_from_the_rig_file_unless_overridden(tmp_path):
@@ -160,7 +160,9 @@ def test_the_backend_comes_from_the_rig_file_unless_overridden(tmp_path):
     res = CliRunner().invoke(cli, ["characterize", "--rig", str(rig), "--out", str(tmp_path / "runs")])
     # the file names the nidaq backend: it is chosen (and, without the driver, says how to install it)
     assert res.exit_code != 0 and "nidaqmx" in res.output and "was asked for" not in res.output, res.output
-    res = CliRunner().invoke(cli, ["characterize", "--rig", str(rig), "--backend", "virtual", "--out", str(tmp_path / "runs")])
+    res = CliRunner().invoke(
+        cli, ["characterize", "--rig", str(rig), "--backend", "virtual", "--out", str(tmp_path / "runs")]
+    )
     assert res.exit_code != 0 and "the rig file is for backend 'nidaq'" in res.output, res.output
     assert not (tmp_path / "runs").exists()
 
@@ -170,9 +172,11 @@ def test_progress_gives_the_plan_total_up_front_and_the_backend_fractions(tmp_pa
 
     events = []
     plan = tmp_path / "plan.toml"
-    plan.write_text('[plan]\nname = "two"\n\n[[protocol]]\nname = "a"\nkind = "triangle"\nfreq_hz = 1.0\npeak_v = 20.0\n'
-                    'cycles = 2\nsample_rate_hz = 1000.0\n\n[[protocol]]\nname = "b"\nkind = "triangle"\nfreq_hz = 1.0\n'
-                    'peak_v = 30.0\ncycles = 1\nsample_rate_hz = 1000.0\n')
+    plan.write_text(
+        '[plan]\nname = "two"\n\n[[protocol]]\nname = "a"\nkind = "triangle"\nfreq_hz = 1.0\npeak_v = 20.0\n'
+        'cycles = 2\nsample_rate_hz = 1000.0\n\n[[protocol]]\nname = "b"\nkind = "triangle"\nfreq_hz = 1.0\n'
+        "peak_v = 30.0\ncycles = 1\nsample_rate_hz = 1000.0\n"
+    )
     char.characterize(tmp_path / "runs", plan_path=plan, on_progress=events.append)
     first = events[0]
     assert first.index == 1 and not first.done and first.fraction is None

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
+from piezopress.piezocli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,7 +49,9 @@ def test_fit_json_says_what_was_fitted_and_what_not_and_reports_stages(tmp_path)
 
 
 def test_validate_json_holds_the_table_rows(tmp_path):
-    res = _runner().invoke(cli, ["validate", "--bundle", str(ROOT / "sample_runs" / "bundle.json"), "--out", str(tmp_path / "v"), "--json"])
+    res = _runner().invoke(
+        cli, ["validate", "--bundle", str(ROOT / "sample_runs" / "bundle.json"), "--out", str(tmp_path / "v"), "--json"]
+    )
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     metrics = {(r["run"], r["metric"]) for r in doc["rows"]}

@@ -47,8 +47,15 @@ def test_the_slew_extension_never_asks_the_amplifier_for_more_than_its_slew(leve
     else:
         rng = np.random.default_rng(int(level))
         ref = np.clip(np.cumsum(rng.normal(0, level / 20, 2000)), 0, 300)
-    comp = C.Compensator(MODEL, shaper=design_shaper("zvd", WN, ZETA), max_rate_per_s=40_000.0, lead_s=3.6e-5, slew_v_per_s=slew,
-                         drive_min_v=-1e9, drive_max_v=1e9)
+    comp = C.Compensator(
+        MODEL,
+        shaper=design_shaper("zvd", WN, ZETA),
+        max_rate_per_s=40_000.0,
+        lead_s=3.6e-5,
+        slew_v_per_s=slew,
+        drive_min_v=-1e9,
+        drive_max_v=1e9,
+    )
     x = comp.drive(ref, fs).command_v
     assert np.max(np.abs(np.diff(x))) * fs <= C.SLEW_PROJECTION * slew * (1 + 1e-9)
 
@@ -103,9 +110,14 @@ def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead()
     # the base lead 2 zeta / wn had absorbed the delay; the extended lead is the refitted mode's plus the delay, once
     from piezopress.pipelines import diagnose as D
 
-    bundle = {"hysteresis": {"model": MODEL.to_dict()}, "compensation": {"lead_s": 2 * 0.5 / 3000.0},
-              "shaper": {"mode": {"natural_freq_rad_s": 3000.0, "damping": 0.5},
-                         "shaper": {"name": "zvd", **{k: v for k, v in _shaper_dict(3000.0, 0.5).items()}}}}
+    bundle = {
+        "hysteresis": {"model": MODEL.to_dict()},
+        "compensation": {"lead_s": 2 * 0.5 / 3000.0},
+        "shaper": {
+            "mode": {"natural_freq_rad_s": 3000.0, "damping": 0.5},
+            "shaper": {"name": "zvd", **{k: v for k, v in _shaper_dict(3000.0, 0.5).items()}},
+        },
+    }
     model = dg.Model(MODEL, wn=WN, zeta=ZETA, delay_s=3e-4)
     finding = dg.Finding("input_delay", "", 1.0, 0.1, 90.0, {"delay_s": 3e-4}, [], [], 100.0, 0.1, model)
     ext = D.extend_bundle(bundle, [finding], model)
@@ -116,23 +128,35 @@ def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead()
 
 def _shaper_dict(wn, zeta):
     sh = design_shaper("zvd", wn, zeta)
-    return {"times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes), "natural_freq_rad_s": sh.wn, "damping": sh.zeta,
-            "zv_power": sh.zv_power}
+    return {
+        "times_s": list(sh.times_s),
+        "amplitudes": list(sh.amplitudes),
+        "natural_freq_rad_s": sh.wn,
+        "damping": sh.zeta,
+        "zv_power": sh.zv_power,
+    }
 
 
 # --------------------------------------------------------------------------- rate-dependent hysteresis
 
 
-@pytest.mark.parametrize("form", [dict(widen_v_per_kv_s=0.15), dict(widen_v_per_kv_s=0.15, saturation_v_per_s=20_000.0),
-                                  dict(loss_per_kv_s=0.05)])
+@pytest.mark.parametrize(
+    "form",
+    [dict(widen_v_per_kv_s=0.15), dict(widen_v_per_kv_s=0.15, saturation_v_per_s=20_000.0), dict(loss_per_kv_s=0.05)],
+)
 @pytest.mark.parametrize("freq", [5.0, 50.0])
 def test_the_rate_aware_inverse_played_through_the_same_rate_model_gives_back_the_reference(form, freq):
     fs = 50_000.0
     rate = C.RateDependence(tau_s=5e-4, **form)
     ref = _triangle(freq, 250.0, fs)
     x, info = C.rate_aware_inverse(MODEL, ref, fs, rate)
-    model = dg.Model(MODEL, rate_v_per_kv_s=rate.widen_v_per_kv_s, rate_loss_per_kv_s=rate.loss_per_kv_s,
-                     rate_saturation_v_per_s=rate.saturation_v_per_s, rate_tau_s=rate.tau_s)
+    model = dg.Model(
+        MODEL,
+        rate_v_per_kv_s=rate.widen_v_per_kv_s,
+        rate_loss_per_kv_s=rate.loss_per_kv_s,
+        rate_saturation_v_per_s=rate.saturation_v_per_s,
+        rate_tau_s=rate.tau_s,
+    )
     run = dg.RunData("r", "triangle", np.arange(ref.size) / fs, x, np.zeros_like(x), fs)
     err = model.static(run) - ref  # the diagnosis's own forward model, at the drive's own rate
     z, _ = MODEL.inverse(ref)
@@ -151,7 +175,9 @@ def test_the_rate_aware_lead_ends_with_the_motion():
     z, _ = MODEL.inverse(ref)
     still = np.abs(np.diff(z, prepend=z[0])) == 0
     np.testing.assert_allclose(x[still], z[still])
-    assert np.all(((x - z) * np.sign(np.diff(z, prepend=z[0])))[~still] >= -1e-12)  # a lead in the direction of motion, never a lag
+    assert np.all(
+        ((x - z) * np.sign(np.diff(z, prepend=z[0])))[~still] >= -1e-12
+    )  # a lead in the direction of motion, never a lag
     assert np.max(np.abs(x - z)) > 0.5  # and a lead there is, while the ramp moves
 
 
@@ -170,8 +196,13 @@ def test_the_second_shaper_removes_the_second_modes_ringing():
         return float(np.max(np.abs(y[hold] - 100.0)))
 
     one = C.Compensator(linear, shaper=design_shaper("zv", WN, ZETA), drive_min_v=-1e9, drive_max_v=1e9)
-    two = C.Compensator(linear, shaper=design_shaper("zv", WN, ZETA), shaper2=design_shaper("zvd", wn2, z2),
-                        drive_min_v=-1e9, drive_max_v=1e9)
+    two = C.Compensator(
+        linear,
+        shaper=design_shaper("zv", WN, ZETA),
+        shaper2=design_shaper("zvd", wn2, z2),
+        drive_min_v=-1e9,
+        drive_max_v=1e9,
+    )
     assert ringing(one) > 0.5  # half a percent of the step rings through the second mode ...
     assert ringing(two) < 0.01 * ringing(one)  # ... and the second shaper takes it away
 
@@ -185,8 +216,14 @@ def _sample(base, ext):
 
 def test_the_verdict_asks_30_percent_where_the_effect_costs_that_much_and_nothing_worse():
     clean = {"overshoot": 0.3, "hysteresis_50hz": 0.4, "hysteresis_5hz": 0.4}
-    base = [{"overshoot": 3.0, "hysteresis_50hz": 20.0, "hysteresis_5hz": 0.40}, {"overshoot": 3.1, "hysteresis_50hz": 21.0, "hysteresis_5hz": 0.41}]
-    good = [{"overshoot": 0.5, "hysteresis_50hz": 2.0, "hysteresis_5hz": 0.40}, {"overshoot": 0.6, "hysteresis_50hz": 2.2, "hysteresis_5hz": 0.41}]
+    base = [
+        {"overshoot": 3.0, "hysteresis_50hz": 20.0, "hysteresis_5hz": 0.40},
+        {"overshoot": 3.1, "hysteresis_50hz": 21.0, "hysteresis_5hz": 0.41},
+    ]
+    good = [
+        {"overshoot": 0.5, "hysteresis_50hz": 2.0, "hysteresis_5hz": 0.40},
+        {"overshoot": 0.6, "hysteresis_50hz": 2.2, "hysteresis_5hz": 0.41},
+    ]
     res = G.combine([_sample(b, e) for b, e in zip(base, good)], clean, "amplifier_slew_limit")
     assert res.verdict()[0] is True
     assert res.row("overshoot").targeted and res.row("overshoot").hurt and not res.row("hysteresis_5hz").targeted
@@ -224,7 +261,9 @@ def test_the_random_force_plan_is_a_band_limited_trajectory_between_its_bounds()
 def test_the_slew_extension_gains_on_the_press(tmp_path):
     # one pass, the slew limit alone tried: overshoot and the 50 Hz loop recover; the other rows stay
     cfg = G.effect_rig("amplifier_slew_limit", seed=3)
-    res = G.compensated_gain(cfg, tmp_path / "g", cause="amplifier_slew_limit", seeds=1, causes=["amplifier_slew_limit"])
+    res = G.compensated_gain(
+        cfg, tmp_path / "g", cause="amplifier_slew_limit", seeds=1, causes=["amplifier_slew_limit"]
+    )
     assert res.applied == ("amplifier_slew_limit",)
     for row in ("overshoot", "hysteresis_50hz"):
         r = res.row(row)
@@ -255,12 +294,26 @@ def test_the_report_shows_the_table_when_the_diagnosis_directory_holds_it(tmp_pa
 
     from piezopress.pipelines import report
 
-    (tmp_path / "diagnosis.json").write_text(json.dumps({"summary": "amplifier_slew_limit (held-out gain 97 %)", "output_unit": "N",
-                                                         "residual_rms_n": 1.0, "noise_floor_n": 0.1, "findings": []}))
+    (tmp_path / "diagnosis.json").write_text(
+        json.dumps(
+            {
+                "summary": "amplifier_slew_limit (held-out gain 97 %)",
+                "output_unit": "N",
+                "residual_rms_n": 1.0,
+                "noise_floor_n": 0.1,
+                "findings": [],
+            }
+        )
+    )
     missing: list[str] = []
-    assert not any(isinstance(b, report.Table) and b.header == G.HEADER for b in report._diagnosis_blocks(tmp_path, missing))
-    res = G.combine([_sample({"overshoot": 3.0, "hysteresis_50hz": 20.0}, {"overshoot": 0.5, "hysteresis_50hz": 2.0})],
-                    {"overshoot": 0.3, "hysteresis_50hz": 0.4}, "amplifier_slew_limit")
+    assert not any(
+        isinstance(b, report.Table) and b.header == G.HEADER for b in report._diagnosis_blocks(tmp_path, missing)
+    )
+    res = G.combine(
+        [_sample({"overshoot": 3.0, "hysteresis_50hz": 20.0}, {"overshoot": 0.5, "hysteresis_50hz": 2.0})],
+        {"overshoot": 0.3, "hysteresis_50hz": 0.4},
+        "amplifier_slew_limit",
+    )
     G.write_csv([res], tmp_path / G.GAIN_CSV)
     blocks = report._diagnosis_blocks(tmp_path, missing)
     tables = [b for b in blocks if isinstance(b, report.Table) and b.header == G.HEADER]
@@ -273,15 +326,31 @@ def test_the_report_shows_the_table_when_the_diagnosis_directory_holds_it(tmp_pa
 def test_cli_diagnose_gain_writes_the_table_the_report_reads(tmp_path):
     from click.testing import CliRunner
 
-    from piezopress.piezocli.main import cli
     from piezopress.acquisition.virtual_rig import VirtualRig
+    from piezopress.piezocli.main import cli
     from piezopress.pipelines import characterize as char
 
     char.characterize(tmp_path / "char", backend=VirtualRig(G.effect_rig("amplifier_slew_limit", seed=5)))
     runner = CliRunner()
-    assert runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
-    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"),
-                              "--cause", "amplifier_slew_limit", "--gain", "--gain-seeds", "1"])
+    assert (
+        runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
+    )
+    res = runner.invoke(
+        cli,
+        [
+            "diagnose",
+            str(tmp_path / "char"),
+            "--bundle",
+            str(tmp_path / "b.json"),
+            "--out",
+            str(tmp_path / "d"),
+            "--cause",
+            "amplifier_slew_limit",
+            "--gain",
+            "--gain-seeds",
+            "1",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "The gain on the press" in res.output and "verdict: met" in res.output
     df = G.read_csv(tmp_path / "d" / G.GAIN_CSV)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
 from piezopress.analysis import hysteresis as H
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import summary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,7 +35,9 @@ def pipeline(tmp_path_factory):
     return tmp, {(r.run, r.metric): r.value for r in table.itertuples()}
 
 
-@pytest.mark.parametrize("run", ["tri-150n-0.1hz", "tri-225n-0.1hz", "tri-300n-0.1hz", "tri-increasing-0.1hz", "tri-random-0.1hz"])
+@pytest.mark.parametrize(
+    "run", ["tri-150n-0.1hz", "tri-225n-0.1hz", "tri-300n-0.1hz", "tri-increasing-0.1hz", "tri-random-0.1hz"]
+)
 def test_static_hysteresis_at_most_1_percent(pipeline, run):
     assert pipeline[1][(run, "max_hysteresis")] <= 1.0  # thesis Table 6.6: 1.33 to 2.99 %
 
@@ -95,22 +97,58 @@ def _import(tmp, args):
 @pytest.mark.skipif(not (DATASETS / "smarthysteresis").is_dir(), reason="shared data sets not found")
 def test_smarthysteresis_fitted_on_first_5_s_predicts_last_5_s_within_1_percent(tmp_path):
     out = tmp_path / "smart.parquet"
-    _import(tmp_path, [str(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"), "--out", str(out), "--no-header", "--kind", "sine",
-                       "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4", "--sample-rate", "5000"])
+    _import(
+        tmp_path,
+        [
+            str(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"),
+            "--out",
+            str(out),
+            "--no-header",
+            "--kind",
+            "sine",
+            "--col",
+            "t_s=2",
+            "--col",
+            "displacement_um=3",
+            "--col",
+            "command_v=4",
+            "--sample-rate",
+            "5000",
+        ],
+    )
     run = rf.read_run(out)
     data = H.prepare([(run.name, run.command_v, run.output)], holdout_fraction=0.5)  # train: 0-5 s, test: 5-10 s
     fit = H.fit_hysteresis(data, refit_all=False)
     assert fit.holdout_rms_pct <= 1.0  # a straight line scores about 5.4 %
     x, y = run.command_v, run.output
-    line = np.polyval(np.polyfit(x[: x.size // 2], y[: x.size // 2], 1), x[x.size // 2:]) - y[x.size // 2:]
+    line = np.polyval(np.polyfit(x[: x.size // 2], y[: x.size // 2], 1), x[x.size // 2 :]) - y[x.size // 2 :]
     assert 100 * np.sqrt(np.mean(line**2)) / fit.output_range > 5.0  # the baseline really is that bad
 
 
 @pytest.mark.skipif(not (DATASETS / "aye-ang-2018").is_dir(), reason="shared data sets not found")
 def test_aye_ang_data_fits_far_better_than_a_line(tmp_path):
     out = tmp_path / "aye.parquet"
-    _import(tmp_path, [str(DATASETS / "aye-ang-2018" / "Model_Vi_Do.dat"), "--out", str(out), "--no-header", "--delimiter", "tab",
-                       "--kind", "sine", "--col", "command_v=1", "--col", "displacement_um=5", "--lag", "displacement_um=1", "--sample-rate", "200"])
+    _import(
+        tmp_path,
+        [
+            str(DATASETS / "aye-ang-2018" / "Model_Vi_Do.dat"),
+            "--out",
+            str(out),
+            "--no-header",
+            "--delimiter",
+            "tab",
+            "--kind",
+            "sine",
+            "--col",
+            "command_v=1",
+            "--col",
+            "displacement_um=5",
+            "--lag",
+            "displacement_um=1",
+            "--sample-rate",
+            "200",
+        ],
+    )
     res = CliRunner().invoke(cli, ["fit-hysteresis", str(out), "--out", str(tmp_path / "h.json")])
     assert res.exit_code == 0, res.output
     fit = json.loads((tmp_path / "h.json").read_text())["fit"]

@@ -103,7 +103,10 @@ def test_to_dict_is_json_and_round_trips():
         ({"form": "poles", "static_gain": 1.0, "taus_s": [1.0], "gains": [0.1], "tau_s": 3}, "unknown key(s) tau_s"),
         ({"form": "poles", "static_gain": 1.0, "taus_s": [1.0]}, "missing key(s) gains"),
         ({"form": "linear", "static_gain": 1.0, "taus_s": [1.0], "gains": [0.1]}, "form is 'linear'"),
-        ({"form": "poles", "static_gain": 1.0, "taus_s": [1.0, 2.0], "gains": [0.1]}, "2 time constant(s) but 1 gain(s)"),
+        (
+            {"form": "poles", "static_gain": 1.0, "taus_s": [1.0, 2.0], "gains": [0.1]},
+            "2 time constant(s) but 1 gain(s)",
+        ),
         ({"form": "poles", "static_gain": 1.0, "taus_s": [-1.0], "gains": [0.1]}, "taus_s[0] is -1.0"),
         ({"form": "poles", "static_gain": float("nan"), "taus_s": [1.0], "gains": [0.1]}, "static_gain (K_c) is nan"),
     ],
@@ -353,8 +356,11 @@ def good_record(n=500):
         (lambda t, u, y: (t, u, y[:-1]), "t_s has 500 samples, u 500 and y 499; expected equal lengths"),
         (lambda t, u, y: (t[:20], u[:20], y[:20]), "t_s has 20 sample(s); expected at least 50"),
         (lambda t, u, y: (t, np.full(t.size, 300.0), y), "u has no step"),
-        (lambda t, u, y: (t, u, np.concatenate([y[:31], np.full(469, np.nan)])), "y has 469 NaN/infinite value(s), first at index 31"),
-        (lambda t, u, y: (t ** 1.01, u, y), "t_s is not uniform"),
+        (
+            lambda t, u, y: (t, u, np.concatenate([y[:31], np.full(469, np.nan)])),
+            "y has 469 NaN/infinite value(s), first at index 31",
+        ),
+        (lambda t, u, y: (t**1.01, u, y), "t_s is not uniform"),
         (lambda t, u, y: (t[::-1], u, y), "t_s is not strictly increasing at index 1"),
     ],
 )
@@ -396,7 +402,9 @@ def test_virtual_rig_creep_is_logarithmic_and_compensated():
     measured = VirtualRig(cfg).run(v, fs, preload_n=preload_n, label="c").channels["force_n"]
     # the same run (same label: same noise) without creep stands in for the hysteresis
     # model's prediction of the force
-    no_creep = VirtualRig(cfg.replace(creep={"enabled": False})).run(v, fs, preload_n=preload_n, label="c").channels["force_n"]
+    no_creep = (
+        VirtualRig(cfg.replace(creep={"enabled": False})).run(v, fs, preload_n=preload_n, label="c").channels["force_n"]
+    )
     u, y = no_creep - preload_n, measured - preload_n
 
     fit = fit_creep(t, u, y)

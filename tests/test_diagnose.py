@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress.acquisition.rig_config import EFFECTS, RigConfig, hidden_effect
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.analysis import diagnosis as dg
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import bundle as B
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import diagnose as D
@@ -67,7 +67,9 @@ def test_two_hidden_effects_are_both_found(tmp_path):
     result = run_diagnosis(tmp_path, cfg)
     named = [f.cause for f in result.findings]
     assert {"input_delay", "second_resonance"} <= set(named), result.summary
-    assert all(f.gain_pct >= MIN_TEST_GAIN_PCT for f in result.findings if f.cause in ("input_delay", "second_resonance"))
+    assert all(
+        f.gain_pct >= MIN_TEST_GAIN_PCT for f in result.findings if f.cause in ("input_delay", "second_resonance")
+    )
 
 
 @pytest.mark.slow
@@ -95,7 +97,11 @@ def test_unexplained_structure_is_listed_not_named():
     x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
     model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
     rng = np.random.default_rng(0)
-    y = model.predict(dg.RunData("r", "triangle", t, x, np.zeros_like(t), 1000.0)) + 3.0 * np.sin(2 * np.pi * 37 * t) + rng.normal(0, 0.1, t.size)
+    y = (
+        model.predict(dg.RunData("r", "triangle", t, x, np.zeros_like(t), 1000.0))
+        + 3.0 * np.sin(2 * np.pi * 37 * t)
+        + rng.normal(0, 0.1, t.size)
+    )
     run = dg.RunData("tone", "custom", t, x, y, 1000.0)
     result = dg.diagnose(model, [run])
     assert result.findings == []
@@ -109,9 +115,22 @@ def test_cli_diagnose_json_progress_and_simulate(tmp_path):
     text on stderr)."""
     runner = CliRunner()
     char.characterize(tmp_path / "char", backend=VirtualRig(RigConfig.only("input_delay", delay_s=3e-4)))
-    assert runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
+    assert (
+        runner.invoke(cli, ["fit", str(tmp_path / "char"), "--base", "--out", str(tmp_path / "b.json")]).exit_code == 0
+    )
     # --json: one document on stdout, the human lines on stderr
-    res = runner.invoke(cli, ["diagnose", str(tmp_path / "char"), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"), "--json"])
+    res = runner.invoke(
+        cli,
+        [
+            "diagnose",
+            str(tmp_path / "char"),
+            "--bundle",
+            str(tmp_path / "b.json"),
+            "--out",
+            str(tmp_path / "d"),
+            "--json",
+        ],
+    )
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert "Diagnosis: input_delay" in res.stderr and "held-out" in res.stderr and "Diagnosis:" not in res.stdout
@@ -123,10 +142,21 @@ def test_cli_diagnose_json_progress_and_simulate(tmp_path):
     written = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     assert set(doc) == set(written) | {"out_dir", "files"} and doc["findings"] == written["findings"]
     ext = json.loads((tmp_path / "d" / "extended_bundle.json").read_text())
-    assert "input_delay" in ext["extensions"] and ext["compensation"]["lead_s"] > 2e-4  # the delay belongs in the compensator
+    assert (
+        "input_delay" in ext["extensions"] and ext["compensation"]["lead_s"] > 2e-4
+    )  # the delay belongs in the compensator
     assert (tmp_path / "d" / "residuals.png").stat().st_size > 10_000
-    res = runner.invoke(cli, ["simulate", str(tmp_path / "char" / "step-50v.parquet"), "--bundle", str(tmp_path / "b.json"),
-                              "--out", str(tmp_path / "sim.parquet")])
+    res = runner.invoke(
+        cli,
+        [
+            "simulate",
+            str(tmp_path / "char" / "step-50v.parquet"),
+            "--bundle",
+            str(tmp_path / "b.json"),
+            "--out",
+            str(tmp_path / "sim.parquet"),
+        ],
+    )
     assert res.exit_code == 0, res.output
     from piezopress import runformat as rf
 
@@ -136,13 +166,26 @@ def test_cli_diagnose_json_progress_and_simulate(tmp_path):
 
 def test_an_unknown_cause_is_one_clear_line_before_anything_is_read(tmp_path):
     (tmp_path / "b.json").write_text("{}")
-    res = CliRunner().invoke(cli, ["diagnose", str(tmp_path), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d"),
-                                   "--cause", "bogus"])
+    res = CliRunner().invoke(
+        cli,
+        [
+            "diagnose",
+            str(tmp_path),
+            "--bundle",
+            str(tmp_path / "b.json"),
+            "--out",
+            str(tmp_path / "d"),
+            "--cause",
+            "bogus",
+        ],
+    )
     assert res.exit_code == 2
     lines = [ln for ln in res.output.splitlines() if ln.startswith("Error")]
     assert len(lines) == 1 and "'bogus'" in lines[0] and "input_delay" in lines[0], res.output
     assert not (tmp_path / "d").exists()
-    with pytest.raises(D.UnknownCauseError, match="'bogus' is not in the catalogue; expected one of rate_dependent_hysteresis"):
+    with pytest.raises(
+        D.UnknownCauseError, match="'bogus' is not in the catalogue; expected one of rate_dependent_hysteresis"
+    ):
         D.diagnose([tmp_path], tmp_path / "b.json", tmp_path / "d", causes=["bogus"])
     with pytest.raises(ValueError, match="'bogus'"):
         dg.diagnose(dg.Model(dg.H.PIModel((0.0,), (1.0,), (0.0,), (1.0,))), [], causes=["input_delay", "bogus"])
@@ -157,7 +200,9 @@ def test_progress_is_reported_for_every_cause_tried_in_every_pass():
     t = np.arange(4000) / 1000.0
     x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
     model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
-    y = model.predict(dg.RunData("r", "triangle", t, x, np.zeros_like(t), 1000.0)) + np.random.default_rng(0).normal(0, 0.1, t.size)
+    y = model.predict(dg.RunData("r", "triangle", t, x, np.zeros_like(t), 1000.0)) + np.random.default_rng(0).normal(
+        0, 0.1, t.size
+    )
     events = []
     result = dg.diagnose(model, [dg.RunData("slow", "custom", t, x, y, 1000.0)], on_progress=events.append)
     tried = [t_["cause"] for t_ in result.tested]
@@ -182,8 +227,12 @@ def test_the_progress_printer_draws_a_line_per_cause_on_a_terminal(monkeypatch):
     out = Tty()
     monkeypatch.setattr(sys, "stderr", out)
     show = cmd_diagnose._progress_printer(err=True)
-    for ev in (dg.CauseProgress(1, 1, 2, "input_delay", False), dg.CauseProgress(1, 1, 2, "input_delay", True, 91.6, True),
-               dg.CauseProgress(1, 2, 2, "second_resonance", False), dg.CauseProgress(1, 2, 2, "second_resonance", True)):
+    for ev in (
+        dg.CauseProgress(1, 1, 2, "input_delay", False),
+        dg.CauseProgress(1, 1, 2, "input_delay", True, 91.6, True),
+        dg.CauseProgress(1, 2, 2, "second_resonance", False),
+        dg.CauseProgress(1, 2, 2, "second_resonance", True),
+    ):
         show(ev)
     lines = out.getvalue().split("\n")
     assert lines[0].endswith("held-out gain 92 % (a finding)") and "[pass 1, 1/2] input_delay" in lines[0]
@@ -199,11 +248,36 @@ DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "s
 def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
     runner = CliRunner()
     run = tmp_path / "smart.parquet"
-    assert runner.invoke(cli, ["import", str(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"), "--out", str(run), "--no-header",
-                               "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4",
-                               "--sample-rate", "5000"]).exit_code == 0
+    assert (
+        runner.invoke(
+            cli,
+            [
+                "import",
+                str(DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"),
+                "--out",
+                str(run),
+                "--no-header",
+                "--kind",
+                "sine",
+                "--col",
+                "t_s=2",
+                "--col",
+                "displacement_um=3",
+                "--col",
+                "command_v=4",
+                "--sample-rate",
+                "5000",
+            ],
+        ).exit_code
+        == 0
+    )
     assert runner.invoke(cli, ["fit-hysteresis", str(run), "--out", str(tmp_path / "h.json")]).exit_code == 0
-    assert runner.invoke(cli, ["bundle", "--hysteresis", str(tmp_path / "h.json"), "--out", str(tmp_path / "b.json")]).exit_code == 0
+    assert (
+        runner.invoke(
+            cli, ["bundle", "--hysteresis", str(tmp_path / "h.json"), "--out", str(tmp_path / "b.json")]
+        ).exit_code
+        == 0
+    )
     res = runner.invoke(cli, ["diagnose", str(run), "--bundle", str(tmp_path / "b.json"), "--out", str(tmp_path / "d")])
     assert res.exit_code == 0, res.output
     assert " µm RMS" in res.output and " N RMS" not in res.output

@@ -23,12 +23,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress.acquisition.plan import load_plan
 from piezopress.acquisition.rig_config import RigConfig, hidden_effect, load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.hysteresis import PIModel
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import diagnose as D
 from piezopress.pipelines import next_plan as NP
@@ -67,10 +67,14 @@ def invoke(*args):
 
 def rig_toml(cfg: RigConfig) -> str:
     """A rig file holding ``cfg`` (every value a scalar)."""
+
     def value(v):
         return ("true" if v else "false") if isinstance(v, bool) else f'"{v}"' if isinstance(v, str) else repr(v)
 
-    return "\n".join(f"[{sec}]\n" + "\n".join(f"{k} = {value(v)}" for k, v in keys.items()) + "\n" for sec, keys in cfg.as_dict().items())
+    return "\n".join(
+        f"[{sec}]\n" + "\n".join(f"{k} = {value(v)}" for k, v in keys.items()) + "\n"
+        for sec, keys in cfg.as_dict().items()
+    )
 
 
 def pi_run(name: str, n: int, fs: float = 1000.0, freq: float = 0.5, kind: str = "sine", seed: int = 0) -> dg.RunData:
@@ -96,7 +100,9 @@ def test_every_cause_declares_its_needs_and_says_what_is_missing():
     rate = dg.testability(dg.CAUSES["rate_dependent_hysteresis"], ctx)
     assert not rate.testable
     assert "at >= 5 Hz" in rate.needs and "not used by the base fit" in rate.needs
-    assert "one sine at 1 Hz, 200 Hz sampling" in rate.have  # measured from the drive, not recorded and "used by the base fit" in rate.have
+    assert (
+        "one sine at 1 Hz, 200 Hz sampling" in rate.have
+    )  # measured from the drive, not recorded and "used by the base fit" in rate.have
     mode2 = dg.testability(dg.CAUSES["second_resonance"], ctx)
     assert not mode2.testable and "sampled at >= 5 kHz" in mode2.needs and "no mode in the bundle" in mode2.have
     # a delay is tried on any sweep whose drive rate makes a lag of a few samples visible
@@ -109,7 +115,10 @@ def test_a_cause_declared_untestable_has_nothing_to_fit():
     runs, its needs in CAUSES must say so, or what it could find is hidden)."""
     pi = PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0)
     t = np.arange(3000) / 20_000.0
-    steps = [dg.RunData(f"step-{v}v", "step", t, np.where(t > 0.01, float(v), 0.0), np.zeros_like(t), 20_000.0) for v in (20, 150)]
+    steps = [
+        dg.RunData(f"step-{v}v", "step", t, np.where(t > 0.01, float(v), 0.0), np.zeros_like(t), 20_000.0)
+        for v in (20, 150)
+    ]
     steps = [dataclasses.replace(r, y=dg.Model(pi, wn=6440.0, zeta=0.1).predict(r)) for r in steps]
     cases = [
         (dg.Model(pi), [pi_run("slow", 8000, fs=200.0, freq=1.0)], {"slow"}),  # one imported sine, fitted
@@ -120,7 +129,9 @@ def test_a_cause_declared_untestable_has_nothing_to_fit():
         ctx = dg.Context(runs, model, frozenset(fitted), {r.name: max(dg.noise_floor(r.y), 1e-3) for r in runs})
         for cause in dg.CAUSES.values():
             if not dg.testability(cause, ctx).testable:
-                assert cause.run(ctx) is None, f"{cause.id} found something to fit on runs its needs exclude ({[r.name for r in runs]})"
+                assert cause.run(ctx) is None, (
+                    f"{cause.id} found something to fit on runs its needs exclude ({[r.name for r in runs]})"
+                )
 
 
 def test_untested_causes_are_listed_and_no_cause_explains_is_said_only_of_those_tried():
@@ -128,7 +139,11 @@ def test_untested_causes_are_listed_and_no_cause_explains_is_said_only_of_those_
     model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
     t = np.arange(4000) / 1000.0
     x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
-    y = model.predict(dg.RunData("r", "sine", t, x, x, 1000.0)) + 3.0 * np.sin(2 * np.pi * 37 * t) + np.random.default_rng(0).normal(0, 0.1, t.size)
+    y = (
+        model.predict(dg.RunData("r", "sine", t, x, x, 1000.0))
+        + 3.0 * np.sin(2 * np.pi * 37 * t)
+        + np.random.default_rng(0).normal(0, 0.1, t.size)
+    )
     result = dg.diagnose(model, [dg.RunData("slow", "sine", t, x, y, 1000.0)], ["slow"])
     doc = result.as_dict()
     tried = [t["cause"] for t in doc["tested"]]
@@ -151,7 +166,8 @@ def test_a_poor_base_fit_is_said_and_every_cause_still_tested():
     result = dg.diagnose(poor, [run], ["slow"])
     assert result.base_fit["poor"] and result.base_fit["ratio"] > dg.POOR_FIT_RATIO
     assert "the base fit is poor" in result.summary
-    # what the runs allow (a 40 s sine: delay, hysteresis order, and drift, which any run of 25 s or more shows), tried all the same
+    # what the runs allow (a 40 s sine: delay, hysteresis order, and drift, which any run of 25 s or more shows), tried
+    # all the same
     assert {t["cause"] for t in result.tested} == {"input_delay", "hysteresis_order", "sensor_offset_drift"}
 
 
@@ -165,7 +181,9 @@ def test_a_delay_is_found_on_a_slow_sine_the_base_was_fitted_on():
     run = dg.RunData("sine", "sine", t, x, y, fs)
     from piezopress.analysis import hysteresis as H
 
-    fitted = H.fit_hysteresis(H.prepare([("sine", x, y)]), [H.Candidate(4, 1.0, 1)]).final_model  # the lag widens this loop
+    fitted = H.fit_hysteresis(
+        H.prepare([("sine", x, y)]), [H.Candidate(4, 1.0, 1)]
+    ).final_model  # the lag widens this loop
     result = dg.diagnose(dg.Model(fitted), [run], ["sine"])
     assert result.findings and result.findings[0].cause == "input_delay", result.summary
     assert result.findings[0].parameters["delay_s"] == pytest.approx(3 / fs, abs=0.6 / fs)
@@ -196,7 +214,9 @@ def test_the_next_plan_reveals_an_effect_the_first_plan_could_not(tmp_path, effe
     plan = load_plan(plan_file, load_rig(tmp_path / "rig.toml").limits)  # the rig's limits respected
     assert effect in doc["next_plan"]["serves"] and doc["next_plan"]["rig"]["from_runs"]
     text = plan_file.read_text()
-    assert any(effect in line for line in text.splitlines() if line.startswith("# --- serves"))  # a comment names what each group serves
+    assert any(
+        effect in line for line in text.splitlines() if line.startswith("# --- serves")
+    )  # a comment names what each group serves
     assert f"--rig {tmp_path / 'rig.toml'}" in text
     assert all(p.name not in ("triangle-0.1hz", "triangle-increasing-0.1hz") for p in plan.protocols)
 
@@ -238,10 +258,33 @@ def test_runs_that_share_a_name_never_crash(tmp_path):
     src = tmp_path / "segments.csv"
     src.write_text("\n".join(f"{a:.6f},{b:.6f}" for a, b in zip(x, y)) + "\n")
     for rows, out in (("0:2200", "a.parquet"), ("3000:4800", "b.parquet")):
-        invoke("import", src, "--out", tmp_path / out, "--no-header", "--kind", "sine", "--col", "command_v=1", "--col", "displacement_um=2",
-               "--sample-rate", fs, "--rows", rows)
+        invoke(
+            "import",
+            src,
+            "--out",
+            tmp_path / out,
+            "--no-header",
+            "--kind",
+            "sine",
+            "--col",
+            "command_v=1",
+            "--col",
+            "displacement_um=2",
+            "--sample-rate",
+            fs,
+            "--rows",
+            rows,
+        )
     invoke("fit", tmp_path / "a.parquet", "--base", "--out", tmp_path / "base.json")
-    out = invoke("diagnose", tmp_path / "a.parquet", tmp_path / "b.parquet", "--bundle", tmp_path / "base.json", "--out", tmp_path / "d")
+    out = invoke(
+        "diagnose",
+        tmp_path / "a.parquet",
+        tmp_path / "b.parquet",
+        "--bundle",
+        tmp_path / "base.json",
+        "--out",
+        tmp_path / "d",
+    )
     doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     names = [r["run"] for r in doc["runs_before"]]
     assert len(names) == 2 and len(set(names)) == 2 and all(n.startswith("segments") for n in names), names
@@ -249,8 +292,12 @@ def test_runs_that_share_a_name_never_crash(tmp_path):
     # the base was fitted on a.parquet only: b.parquet, same name, is independent
     result, _ = D.diagnose([tmp_path / "a.parquet", tmp_path / "b.parquet"], tmp_path / "base.json", tmp_path / "d2")
     runs = D.diagnosis_runs(D.collect_runs([tmp_path / "a.parquet", tmp_path / "b.parquet"]))
-    ctx = dg.Context(runs, D.base_model(D.read_document(tmp_path / "base.json", "bundle")),
-                     frozenset(D.fitted_run_keys(D.read_document(tmp_path / "base.json", "bundle"))), {})
+    ctx = dg.Context(
+        runs,
+        D.base_model(D.read_document(tmp_path / "base.json", "bundle")),
+        frozenset(D.fitted_run_keys(D.read_document(tmp_path / "base.json", "bundle"))),
+        {},
+    )
     assert [ctx.is_fitted(r) for r in runs] == [True, False]
     assert [ctx.pred(r).size for r in runs] == [2200, 1800]
 
@@ -287,16 +334,26 @@ def test_the_catalogue_is_the_one_source_of_what_the_compensator_applies(tmp_pat
     assert set(PARAMS) == set(dg.CAUSES)
     bundle = json.loads((ROOT / "sample_runs" / "base-bundle.json").read_text())
     base = D.base_model(bundle)
-    richer = PIModel(tuple(base.hysteresis.r) + (base.hysteresis.r[-1] + 10.0,), tuple(base.hysteresis.w) + (0.01,), base.hysteresis.d, base.hysteresis.s,
-                     x0=base.hysteresis.x0, y0=base.hysteresis.y0, input_unit=base.hysteresis.input_unit, output_unit=base.hysteresis.output_unit)
+    richer = PIModel(
+        tuple(base.hysteresis.r) + (base.hysteresis.r[-1] + 10.0,),
+        tuple(base.hysteresis.w) + (0.01,),
+        base.hysteresis.d,
+        base.hysteresis.s,
+        x0=base.hysteresis.x0,
+        y0=base.hysteresis.y0,
+        input_unit=base.hysteresis.input_unit,
+        output_unit=base.hysteresis.output_unit,
+    )
     bookkeeping = {"extensions", "extensions_applied_by_compensator", "extensions_recorded_only"}
     for cid, params in PARAMS.items():
         model = dataclasses.replace(base, hysteresis=richer) if cid == "hysteresis_order" else base
         ext = D.extend_bundle(bundle, [_finding(cid, model, params)])
         changed = {k for k in set(ext) | set(bundle) if k not in bookkeeping and ext.get(k) != bundle.get(k)}
         assert bool(changed) == dg.CAUSES[cid].in_compensator, (
-            f"{cid}: the catalogue says in_compensator={dg.CAUSES[cid].in_compensator} but extend_bundle changes {sorted(changed) or 'nothing'}; "
-            "flip the flag in piezopress/analysis/diagnosis.py CAUSES (the one place)")
+            f"{cid}: the catalogue says in_compensator={dg.CAUSES[cid].in_compensator} but extend_bundle changes "
+            f"{sorted(changed) or 'nothing'}; "
+            "flip the flag in piezopress/analysis/diagnosis.py CAUSES (the one place)"
+        )
         assert ext["extensions_applied_by_compensator"] == ([cid] if dg.CAUSES[cid].in_compensator else [])
         assert ext["extensions_recorded_only"] == ([] if dg.CAUSES[cid].in_compensator else [cid])
 
@@ -309,13 +366,17 @@ def test_diagnosis_json_and_the_report_read_the_catalogue(tmp_path):
     result, out = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "d")
     doc = json.loads((out / "diagnosis.json").read_text())
     ext = json.loads((out / "extended_bundle.json").read_text())
-    assert {c: v["in_compensator"] for c, v in doc["causes"].items()} == {c.id: c.in_compensator for c in dg.CAUSES.values()}
+    assert {c: v["in_compensator"] for c, v in doc["causes"].items()} == {
+        c.id: c.in_compensator for c in dg.CAUSES.values()
+    }
     assert all(doc["causes"][c]["needs"] for c in dg.CAUSES)
     named = [f["cause"] for f in doc["findings"]]
     assert "input_delay" in named
     assert ext["extensions_applied_by_compensator"] == sorted(c for c in named if dg.CAUSES[c].in_compensator)
     assert ext["extensions_recorded_only"] == sorted(c for c in named if not dg.CAUSES[c].in_compensator)
-    assert not doc["not_tested"] and doc["next_plan"] is None and not (out / "next-plan.toml").exists()  # the default plan tests all
+    assert (
+        not doc["not_tested"] and doc["next_plan"] is None and not (out / "next-plan.toml").exists()
+    )  # the default plan tests all
     blocks = R._diagnosis_blocks(out, [])
     table = next(b for b in blocks if isinstance(b, R.Table))
     col = table.header.index("compensator")
@@ -351,11 +412,40 @@ def test_residual_traces_have_one_row_per_run_kind_and_say_what_is_clipped():
 DATASETS = ROOT.parent / "shared" / "datasets"
 SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
 AYE = DATASETS / "aye-ang-2018" / "Model_Vi_Do.dat"
-IMPORTS = {  # the README's commands; SmartHysteresis cut to its first 6 s (the rest at 0 V and three cycles) to keep it fast
-    "smart": [SMART, "--no-header", "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4",
-              "--sample-rate", "5000", "--rows", "0:30000"],
-    "aye": [AYE, "--no-header", "--delimiter", "tab", "--kind", "sine", "--col", "command_v=1", "--col", "displacement_um=5",
-            "--lag", "displacement_um=1", "--sample-rate", "200"],
+# the README's commands; SmartHysteresis cut to its first 6 s (the rest at 0 V and three cycles) to keep it fast
+IMPORTS = {
+    "smart": [
+        SMART,
+        "--no-header",
+        "--kind",
+        "sine",
+        "--col",
+        "t_s=2",
+        "--col",
+        "displacement_um=3",
+        "--col",
+        "command_v=4",
+        "--sample-rate",
+        "5000",
+        "--rows",
+        "0:30000",
+    ],
+    "aye": [
+        AYE,
+        "--no-header",
+        "--delimiter",
+        "tab",
+        "--kind",
+        "sine",
+        "--col",
+        "command_v=1",
+        "--col",
+        "displacement_um=5",
+        "--lag",
+        "displacement_um=1",
+        "--sample-rate",
+        "200",
+    ],
 }
 
 

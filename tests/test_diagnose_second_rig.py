@@ -15,17 +15,16 @@ press gives no finding. ``bench/bench_diagnose.py --rig second`` runs the same o
 import tomllib
 from pathlib import Path
 
+import independent_press as ip
 import numpy as np
 import pytest
 
 from piezopress.analysis import diagnosis as dg
-from piezopress.resources import shipped
 from piezopress.pipelines import bundle as B
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import diagnose as D
 from piezopress.pipelines import fit as F
-
-import independent_press as ip
+from piezopress.resources import shipped
 
 HERE = Path(__file__).resolve().parent
 SEED = 20261122

@@ -31,4 +31,3 @@ def test_fit_bundle_is_what_fit_writes_with_the_rigs_drive_range(tmp_path):
     assert written["compensation"] == comp
     assert written["hysteresis"]["model"] == fitted.doc["hysteresis"]["model"]  # the same fit, to the last digit
     assert ("creep" in written) == ("creep" in fitted.doc)
-

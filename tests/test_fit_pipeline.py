@@ -1,16 +1,16 @@
 """Fit stages, bundle files and `compensate`: selection of runs, errors, no silent overwrite."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress.analysis.compensation import Compensator
 from piezopress.analysis.hysteresis import PIModel
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import characterize as char
 
 PLAN = """
@@ -73,8 +73,17 @@ def test_stages_pick_their_runs_and_record_provenance(runs, tmp_path):
     s = json.loads((tmp_path / "s.json").read_text())
     assert [r["name"] for r in s["runs"]] == ["step-20v"]  # the low-amplitude step only
     assert s["mode"]["drive_used"] == "monitor_v"
-    res = invoke("bundle", "--hysteresis", tmp_path / "h.json", "--creep", tmp_path / "c.json", "--shaper", tmp_path / "s.json",
-                 "--out", tmp_path / "b.json")
+    res = invoke(
+        "bundle",
+        "--hysteresis",
+        tmp_path / "h.json",
+        "--creep",
+        tmp_path / "c.json",
+        "--shaper",
+        tmp_path / "s.json",
+        "--out",
+        tmp_path / "b.json",
+    )
     assert res.exit_code == 0, res.output
     b = json.loads((tmp_path / "b.json").read_text())
     assert b["compensation"]["drive_min_v"] == -30.0 and b["compensation"]["lead_s"] > 0
@@ -92,7 +101,14 @@ def test_outputs_are_never_overwritten_silently(runs, tmp_path):
 
 
 def test_clear_errors_for_unsuitable_runs(runs, tmp_path):
-    res = invoke("fit-creep", runs / "char" / "tri.parquet", "--hysteresis", tmp_path / "missing.json", "--out", tmp_path / "c.json")
+    res = invoke(
+        "fit-creep",
+        runs / "char" / "tri.parquet",
+        "--hysteresis",
+        tmp_path / "missing.json",
+        "--out",
+        tmp_path / "c.json",
+    )
     assert res.exit_code == 1 and "missing.json: no such file" in res.output
     res = invoke("fit-hysteresis", runs / "char" / "step-20v.parquet", "--out", tmp_path / "h.json")
     assert res.exit_code == 1 and "no quasi-static sweep" in res.output and "Traceback" not in res.output
@@ -104,16 +120,30 @@ def test_compensate_writes_the_drive_and_warns_when_unreachable(runs, tmp_path):
     assert invoke("fit", runs / "char", "--out", tmp_path / "b.json").exit_code == 0
     t = np.arange(2000) / 1000.0
     pd.DataFrame({"t_s": t, "reference_n": np.minimum(t * 200.0, 100.0)}).to_csv(tmp_path / "ref.csv", index=False)
-    res = invoke("compensate", "--bundle", tmp_path / "b.json", "--reference", tmp_path / "ref.csv", "--out", tmp_path / "drive.csv")
+    res = invoke(
+        "compensate",
+        "--bundle",
+        tmp_path / "b.json",
+        "--reference",
+        tmp_path / "ref.csv",
+        "--out",
+        tmp_path / "drive.csv",
+    )
     assert res.exit_code == 0, res.output
     drive = pd.read_csv(tmp_path / "drive.csv")
-    assert list(drive.columns) == ["t_s", "reference_n", "command_v"] and drive.command_v.iloc[-1] == pytest.approx(50.0, abs=8)
+    assert list(drive.columns) == ["t_s", "reference_n", "command_v"] and drive.command_v.iloc[-1] == pytest.approx(
+        50.0, abs=8
+    )
     pd.DataFrame({"t_s": t, "reference_n": np.full(t.size, 2000.0)}).to_csv(tmp_path / "big.csv", index=False)
-    res = invoke("compensate", "--bundle", tmp_path / "b.json", "--reference", tmp_path / "big.csv", "--out", tmp_path / "d2.csv")
+    res = invoke(
+        "compensate", "--bundle", tmp_path / "b.json", "--reference", tmp_path / "big.csv", "--out", tmp_path / "d2.csv"
+    )
     assert res.exit_code == 0 and "cannot be reached" in res.output
     assert pd.read_csv(tmp_path / "d2.csv").command_v.max() <= 150.0
     pd.DataFrame({"time": t}).to_csv(tmp_path / "bad.csv", index=False)
-    res = invoke("compensate", "--bundle", tmp_path / "b.json", "--reference", tmp_path / "bad.csv", "--out", tmp_path / "d3.csv")
+    res = invoke(
+        "compensate", "--bundle", tmp_path / "b.json", "--reference", tmp_path / "bad.csv", "--out", tmp_path / "d3.csv"
+    )
     assert res.exit_code == 1 and "missing column t_s, reference_n" in res.output
 
 

@@ -22,9 +22,10 @@ import math
 import sys
 import time
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -47,8 +48,28 @@ CASE_BYTES = 100_000
 #: Address space allowed above what the test process uses when the fuzzing starts.
 MEMORY_HEADROOM = 3 << 30
 
-HOSTILE: list[Any] = [0, -1, 0.5, 1e-300, 1e300, -1e300, math.nan, math.inf, -math.inf, 10**12, -(10**12), 2**63 - 1,
-                      "x", "", "../../etc", True, [], [1.0, "a"], {}, {"a": 1}]
+HOSTILE: list[Any] = [
+    0,
+    -1,
+    0.5,
+    1e-300,
+    1e300,
+    -1e300,
+    math.nan,
+    math.inf,
+    -math.inf,
+    10**12,
+    -(10**12),
+    2**63 - 1,
+    "x",
+    "",
+    "../../etc",
+    True,
+    [],
+    [1.0, "a"],
+    {},
+    {"a": 1},
+]
 
 # --------------------------------------------------------------------------- writers
 
@@ -70,8 +91,11 @@ def toml_value(v: Any) -> str:
 
 
 def toml_dump(doc: dict[str, Any]) -> str:
-    lines = [f"{json.dumps(k)} = {toml_value(v)}" for k, v in doc.items()
-             if not isinstance(v, dict) and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v))]
+    lines = [
+        f"{json.dumps(k)} = {toml_value(v)}"
+        for k, v in doc.items()
+        if not isinstance(v, dict) and not (isinstance(v, list) and v and all(isinstance(x, dict) for x in v))
+    ]
     for k, v in doc.items():
         if isinstance(v, dict):
             lines.append(f"[{json.dumps(k)}]")
@@ -144,7 +168,9 @@ def run_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
         label += f"no {col}"
     elif how == 3:
         extra = rng.choice(["str", "float", "int", "nan"])
-        cols["extra"] = {"str": np.full(n, "x"), "float": np.ones(n), "int": np.arange(n), "nan": np.full(n, np.nan)}[str(extra)]
+        cols["extra"] = {"str": np.full(n, "x"), "float": np.ones(n), "int": np.arange(n), "nan": np.full(n, np.nan)}[
+            str(extra)
+        ]
         label += f"extra {extra} column"
     elif how == 4:
         keep = int(rng.choice([0, 1, 2, 3]))
@@ -176,13 +202,19 @@ def run_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
         path.write_bytes(corrupt_bytes(rng, path.read_bytes()))
         label += "file bytes corrupted"
     sim = d / f"sim{i}.parquet"
-    return [Case(label + " | inspect", ["inspect", str(path)], []),
-            Case(label + " | simulate", ["simulate", str(path), "--bundle", str(BUNDLE), "--out", str(sim)], [sim])]
+    return [
+        Case(label + " | inspect", ["inspect", str(path)], []),
+        Case(label + " | simulate", ["simulate", str(path), "--bundle", str(BUNDLE), "--out", str(sim)], [sim]),
+    ]
 
 
-DRIVE_PLAN = {"plan": {"name": "tiny", "preload_n": 50.0},
-              "protocol": [{"name": "tri", "kind": "triangle", "freq_hz": 10.0, "cycles": 1, "peak_v": 50.0, "sample_rate_hz": 1000.0},
-                           {"name": "step", "kind": "step", "level_v": 20.0, "hold_s": 0.05, "sample_rate_hz": 2000.0}]}
+DRIVE_PLAN = {
+    "plan": {"name": "tiny", "preload_n": 50.0},
+    "protocol": [
+        {"name": "tri", "kind": "triangle", "freq_hz": 10.0, "cycles": 1, "peak_v": 50.0, "sample_rate_hz": 1000.0},
+        {"name": "step", "kind": "step", "level_v": 20.0, "hold_s": 0.05, "sample_rate_hz": 2000.0},
+    ],
+}
 
 
 def mutate_plan(rng: np.random.Generator, doc: dict[str, Any], suffix: str) -> tuple[dict[str, Any], str]:
@@ -203,8 +235,14 @@ def mutate_plan(rng: np.random.Generator, doc: dict[str, Any], suffix: str) -> t
         p["name"] = name
         return doc, f"name {name[:20]!r}"
     if how == 4:
-        key = str(rng.choice(["hold_s", f"peak{suffix}", "cycles", "freq_hz", "sample_rate_hz", f"level{suffix}", "random_peaks"]))
-        value = {"random_peaks": {"count": 10**12, f"min{suffix}": 0, f"max{suffix}": 10, "seed": 1}}.get(key, rng.choice([1e5, 1e7, 1e-5, 10**9]))
+        key = str(
+            rng.choice(
+                ["hold_s", f"peak{suffix}", "cycles", "freq_hz", "sample_rate_hz", f"level{suffix}", "random_peaks"]
+            )
+        )
+        value = {"random_peaks": {"count": 10**12, f"min{suffix}": 0, f"max{suffix}": 10, "seed": 1}}.get(
+            key, rng.choice([1e5, 1e7, 1e-5, 10**9])
+        )
         p[key] = value.item() if hasattr(value, "item") else value
         return doc, f"costly {key}={p[key]!r}"
     if how == 5:
@@ -231,7 +269,13 @@ def validation_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
     path = d / f"vplan{i}.toml"
     path.write_text(toml_dump(doc))
     out = d / f"val{i}"
-    return [Case(f"validation plan#{i} {label} | validate", ["validate", "--bundle", str(BUNDLE), "--plan", str(path), "--out", str(out)], [out])]
+    return [
+        Case(
+            f"validation plan#{i} {label} | validate",
+            ["validate", "--bundle", str(BUNDLE), "--plan", str(path), "--out", str(out)],
+            [out],
+        )
+    ]
 
 
 RIG_DOC = tomllib.loads(RIG.read_text())
@@ -243,14 +287,21 @@ def rig_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
     key = str(rng.choice(sorted(doc[section])))
     how = int(rng.integers(5))
     if how <= 2:
-        doc[section][key] = HOSTILE[int(rng.integers(len(HOSTILE)))] if how < 2 else float(doc[section][key]) * float(rng.choice([0.0, -1.0, 1e-6, 1e6])) \
-            if isinstance(doc[section][key], (int, float)) and not isinstance(doc[section][key], bool) else "x"
+        doc[section][key] = (
+            HOSTILE[int(rng.integers(len(HOSTILE)))]
+            if how < 2
+            else float(doc[section][key]) * float(rng.choice([0.0, -1.0, 1e-6, 1e6]))
+            if isinstance(doc[section][key], (int, float)) and not isinstance(doc[section][key], bool)
+            else "x"
+        )
         label = f"[{section}] {key}={doc[section][key]!r}"
     elif how == 3:
         del doc[section][key]
         label = f"no [{section}] {key}"
     else:
-        doc[str(rng.choice([section, "bogus"]))] = {"bogus": 1} if rng.random() < 0.5 else doc[section] | {"bogus_key": 1.0}
+        doc[str(rng.choice([section, "bogus"]))] = (
+            {"bogus": 1} if rng.random() < 0.5 else doc[section] | {"bogus_key": 1.0}
+        )
         label = "unknown keys"
     path = d / f"rig{i}.toml"
     text = toml_dump(doc).encode()
@@ -261,8 +312,18 @@ def rig_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
     if not plan.exists():
         plan.write_text(toml_dump(DRIVE_PLAN))
     out = d / f"rigchar{i}"
-    return [Case(f"rig#{i} {label} | check-rig", ["check-rig", "--rig", str(path), "--duration-s", "0.5", "--rest-s", "0.2"], []),
-            Case(f"rig#{i} {label} | characterize", ["characterize", "--rig", str(path), "--plan", str(plan), "--out", str(out)], [out])]
+    return [
+        Case(
+            f"rig#{i} {label} | check-rig",
+            ["check-rig", "--rig", str(path), "--duration-s", "0.5", "--rest-s", "0.2"],
+            [],
+        ),
+        Case(
+            f"rig#{i} {label} | characterize",
+            ["characterize", "--rig", str(path), "--plan", str(plan), "--out", str(out)],
+            [out],
+        ),
+    ]
 
 
 def csv_frame(rng: np.random.Generator, names: list[str]) -> tuple[pd.DataFrame, str]:
@@ -295,7 +356,13 @@ def reference_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
         path.write_bytes(corrupt_bytes(rng, path.read_bytes()))
         label += ", bytes corrupted"
     out = d / f"drive{i}.csv"
-    return [Case(f"reference#{i} {label} | compensate", ["compensate", "--bundle", str(BUNDLE), "--reference", str(path), "--out", str(out)], [out])]
+    return [
+        Case(
+            f"reference#{i} {label} | compensate",
+            ["compensate", "--bundle", str(BUNDLE), "--reference", str(path), "--out", str(out)],
+            [out],
+        )
+    ]
 
 
 def import_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
@@ -308,14 +375,31 @@ def import_case(rng: np.random.Generator, d: Path, i: int) -> list[Case]:
         label += ", bytes corrupted"
     out = d / f"imported{i}.parquet"
     args = ["import", str(path), "--out", str(out), "--col", "t_s=1", "--col", "command_v=2", "--col", "force_n=3"]
-    extra = [[], ["--rows", "5:2"], ["--rows", "0:100000"], ["--lag", "force_n=1000"], ["--lag", "force_n=-1"], ["--scale", "force_n=0"],
-             ["--scale", "force_n=1e308"], ["--offset", "force_n=nan"], ["--sample-rate-hz", "-5"], ["--kind", "bogus"], ["--delimiter", "ab"]]
+    extra = [
+        [],
+        ["--rows", "5:2"],
+        ["--rows", "0:100000"],
+        ["--lag", "force_n=1000"],
+        ["--lag", "force_n=-1"],
+        ["--scale", "force_n=0"],
+        ["--scale", "force_n=1e308"],
+        ["--offset", "force_n=nan"],
+        ["--sample-rate-hz", "-5"],
+        ["--kind", "bogus"],
+        ["--delimiter", "ab"],
+    ]
     more = extra[int(rng.integers(len(extra)))]
     return [Case(f"import#{i} {label} {' '.join(more)} | import", args + more, [out])]
 
 
 FAMILIES: list[tuple[Callable[[np.random.Generator, Path, int], list[Case]], int]] = [
-    (run_case, 150), (plan_case, 110), (validation_case, 60), (rig_case, 90), (reference_case, 80), (import_case, 80)]
+    (run_case, 150),
+    (plan_case, 110),
+    (validation_case, 60),
+    (rig_case, 90),
+    (reference_case, 80),
+    (import_case, 80),
+]
 
 
 # --------------------------------------------------------------------------- the checks
@@ -394,7 +478,9 @@ def test_fuzz_hostile_inputs_give_a_result_or_one_error_line(tmp_path):
     found: list[str] = []
     count = 0
     started = time.perf_counter()
-    CliRunner().invoke(cli, ["inspect", str(ROOT / "sample_runs" / "characterization" / "step-20v.parquet")])  # imports, before the cap
+    CliRunner().invoke(
+        cli, ["inspect", str(ROOT / "sample_runs" / "characterization" / "step-20v.parquet")]
+    )  # imports, before the cap
     with address_space_cap(MEMORY_HEADROOM):
         for family, n in FAMILIES:
             d = tmp_path / family.__name__
@@ -404,7 +490,9 @@ def test_fuzz_hostile_inputs_give_a_result_or_one_error_line(tmp_path):
                 cases = family(rng, d, i)
                 for case in cases:
                     inputs = [Path(a) for a in case.args if a.startswith(str(d)) and Path(a).is_file()]
-                    assert all(p.stat().st_size <= CASE_BYTES for p in inputs), f"{case.label}: input above the per-case bound"
+                    assert all(p.stat().st_size <= CASE_BYTES for p in inputs), (
+                        f"{case.label}: input above the per-case bound"
+                    )
                     res = runner.invoke(cli, case.args)
                     why = problem(case, res, time.perf_counter() - t0)
                     count += 1

@@ -22,7 +22,14 @@ def write_csv(path: Path, n: int, *, extra_cols: int = 0, seed: int = 1) -> Path
     rng = np.random.default_rng(seed)
     t = np.arange(n) / 1000.0
     cols = [t, rng.uniform(0, 100, n), rng.uniform(0, 200, n)] + [rng.normal(size=n) for _ in range(extra_cols)]
-    np.savetxt(path, np.column_stack(cols), fmt="%.10g", delimiter=",", header=",".join(f"c{i}" for i in range(len(cols))), comments="")
+    np.savetxt(
+        path,
+        np.column_stack(cols),
+        fmt="%.10g",
+        delimiter=",",
+        header=",".join(f"c{i}" for i in range(len(cols))),
+        comments="",
+    )
     return path
 
 
@@ -48,7 +55,10 @@ def test_a_bad_cell_past_the_first_chunk_is_named_by_row_and_line(tmp_path, monk
     monkeypatch.setattr(importing, "CHUNK_ROWS", 8)
     with pytest.raises(ImportFormatError) as err:
         importing.import_table(src, columns=COLUMNS)
-    assert str(err.value) == f"{src}: non-numeric cell 'volts?' at data row 40 (line 42), column 2 (command_v); expected a number"
+    assert (
+        str(err.value)
+        == f"{src}: non-numeric cell 'volts?' at data row 40 (line 42), column 2 (command_v); expected a number"
+    )
     # outside the rows kept, it does not matter
     assert len(importing.import_table(src, columns=COLUMNS, rows=(0, 40)).data) == 40
 
@@ -57,7 +67,9 @@ def test_a_file_above_the_stated_size_is_refused_with_the_reason_before_reading(
     src = write_csv(tmp_path / "m.csv", 100)
     monkeypatch.setattr(importing, "MAX_IMPORT_BYTES", 1000)
     monkeypatch.setattr(importing, "_first_line", lambda *a: pytest.fail("the file was read"))
-    with pytest.raises(ImportFormatError, match=r"m\.csv: is [0-9.e+-]+ GB, above the import limit of 1e-06 GB .*cut the segment"):
+    with pytest.raises(
+        ImportFormatError, match=r"m\.csv: is [0-9.e+-]+ GB, above the import limit of 1e-06 GB .*cut the segment"
+    ):
         importing.import_file(src, tmp_path / "r.parquet", columns=COLUMNS)
     assert importing.MAX_IMPORT_BYTES == 1000 and not (tmp_path / "r.parquet").exists()
 
@@ -67,7 +79,9 @@ def test_a_2_gb_file_is_refused_quickly_and_without_memory(tmp_path):
     with open(src, "wb") as fh:  # sparse: 2.1 GB on paper, nothing on disk
         fh.truncate(2_100_000_000)
     with pytest.raises(ImportFormatError, match="is 2.1 GB, above the import limit of 1 GB"):
-        importing.import_file(src, tmp_path / "r.parquet", columns={"command_v": 1, "force_n": 2}, sample_rate_hz=1000.0)
+        importing.import_file(
+            src, tmp_path / "r.parquet", columns={"command_v": 1, "force_n": 2}, sample_rate_hz=1000.0
+        )
 
 
 def test_import_memory_grows_with_the_mapped_columns_not_the_text(tmp_path):
@@ -80,7 +94,7 @@ def test_import_memory_grows_with_the_mapped_columns_not_the_text(tmp_path):
         from piezopress.pipelines import importing
         import pandas, pyarrow.parquet
         base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        importing.import_file({str(src)!r}, {str(tmp_path / 'r.parquet')!r}, columns={COLUMNS!r})
+        importing.import_file({str(src)!r}, {str(tmp_path / "r.parquet")!r}, columns={COLUMNS!r})
         print(base, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
     """)
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)

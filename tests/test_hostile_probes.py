@@ -18,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 from piezopress.acquisition import drive_check
-from piezopress.acquisition.plan import DriveLimits, MAX_NAME_CHARS, parse_plan
+from piezopress.acquisition.plan import MAX_NAME_CHARS, DriveLimits, parse_plan
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.errors import BackendError, PlanError
 from piezopress.piezocli.main import cli
@@ -117,15 +117,23 @@ def test_every_backend_refuses_through_the_same_check():
 
 def test_a_reference_at_1_mhz_is_refused_not_made_a_constant_drive(tmp_path):
     ref = write_reference(tmp_path / "ramp.csv", 1e6)
-    line = one_error_line(invoke("compensate", "--bundle", str(BUNDLE), "--reference", str(ref), "--out", str(tmp_path / "d.csv")))
-    assert line == (f"Error: {ref}: sample rate 1e+06 Hz is above the rig's maximum sample rate of 100000 Hz; expected at most "
-                    "100000 Hz (resample the reference, or use a rig file that allows it)")
+    line = one_error_line(
+        invoke("compensate", "--bundle", str(BUNDLE), "--reference", str(ref), "--out", str(tmp_path / "d.csv"))
+    )
+    assert line == (
+        f"Error: {ref}: sample rate 1e+06 Hz is above the rig's maximum sample rate of 100000 Hz; expected at most "
+        "100000 Hz (resample the reference, or use a rig file that allows it)"
+    )
     assert not (tmp_path / "d.csv").exists()
 
 
 def test_a_reference_at_1_ghz_is_refused_quickly(tmp_path):
     ref = write_reference(tmp_path / "ramp.csv", 1e9, n=2000)
-    line = one_error_line(invoke("compensate", "--bundle", str(BUNDLE), "--reference", str(ref), "--out", str(tmp_path / "d.csv"), seconds=10))
+    line = one_error_line(
+        invoke(
+            "compensate", "--bundle", str(BUNDLE), "--reference", str(ref), "--out", str(tmp_path / "d.csv"), seconds=10
+        )
+    )
     assert "sample rate 1e+09 Hz is above the rig's maximum" in line
 
 
@@ -136,7 +144,9 @@ def test_compensate_refuses_a_drive_outside_the_rigs_range(tmp_path):
     b["compensation"]["drive_max_v"] = 1e9
     (tmp_path / "b.json").write_text(json.dumps(b))
     ref = write_reference(tmp_path / "ramp.csv", 1000.0, n=2000, top=2000.0)
-    res = invoke("compensate", "--bundle", str(tmp_path / "b.json"), "--reference", str(ref), "--out", str(tmp_path / "d.csv"))
+    res = invoke(
+        "compensate", "--bundle", str(tmp_path / "b.json"), "--reference", str(ref), "--out", str(tmp_path / "d.csv")
+    )
     if res.exit_code == 0:  # bundle validation (issue 12) may keep the drive in range itself: then it must be in range
         drive = pd.read_csv(tmp_path / "d.csv")["command_v"]
         assert drive.max() <= 150.0 + 1e-9
@@ -156,10 +166,16 @@ def proto(name="a", kind="creep", **keys):
     return f'[[protocol]]\nname = "{name}"\nkind = "{kind}"\n{body}'
 
 
-@pytest.mark.parametrize("keys, words", [
-    ({"hold_s": "1e7", "sample_rate_hz": "100000.0"}, "1e+12 samples (1e+07 s at 100000 Hz, about 64 TB in memory) exceed the limit of 50000000 samples per run"),
-    ({"hold_s": "1e300", "sample_rate_hz": "1000.0"}, "exceed the limit of 50000000 samples per run"),
-])
+@pytest.mark.parametrize(
+    "keys, words",
+    [
+        (
+            {"hold_s": "1e7", "sample_rate_hz": "100000.0"},
+            "1e+12 samples (1e+07 s at 100000 Hz, about 64 TB in memory) exceed the limit of 50000000 samples per run",
+        ),
+        ({"hold_s": "1e300", "sample_rate_hz": "1000.0"}, "exceed the limit of 50000000 samples per run"),
+    ],
+)
 def test_a_10_to_the_12_sample_plan_is_refused_before_anything_is_built(tmp_path, keys, words):
     p = tmp_path / "plan.toml"
     p.write_text(PLAN_HEAD + proto(**keys))
@@ -171,8 +187,18 @@ def test_a_10_to_the_12_sample_plan_is_refused_before_anything_is_built(tmp_path
 
 
 def test_random_peaks_with_a_huge_count_is_refused_without_drawing_them():
-    doc = {"plan": {"name": "p"}, "protocol": [{"name": "t", "kind": "triangle", "freq_hz": 1.0, "sample_rate_hz": 1000.0,
-                                                  "random_peaks": {"count": 10**12, "min_v": 0, "max_v": 100, "seed": 1}}]}
+    doc = {
+        "plan": {"name": "p"},
+        "protocol": [
+            {
+                "name": "t",
+                "kind": "triangle",
+                "freq_hz": 1.0,
+                "sample_rate_hz": 1000.0,
+                "random_peaks": {"count": 10**12, "min_v": 0, "max_v": 100, "seed": 1},
+            }
+        ],
+    }
     with pytest.raises(PlanError, match="1e\\+15 samples"):
         parse_plan(doc, DriveLimits())
 
@@ -181,13 +207,22 @@ def test_samples_per_plan_are_bounded_with_the_memory_they_imply():
     protos = [{"name": f"c{i}", "kind": "creep", "hold_s": 400.0, "sample_rate_hz": 100_000.0} for i in range(6)]
     with pytest.raises(PlanError) as err:
         parse_plan({"plan": {"name": "p"}, "protocol": protos}, DriveLimits(max_duration_s=1e9))
-    assert "the plan totals 2.4e+08 samples (about 15.4 GB of runs), more than the limit of 200000000 samples per plan" in str(err.value)
+    assert (
+        "the plan totals 2.4e+08 samples (about 15.4 GB of runs), more than the limit of 200000000 samples per plan"
+        in str(err.value)
+    )
 
 
 def test_a_protocol_name_too_long_for_a_file_name_is_refused():
     name = "x" * (MAX_NAME_CHARS + 1)
     with pytest.raises(PlanError, match=f"name of {MAX_NAME_CHARS + 1} characters is longer than {MAX_NAME_CHARS}"):
-        parse_plan({"plan": {"name": "p"}, "protocol": [{"name": name, "kind": "creep", "hold_s": 1.0, "sample_rate_hz": 100.0}]}, DriveLimits())
+        parse_plan(
+            {
+                "plan": {"name": "p"},
+                "protocol": [{"name": name, "kind": "creep", "hold_s": 1.0, "sample_rate_hz": 100.0}],
+            },
+            DriveLimits(),
+        )
     ok = {"name": "y" * MAX_NAME_CHARS, "kind": "creep", "hold_s": 1.0, "sample_rate_hz": 100.0}
     assert parse_plan({"plan": {"name": "p"}, "protocol": [ok]}, DriveLimits()).protocols[0].name == ok["name"]
 
@@ -198,14 +233,19 @@ def test_names_differing_only_in_case_are_refused():
         parse_plan({"plan": {"name": "p"}, "protocol": protos}, DriveLimits())
 
 
-@pytest.mark.parametrize("option, value, words", [
-    ("--sample-rate-hz", "1e9", "--sample-rate-hz 1e+09 Hz is above the rig's maximum sample rate of 100000 Hz"),
-    ("--duration-s", "1e7", "the check drive lasts 1e+07 s, more than the rig's limit of 3600 s"),
-    ("--duration-s", "nan", "expected all positive and finite"),
-    ("--amplitude-v", "1e6", "outside the actuator's range -30 to 150 V"),
-])
+@pytest.mark.parametrize(
+    "option, value, words",
+    [
+        ("--sample-rate-hz", "1e9", "--sample-rate-hz 1e+09 Hz is above the rig's maximum sample rate of 100000 Hz"),
+        ("--duration-s", "1e7", "the check drive lasts 1e+07 s, more than the rig's limit of 3600 s"),
+        ("--duration-s", "nan", "expected all positive and finite"),
+        ("--amplitude-v", "1e6", "outside the actuator's range -30 to 150 V"),
+    ],
+)
 def test_check_rig_is_bounded_by_the_rigs_limits(option, value, words):
-    line = one_error_line(invoke("check-rig", "--rig", str(ROOT / "rigs" / "thesis-press.toml"), option, value, seconds=10))
+    line = one_error_line(
+        invoke("check-rig", "--rig", str(ROOT / "rigs" / "thesis-press.toml"), option, value, seconds=10)
+    )
     assert words in line
 
 
@@ -222,11 +262,16 @@ def extra_string_column(tmp_path):
 
 def test_inspect_refuses_an_extra_string_column(extra_string_column):
     line = one_error_line(invoke("inspect", str(extra_string_column)))
-    assert line.endswith("extra column 'note' has type str, expected float64 (every column of a run is a number)") or "has type object" in line
+    assert (
+        line.endswith("extra column 'note' has type str, expected float64 (every column of a run is a number)")
+        or "has type object" in line
+    )
 
 
 def test_simulate_refuses_an_extra_string_column(extra_string_column, tmp_path):
-    line = one_error_line(invoke("simulate", str(extra_string_column), "--bundle", str(BUNDLE), "--out", str(tmp_path / "s.parquet")))
+    line = one_error_line(
+        invoke("simulate", str(extra_string_column), "--bundle", str(BUNDLE), "--out", str(tmp_path / "s.parquet"))
+    )
     assert "extra column 'note'" in line
 
 
@@ -249,18 +294,43 @@ def test_import_into_a_read_only_folder_is_one_line_before_the_source_is_read(re
     src = tmp_path / "m.csv"
     src.write_text("0,0\n1,1\n2,2\n")
     out = readonly_dir / "run.parquet"
-    line = one_error_line(invoke("import", str(src), "--out", str(out), "--col", "command_v=1", "--col", "force_n=2", "--sample-rate-hz", "10"))
+    line = one_error_line(
+        invoke(
+            "import",
+            str(src),
+            "--out",
+            str(out),
+            "--col",
+            "command_v=1",
+            "--col",
+            "force_n=2",
+            "--sample-rate-hz",
+            "10",
+        )
+    )
     assert line.startswith(f"Error: {readonly_dir}: cannot write there (")
 
 
 def test_rig_seed_minus_one_is_one_line(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text("[rig]\nseed = -1\n")
-    assert one_error_line(invoke("check-rig", "--rig", str(rig))) == f"Error: {rig}: [rig] seed = -1: outside the allowed range >= 0"
+    assert (
+        one_error_line(invoke("check-rig", "--rig", str(rig)))
+        == f"Error: {rig}: [rig] seed = -1: outside the allowed range >= 0"
+    )
 
 
 def test_diagnose_with_an_unknown_cause_is_one_line_exit_2(tmp_path):
-    res = invoke("diagnose", str(ROOT / "sample_runs" / "characterization"), "--bundle", str(BUNDLE), "--cause", "bogus", "--out", str(tmp_path / "d"))
+    res = invoke(
+        "diagnose",
+        str(ROOT / "sample_runs" / "characterization"),
+        "--bundle",
+        str(BUNDLE),
+        "--cause",
+        "bogus",
+        "--out",
+        str(tmp_path / "d"),
+    )
     line = one_error_line(res, code=2)
     assert "Invalid value for '--cause': 'bogus' is not one of 'amplifier_slew_limit'" in line
     assert not (tmp_path / "d").exists()
@@ -279,14 +349,26 @@ def _step_columns(n: int = 100) -> tuple[dict, dict]:
     from piezopress import runformat
 
     t = np.arange(n) / 1000.0
-    return ({"t_s": t, "command_v": np.full(n, 10.0), "force_n": np.full(n, 70.0)},
-            runformat.make_meta("step", "s", 1000.0, preload_n=50.0))
+    return (
+        {"t_s": t, "command_v": np.full(n, 10.0), "force_n": np.full(n, 70.0)},
+        runformat.make_meta("step", "s", 1000.0, preload_n=50.0),
+    )
 
 
-@pytest.mark.parametrize("change, words", [
-    (lambda c, m: c.update(extra=np.full(len(c["t_s"]), np.nan)), "extra column 'extra' has NaN/infinite values; expected finite numbers"),
-    (lambda c, m: c.update(force_n=c["force_n"] * 1e300), "column force_n holds 7e+301 at row 0; expected magnitudes below 1e+12 (no press measures that: a unit or scale error?)"),
-])
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        (
+            lambda c, m: c.update(extra=np.full(len(c["t_s"]), np.nan)),
+            "extra column 'extra' has NaN/infinite values; expected finite numbers",
+        ),
+        (
+            lambda c, m: c.update(force_n=c["force_n"] * 1e300),
+            "column force_n holds 7e+301 at row 0; expected magnitudes below 1e+12 (no press measures that: a unit or "
+            "scale error?)",
+        ),
+    ],
+)
 def test_runs_with_non_finite_extras_or_absurd_magnitudes_are_refused(tmp_path, change, words):
     cols, meta = _step_columns()
     change(cols, meta)
@@ -310,8 +392,20 @@ def test_a_protocol_kind_of_the_wrong_type_is_a_plan_problem(kind):
 def test_an_import_scale_that_overflows_is_one_line(tmp_path):
     src = tmp_path / "m.csv"
     src.write_text("0,1e300\n1,2\n2,3\n")
-    res = invoke("import", str(src), "--out", str(tmp_path / "r.parquet"), "--col", "command_v=1", "--col", "force_n=2",
-                 "--sample-rate-hz", "10", "--scale", "force_n=1e308")
+    res = invoke(
+        "import",
+        str(src),
+        "--out",
+        str(tmp_path / "r.parquet"),
+        "--col",
+        "command_v=1",
+        "--col",
+        "force_n=2",
+        "--sample-rate-hz",
+        "10",
+        "--scale",
+        "force_n=1e308",
+    )
     assert "scale force_n=1e+308 with offset 0 makes column 2 overflow to infinity" in one_error_line(res)
     assert not (tmp_path / "r.parquet").exists()
 
@@ -319,7 +413,9 @@ def test_an_import_scale_that_overflows_is_one_line(tmp_path):
 def test_a_rig_mode_below_1_rad_s_is_refused(tmp_path):
     rig = tmp_path / "rig.toml"
     rig.write_text("[mode]\nnatural_freq_rad_s = 1e-300\n")
-    assert "natural_freq_rad_s = 1e-300: outside the allowed range [1, 1e+07]" in one_error_line(invoke("check-rig", "--rig", str(rig)))
+    assert "natural_freq_rad_s = 1e-300: outside the allowed range [1, 1e+07]" in one_error_line(
+        invoke("check-rig", "--rig", str(rig))
+    )
 
 
 class _FailsOnSecondRun(VirtualRig):
@@ -338,8 +434,11 @@ def test_an_error_after_a_progress_line_starts_a_line_of_its_own(tmp_path, monke
     from piezopress.pipelines import characterize as char
 
     plan = tmp_path / "plan.toml"
-    plan.write_text(PLAN_HEAD + proto("a", hold_s="0.05", sample_rate_hz="1000.0", level_v="10.0")
-                    + proto("b", hold_s="0.05", sample_rate_hz="1000.0", level_v="10.0"))
+    plan.write_text(
+        PLAN_HEAD
+        + proto("a", hold_s="0.05", sample_rate_hz="1000.0", level_v="10.0")
+        + proto("b", hold_s="0.05", sample_rate_hz="1000.0", level_v="10.0")
+    )
     monkeypatch.setattr(char, "make_backend", lambda name, rig: _FailsOnSecondRun())
     res = invoke("characterize", "--plan", str(plan), "--out", str(tmp_path / "runs"))
     assert res.exit_code == 1
@@ -351,22 +450,31 @@ def test_validate_refuses_a_bundle_drive_range_outside_the_rig_before_the_direct
     it, so validate refuses in one line, before any drive is made, and creates nothing (the
     compensator clips to the bundle's range, which the bundle check holds inside the rig's)."""
     rig = tmp_path / "rig.toml"
-    rig.write_text((ROOT / "rigs" / "thesis-press.toml").read_text().replace("drive_max_v = 150.0", "drive_max_v = 10.0"))
+    rig.write_text(
+        (ROOT / "rigs" / "thesis-press.toml").read_text().replace("drive_max_v = 150.0", "drive_max_v = 10.0")
+    )
     plan = tmp_path / "v.toml"
-    plan.write_text('[plan]\nname = "v"\n[[protocol]]\nname = "tri"\nkind = "triangle"\nfreq_hz = 10.0\ncycles = 1\npeak_n = 50.0\n'
-                    'sample_rate_hz = 1000.0\n')
+    plan.write_text(
+        '[plan]\nname = "v"\n[[protocol]]\nname = "tri"\nkind = "triangle"\nfreq_hz = 10.0\ncycles = 1\npeak_n = 50.0\n'
+        "sample_rate_hz = 1000.0\n"
+    )
     out = tmp_path / "val"
     res = invoke("validate", "--bundle", str(BUNDLE), "--plan", str(plan), "--rig", str(rig), "--out", str(out))
     line = one_error_line(res)
-    assert line == f"Error: {BUNDLE}: compensation drive range -30 to 150 V; expected inside the rig's -30 to 10 V ({rig})"
+    assert (
+        line == f"Error: {BUNDLE}: compensation drive range -30 to 150 V; expected inside the rig's -30 to 10 V ({rig})"
+    )
     assert not out.exists()
 
 
-@pytest.mark.parametrize("args", [
-    ["check-rig", "--rig", "rigs/thesis-press.toml", "--sample-rate-hz", "1e9"],
-    ["check-rig", "--rig", "rigs/thesis-press.toml", "--duration-s", "1e7"],
-    ["characterize", "--plan", "{plan}", "--out", "{tmp}/runs"],
-])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["check-rig", "--rig", "rigs/thesis-press.toml", "--sample-rate-hz", "1e9"],
+        ["check-rig", "--rig", "rigs/thesis-press.toml", "--duration-s", "1e7"],
+        ["characterize", "--plan", "{plan}", "--out", "{tmp}/runs"],
+    ],
+)
 def test_costly_commands_are_refused_under_a_memory_cap(tmp_path, args):
     """In a fresh process whose address space is capped at 1.5 GB above what its imports take,
     the command ends with one Error line (before: killed at 24 GB or a MemoryError traceback)."""
@@ -376,12 +484,15 @@ def test_costly_commands_are_refused_under_a_memory_cap(tmp_path, args):
     plan = tmp_path / "plan.toml"
     plan.write_text(PLAN_HEAD + proto(hold_s="1e7", sample_rate_hz="100000.0"))
     args = [a.replace("{plan}", str(plan)).replace("{tmp}", str(tmp_path)) for a in args]
-    code = ("import resource, sys\n"
-            "from piezopress.piezocli.main import cli\n"
-            "import piezopress.piezocli.cmd_characterize, piezopress.piezocli.cmd_check_rig, pandas, scipy.signal, pyarrow.parquet\n"
-            "vm = next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmSize:')) * 1024\n"
-            "resource.setrlimit(resource.RLIMIT_AS, (vm + 1500 * 2**20, resource.getrlimit(resource.RLIMIT_AS)[1]))\n"
-            "cli(sys.argv[1:])\n")
+    code = (
+        "import resource, sys\n"
+        "from piezopress.piezocli.main import cli\n"
+        "import piezopress.piezocli.cmd_characterize, piezopress.piezocli.cmd_check_rig, pandas, scipy.signal, "
+        "pyarrow.parquet\n"
+        "vm = next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmSize:')) * 1024\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (vm + 1500 * 2**20, resource.getrlimit(resource.RLIMIT_AS)[1]))\n"
+        "cli(sys.argv[1:])\n"
+    )
     if not Path("/proc/self/status").exists():
         pytest.skip("needs /proc to size the cap")
     out = subprocess.run([sys.executable, "-c", code, *args], cwd=ROOT, capture_output=True, text=True, timeout=60)

@@ -21,8 +21,25 @@ ROOT = Path(__file__).resolve().parents[1]
 CHAR = ROOT / "sample_runs" / "characterization"
 
 #: JSON values of every type, as other programs write them where we expect objects or numbers.
-ODD_VALUES = ["string", "fast", 5, -1, 0, 1e308, True, None, [], [1, 2], {}, {"config": "x"}, {"config": {"actuator": "high"}},
-              {"config": {"actuator": {"drive_max_v": "high"}}}, {"freq_hz": "fast"}, {"freq_hz": None}, {"level_v": [1]}]
+ODD_VALUES = [
+    "string",
+    "fast",
+    5,
+    -1,
+    0,
+    1e308,
+    True,
+    None,
+    [],
+    [1, 2],
+    {},
+    {"config": "x"},
+    {"config": {"actuator": "high"}},
+    {"config": {"actuator": {"drive_max_v": "high"}}},
+    {"freq_hz": "fast"},
+    {"freq_hz": None},
+    {"level_v": [1]},
+]
 
 
 def invoke(*args):
@@ -53,8 +70,16 @@ def test_metadata_of_any_type_at_any_key_never_raises_in_the_readers(key, value)
     assert runformat.meta_get(meta, "protocol", "freq_hz", "deeper") is None
 
 
-@pytest.mark.parametrize("meta", [{"protocol": "string"}, {"protocol": {"freq_hz": "fast"}}, {"rig": "thesis"},
-                                  {"rig": {"config": "x"}}, {"rig": {"config": {"actuator": {"drive_max_v": "high"}}}}])
+@pytest.mark.parametrize(
+    "meta",
+    [
+        {"protocol": "string"},
+        {"protocol": {"freq_hz": "fast"}},
+        {"rig": "thesis"},
+        {"rig": {"config": "x"}},
+        {"rig": {"config": {"actuator": {"drive_max_v": "high"}}}},
+    ],
+)
 def test_fit_shaper_takes_foreign_metadata_without_a_traceback(tmp_path, meta):
     d = _copy_runs(tmp_path, ["step-20v", "step-50v", "step-150v"], meta)
     res = invoke("fit-shaper", d, "--out", tmp_path / "s.json")
@@ -70,16 +95,19 @@ def _manifest_dir(tmp_path: Path, manifest: bytes) -> Path:
     return d
 
 
-@pytest.mark.parametrize("manifest, says", [
-    (b'{"status": "complete"}', "has no `runs`"),
-    (b'{"status": "complete", "runs": "step-20v.parquet"}', "`runs` is a JSON str"),
-    (b'{"status": "complete", "runs": ["step-20v.parquet"]}', "runs[0] is"),
-    (b'{"status": "complete", "runs": [{"sha256": "x"}]}', "runs[0] has file = null"),
-    (b'{"status": "complete", "runs": [{"file": 5}]}', "runs[0] has file = 5"),
-    (b'{"status": "complete", "runs": [{"file": "../../etc/passwd"}]}', "outside the manifest's folder"),
-    (b'{"status": "complete", "runs": [{"file": "\xff"}]}', "not UTF-8"),
-    (b'[1, 2]', "holds a JSON list"),
-])
+@pytest.mark.parametrize(
+    "manifest, says",
+    [
+        (b'{"status": "complete"}', "has no `runs`"),
+        (b'{"status": "complete", "runs": "step-20v.parquet"}', "`runs` is a JSON str"),
+        (b'{"status": "complete", "runs": ["step-20v.parquet"]}', "runs[0] is"),
+        (b'{"status": "complete", "runs": [{"sha256": "x"}]}', "runs[0] has file = null"),
+        (b'{"status": "complete", "runs": [{"file": 5}]}', "runs[0] has file = 5"),
+        (b'{"status": "complete", "runs": [{"file": "../../etc/passwd"}]}', "outside the manifest's folder"),
+        (b'{"status": "complete", "runs": [{"file": "\xff"}]}', "not UTF-8"),
+        (b"[1, 2]", "holds a JSON list"),
+    ],
+)
 def test_a_malformed_manifest_is_refused_in_one_line(tmp_path, manifest, says):
     d = _manifest_dir(tmp_path, manifest)
     with pytest.raises(PiezopressError) as err:
@@ -92,7 +120,11 @@ def test_a_malformed_manifest_is_refused_in_one_line(tmp_path, manifest, says):
 def test_manifests_broken_every_way_never_raise_anything_but_the_projects_error(tmp_path):
     """A generator of the class: a valid manifest with one field replaced by a value of
     every odd type, at every level."""
-    good = {"status": "complete", "kind": "characterization", "runs": [{"file": "step-20v.parquet", "sha256": "x", "status": "complete"}]}
+    good = {
+        "status": "complete",
+        "kind": "characterization",
+        "runs": [{"file": "step-20v.parquet", "sha256": "x", "status": "complete"}],
+    }
     cases = []
     for v in ODD_VALUES:
         cases += [{**good, "runs": v}, {**good, "runs": [v]}, {**good, "runs": [{**good["runs"][0], "file": v}]}]
@@ -137,4 +169,24 @@ def test_glitch_free_and_boolean_free_run_metadata_reads_as_numbers():
     data = pd.DataFrame({"t_s": t, "command_v": t, "force_n": t})
     for key in ("sample_rate_hz", "schema_version"):
         with pytest.raises(runformat.RunFormatError, match=key):
-            runformat.validate(data, {"schema_version": 1, "kind": "custom", "name": "r", "sample_rate_hz": 10.0, key: True}, "r")
+            runformat.validate(
+                data, {"schema_version": 1, "kind": "custom", "name": "r", "sample_rate_hz": 10.0, key: True}, "r"
+            )
+
+
+def _strict(text: str):
+    def refuse(name):
+        raise ValueError(f"bare {name} is not JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_diagnosis_json_is_strict_json_in_the_sample_runs_and_when_written(tmp_path):
+    """Issue 24: diagnosis.json held bare NaN/Infinity (not JSON), the committed one too."""
+    _strict((ROOT / "sample_runs" / "diagnosis" / "diagnosis.json").read_text())
+    d = _copy_runs(tmp_path, ["triangle-0.1hz", "rest-120s"])
+    assert invoke("fit", d, "--base", "--out", tmp_path / "base.json").exit_code == 0
+    res = invoke("diagnose", d, "--bundle", tmp_path / "base.json", "--out", tmp_path / "diag")
+    assert res.exit_code == 0, res.output
+    doc = _strict((tmp_path / "diag" / "diagnosis.json").read_text())
+    assert doc["tested"]

@@ -12,16 +12,15 @@ import os
 import signal
 from pathlib import Path
 
-import numpy as np
 import pytest
+from test_characterize import SMALL_PLAN
+from test_nidaq import EXAMPLE, FakeBoard, NidaqBackend, assert_safe_end, load_daq_rig
+from test_nidaq import PLAN as NI_PLAN
 
 from piezopress import runformat as rf
 from piezopress.acquisition.backend import STOP_SIGNALS, Terminated, stop_signals_interrupt
 from piezopress.acquisition.virtual_rig import VirtualRig
 from piezopress.pipelines import characterize as char
-
-from test_characterize import SMALL_PLAN
-from test_nidaq import PLAN as NI_PLAN, FakeBoard, NidaqBackend, assert_safe_end, load_daq_rig, EXAMPLE
 
 ROOT = Path(__file__).resolve().parents[1]
 SIGNALS = [s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None]
@@ -97,8 +96,14 @@ def test_a_stop_signal_on_the_fake_ni_board_ramps_down_and_keeps_the_partial_run
         char.characterize(out, plan_path=plan, backend=rig)
     assert getattr(err.value, "signum", None) == signum
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["status"] == "interrupted" and manifest["status_reason"] == f"interrupted by {signal.Signals(signum).name}"
-    assert [(r["file"], r["status"]) for r in manifest["runs"]] == [("tri.parquet", "complete"), ("step.incomplete.parquet", "incomplete")]
+    assert (
+        manifest["status"] == "interrupted"
+        and manifest["status_reason"] == f"interrupted by {signal.Signals(signum).name}"
+    )
+    assert [(r["file"], r["status"]) for r in manifest["runs"]] == [
+        ("tri.parquet", "complete"),
+        ("step.incomplete.parquet", "incomplete"),
+    ]
     run = rf.read_run(out / "step.incomplete.parquet", allow_incomplete=True)
     assert len(run.data) == 50 and signal.Signals(signum).name in run.meta["status_reason"]
     assert_safe_end(board, cfg)  # ramped (no jump, no faster than the safe rate) to exactly 0 V, every task closed

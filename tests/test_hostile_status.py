@@ -52,7 +52,10 @@ def test_accepting_names_the_directory_and_every_skipped_run(tmp_path):
     d = copy_with_status(CHAR, tmp_path / "c", "interrupted", incomplete_run=True)
     notes = files.check_status(d, accept=True)
     assert len(notes) == 2
-    assert "accepted although its manifest says status 'interrupted' (interrupted by SIGTERM); 13 complete run(s) used" in notes[0]
+    assert (
+        "accepted although its manifest says status 'interrupted' (interrupted by SIGTERM); 13 complete run(s) used"
+        in notes[0]
+    )
     assert notes[1].endswith("skipped incomplete run(s) rest-120s.incomplete.parquet")
     assert files.check_status(CHAR) == []  # complete: nothing to say
 
@@ -61,12 +64,21 @@ def test_report_refuses_a_validation_directory_given_as_the_characterization(tmp
     res = CliRunner().invoke(cli, ["report", "--characterization", str(VAL), "--out", str(tmp_path / "r")])
     assert res.exit_code == 1
     assert res.output.strip().splitlines() == [
-        f"Error: {VAL}: its manifest says kind 'validation'; expected a characterization directory (from `piezopress characterize`)"]
+        f"Error: {VAL}: its manifest says kind 'validation'; expected a characterization directory (from `piezopress "
+        "characterize`)"
+    ]
     assert not (tmp_path / "r").exists() or not any((tmp_path / "r").iterdir())
 
 
-@pytest.mark.parametrize("command", [["fit-shaper", "--out", "{tmp}/shaper.json"],
-                                     ["fit-hysteresis", "--out", "{tmp}/h.json"], ["fit", "--out", "{tmp}/b.json"], ["diagnose", "--bundle", str(ROOT / "sample_runs" / "bundle.json"), "--out", "{tmp}/d"]])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["fit-shaper", "--out", "{tmp}/shaper.json"],
+        ["fit-hysteresis", "--out", "{tmp}/h.json"],
+        ["fit", "--out", "{tmp}/b.json"],
+        ["diagnose", "--bundle", str(ROOT / "sample_runs" / "bundle.json"), "--out", "{tmp}/d"],
+    ],
+)
 def test_stages_refuse_an_interrupted_directory_in_one_line(tmp_path, command):
     d = copy_with_status(CHAR, tmp_path / "c", "interrupted")
     args = [a.replace("{tmp}", str(tmp_path)) for a in command]

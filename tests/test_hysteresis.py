@@ -6,14 +6,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from piezopress import operators
 from piezopress.analysis import hysteresis as H
 
 
 @st.composite
 def models(draw):
     n = draw(st.integers(1, 6))
-    r = np.concatenate([[0.0], np.cumsum(draw(arrays(float, n - 1, elements=st.floats(0.5, 20))))]) if n > 1 else np.zeros(1)
+    r = (
+        np.concatenate([[0.0], np.cumsum(draw(arrays(float, n - 1, elements=st.floats(0.5, 20))))])
+        if n > 1
+        else np.zeros(1)
+    )
     w = draw(arrays(float, n, elements=st.floats(0.0, 2.0)))
     w[0] = draw(st.floats(0.05, 2.0))
     m_pos, m_neg = draw(st.integers(0, 3)), draw(st.integers(0, 3))
@@ -21,9 +24,24 @@ def models(draw):
     dn = -np.cumsum(draw(arrays(float, m_neg, elements=st.floats(1, 30))))[::-1] if m_neg else np.zeros(0)
     s0 = draw(st.floats(0.2, 3.0))
     # weights such that every slope (partial sum outward) stays positive
-    sp = np.diff(np.concatenate([[s0], draw(arrays(float, m_pos, elements=st.floats(0.05, 4.0)))])) if m_pos else np.zeros(0)
-    sn = np.diff(np.concatenate([[s0], draw(arrays(float, m_neg, elements=st.floats(0.05, 4.0)))]))[::-1] if m_neg else np.zeros(0)
-    return H.PIModel(tuple(r), tuple(w), tuple(np.r_[dn, 0.0, dp]), tuple(np.r_[sn, s0, sp]), x0=draw(st.floats(-5, 5)), y0=draw(st.floats(-50, 50)))
+    sp = (
+        np.diff(np.concatenate([[s0], draw(arrays(float, m_pos, elements=st.floats(0.05, 4.0)))]))
+        if m_pos
+        else np.zeros(0)
+    )
+    sn = (
+        np.diff(np.concatenate([[s0], draw(arrays(float, m_neg, elements=st.floats(0.05, 4.0)))]))[::-1]
+        if m_neg
+        else np.zeros(0)
+    )
+    return H.PIModel(
+        tuple(r),
+        tuple(w),
+        tuple(np.r_[dn, 0.0, dp]),
+        tuple(np.r_[sn, s0, sp]),
+        x0=draw(st.floats(-5, 5)),
+        y0=draw(st.floats(-50, 50)),
+    )
 
 
 signals = arrays(float, st.integers(2, 300), elements=st.floats(-200, 200))
@@ -102,7 +120,7 @@ def test_weights_respect_constraints_after_fit():
         w, s = np.array(m.w), np.array(m.s)
         assert w[0] > 0 and np.all(w >= 0)
         i0 = m.d.index(0.0)
-        assert np.all(s[i0] + np.cumsum(s[i0 + 1:]) > 0)  # S increasing: invertible
+        assert np.all(s[i0] + np.cumsum(s[i0 + 1 :]) > 0)  # S increasing: invertible
     # the true saturation kink (p = 80) falls between the candidate dead-zone thresholds, so
     # the fit cannot reach the 0.05 N noise; it must still be within 0.2 % of the 280 N range
     assert fit.holdout_rms_pct < 0.2
@@ -132,7 +150,9 @@ def test_rest_offset_is_unbiased_by_the_first_ramp():
 
 
 def test_model_round_trips_through_dict():
-    m = H.PIModel((0.0, 2.0), (0.5, 0.5), (-1.0, 0.0, 4.0), (0.1, 1.0, -0.2), x0=1.0, y0=3.0, input_unit="V", output_unit="um")
+    m = H.PIModel(
+        (0.0, 2.0), (0.5, 0.5), (-1.0, 0.0, 4.0), (0.1, 1.0, -0.2), x0=1.0, y0=3.0, input_unit="V", output_unit="um"
+    )
     assert H.PIModel.from_dict(m.to_dict()) == m
 
 

@@ -16,8 +16,16 @@ from piezopress.analysis import hysteresis as H
 from piezopress.analysis.identify import fit_sweeps
 
 
-def bouc_wen(x: np.ndarray, *, k: float | None = None, alpha: float = 0.35, beta: float = 0.9, gamma: float = 0.2, n: float = 1.0,
-             scale: float = 1.0) -> np.ndarray:
+def bouc_wen(
+    x: np.ndarray,
+    *,
+    k: float | None = None,
+    alpha: float = 0.35,
+    beta: float = 0.9,
+    gamma: float = 0.2,
+    n: float = 1.0,
+    scale: float = 1.0,
+) -> np.ndarray:
     """Piezo Bouc-Wen hysteresis ``y = k x - h``, ``dh = alpha dx - beta |dx| |h|^(n-1) h - gamma dx |h|^n``
     (input scaled by ``scale`` so the loop shape does not depend on the drive's units). The
     output lags the input (the rising branch below the falling one); ``k`` defaults to 0.3
@@ -25,7 +33,7 @@ def bouc_wen(x: np.ndarray, *, k: float | None = None, alpha: float = 0.35, beta
     the input."""
     if k is None:
         h_sat = (alpha / max(beta + gamma, 1e-9)) ** (1 / n)
-        k = alpha + abs(beta - gamma) * h_sat ** n + 0.3
+        k = alpha + abs(beta - gamma) * h_sat**n + 0.3
     u = np.asarray(x, float) / scale
     h = np.zeros_like(u)
     du = np.diff(u, prepend=u[0])
@@ -66,7 +74,9 @@ def random_record(seed: int, n: int = 1500):
         x = np.clip(x, lo, hi)
     rest = int(rng.integers(0, n // 5))
     x[:rest] = mid
-    y = 2.5 * bouc_wen(x, alpha=rng.uniform(0.1, 0.5), beta=rng.uniform(0.3, 1.5), gamma=rng.uniform(-0.2, 0.4), scale=amp)
+    y = 2.5 * bouc_wen(
+        x, alpha=rng.uniform(0.1, 0.5), beta=rng.uniform(0.3, 1.5), gamma=rng.uniform(-0.2, 0.4), scale=amp
+    )
     if rest:
         y[:rest] += rng.normal(0, 0.05 * np.ptp(y))  # a rest level the loop does not explain
     y[:10] -= rng.uniform(0, 0.3 * np.ptp(y)) * np.exp(-np.arange(10) / 3.0)  # a start-up transient
@@ -171,8 +181,12 @@ def test_the_inverse_moves_wherever_the_reference_moves_on_200_random_fitted_mod
         ratio = dx[moving] / dy[moving]
         worst_low = min(worst_low, float(ratio.min() * g))
         worst_high = max(worst_high, float(ratio.max() * g))
-        assert ratio.min() >= (1 - 1e-6) / upper, f"seed {seed}: the drive moves {ratio.min():.3g} per unit of reference"
-        assert ratio.max() <= (1 + 1e-6) / lower, f"seed {seed}: the drive jumps {ratio.max():.3g} per unit of reference"
+        assert ratio.min() >= (1 - 1e-6) / upper, (
+            f"seed {seed}: the drive moves {ratio.min():.3g} per unit of reference"
+        )
+        assert ratio.max() <= (1 + 1e-6) / lower, (
+            f"seed {seed}: the drive jumps {ratio.max():.3g} per unit of reference"
+        )
         # and the inverse is exact: the forward model gives the reference back
         back, _ = model.forward(xd)
         np.testing.assert_allclose(back, ref, atol=1e-6 * (z_hi - z_lo))
@@ -259,33 +273,45 @@ def test_fit_hysteresis_skips_the_start_on_request_and_prints_both_errors_in_the
     from piezopress.piezocli.main import cli
 
     _sweep_run(tmp_path / "sweep.parquet")
-    res = CliRunner().invoke(cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--rows", "600:2000", "--out", str(tmp_path / "h.json")])
+    res = CliRunner().invoke(
+        cli,
+        ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--rows", "600:2000", "--out", str(tmp_path / "h.json")],
+    )
     assert res.exit_code == 0, res.output
     fit = json.loads((tmp_path / "h.json").read_text())["fit"]
     assert fit["fitted_from_row"] == [600]
     line = next(ln for ln in res.output.splitlines() if ln.startswith("Fit error"))
     assert "train RMS" in line and "held-out RMS" in line and line.count("µm") == 3
-    res = CliRunner().invoke(cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--skip-s", "3", "--out", str(tmp_path / "h2.json")])
+    res = CliRunner().invoke(
+        cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--skip-s", "3", "--out", str(tmp_path / "h2.json")]
+    )
     assert res.exit_code == 0, res.output
     assert json.loads((tmp_path / "h2.json").read_text())["fit"]["fitted_from_row"] == [600]
     # by default the rest and the first half period are detected and skipped
-    res = CliRunner().invoke(cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--out", str(tmp_path / "h3.json")])
+    res = CliRunner().invoke(
+        cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), "--out", str(tmp_path / "h3.json")]
+    )
     assert res.exit_code == 0, res.output
     assert 400 <= json.loads((tmp_path / "h3.json").read_text())["fit"]["fitted_from_row"][0] <= 700
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--rows", "5:2"], "expected 0 <= START < STOP"),
-    (["--rows", "abc"], "expected START:STOP"),
-    (["--rows", "0:99999"], "--rows stop 99999 is outside the run's 2400 rows"),
-    (["--skip-s", "100"], "--skip-s 100 s; expected 0 to 11.99 s"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--rows", "5:2"], "expected 0 <= START < STOP"),
+        (["--rows", "abc"], "expected START:STOP"),
+        (["--rows", "0:99999"], "--rows stop 99999 is outside the run's 2400 rows"),
+        (["--skip-s", "100"], "--skip-s 100 s; expected 0 to 11.99 s"),
+    ],
+)
 def test_bad_fitted_rows_are_refused_naming_the_value(tmp_path, args, message):
     from click.testing import CliRunner
 
     from piezopress.piezocli.main import cli
 
     _sweep_run(tmp_path / "sweep.parquet")
-    res = CliRunner().invoke(cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), *args, "--out", str(tmp_path / "h.json")])
+    res = CliRunner().invoke(
+        cli, ["fit-hysteresis", str(tmp_path / "sweep.parquet"), *args, "--out", str(tmp_path / "h.json")]
+    )
     assert res.exit_code != 0 and message in res.output, res.output
     assert not (tmp_path / "h.json").exists()

@@ -17,10 +17,10 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress.errors import ImportFormatError
-from piezopress.runformat import read_run
+from piezopress.piezocli.main import cli
 from piezopress.pipelines.importing import import_table
+from piezopress.runformat import read_run
 
 ROOT = Path(__file__).resolve().parents[1]
 DATASETS = ROOT.parent / "shared" / "datasets"
@@ -71,7 +71,7 @@ def localised(args: list[str], out: Path) -> list[str]:
     """A documented command with the data set's real location and ``out`` for ``--out``."""
     args = list(args)
     assert args[1].startswith(DOC_PREFIX)
-    args[1] = str(DATASETS / args[1][len(DOC_PREFIX):])
+    args[1] = str(DATASETS / args[1][len(DOC_PREFIX) :])
     args[args.index("--out") + 1] = str(out)
     return args
 
@@ -237,32 +237,97 @@ def good_csv(tmp_path) -> Path:
 
 
 def test_error_missing_column_index(good_csv, tmp_path):
-    result = invoke(["import", good_csv, "--out", tmp_path / "r.parquet", "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=7"])
+    result = invoke(
+        [
+            "import",
+            good_csv,
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "t_s=1",
+            "--col",
+            "command_v=2",
+            "--col",
+            "displacement_um=7",
+        ]
+    )
     assert_one_line_error(result, "good.csv", "displacement_um=7", "3 column")
     assert not (tmp_path / "r.parquet").exists()
 
 
 def test_error_unknown_col_target(good_csv, tmp_path):
-    result = invoke(["import", good_csv, "--out", tmp_path / "r.parquet", "--col", "t_s=1", "--col", "command_v=2", "--col", "force=3"])
+    result = invoke(
+        [
+            "import",
+            good_csv,
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "t_s=1",
+            "--col",
+            "command_v=2",
+            "--col",
+            "force=3",
+        ]
+    )
     assert_one_line_error(result, "good.csv", "'force'", "force_n")
 
 
 def test_error_non_numeric_cell(tmp_path):
     src = write(tmp_path / "bad.csv", "0,1,2\n0.001,1,2\n0.002,abc,2\n0.003,1,2\n")
-    result = invoke(["import", src, "--out", tmp_path / "r.parquet", "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=3"])
+    result = invoke(
+        [
+            "import",
+            src,
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "t_s=1",
+            "--col",
+            "command_v=2",
+            "--col",
+            "displacement_um=3",
+        ]
+    )
     assert_one_line_error(result, "bad.csv", "'abc'", "data row 2 (line 3)", "column 2 (command_v)")
 
 
 def test_error_nan_cell(tmp_path):
     src = write(tmp_path / "nan.csv", "t,u,x\n0,1,2\n0.001,1,NaN\n0.002,1,2\n")
-    result = invoke(["import", src, "--out", tmp_path / "r.parquet", "--col", "t_s=t", "--col", "command_v=u", "--col", "displacement_um=x"])
+    result = invoke(
+        [
+            "import",
+            src,
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "t_s=t",
+            "--col",
+            "command_v=u",
+            "--col",
+            "displacement_um=x",
+        ]
+    )
     assert_one_line_error(result, "nan.csv", "NaN", "line 3", "column 3 (displacement_um)")
 
 
 def test_error_gap_in_time(tmp_path):
     t = np.delete(np.arange(30) / 1000.0, 17)  # one sample missing: a step of 2 ms among 1 ms
     src = write(tmp_path / "gap.csv", table(t, np.ones(29), np.ones(29)))
-    result = invoke(["import", src, "--out", tmp_path / "r.parquet", "--col", "t_s=t", "--col", "command_v=u", "--col", "displacement_um=x"])
+    result = invoke(
+        [
+            "import",
+            src,
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "t_s=t",
+            "--col",
+            "command_v=u",
+            "--col",
+            "displacement_um=x",
+        ]
+    )
     assert_one_line_error(result, "gap.csv", "not uniformly sampled", "time column 1")
 
 
@@ -270,19 +335,47 @@ def test_error_out_exists_leaves_it_untouched(good_csv, tmp_path):
     out = tmp_path / "existing.parquet"
     out.write_bytes(b"precious bytes")
     before = out.read_bytes()
-    result = invoke(["import", good_csv, "--out", out, "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=3"])
+    result = invoke(
+        ["import", good_csv, "--out", out, "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=3"]
+    )
     assert_one_line_error(result, "existing.parquet", "already exists")
     assert out.read_bytes() == before
 
 
 def test_error_empty_file(tmp_path):
     src = write(tmp_path / "empty.csv", "\n\n")
-    result = invoke(["import", src, "--out", tmp_path / "r.parquet", "--col", "command_v=1", "--col", "force_n=2", "--sample-rate", "10"])
+    result = invoke(
+        [
+            "import",
+            src,
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "command_v=1",
+            "--col",
+            "force_n=2",
+            "--sample-rate",
+            "10",
+        ]
+    )
     assert_one_line_error(result, "empty.csv", "empty")
 
 
 def test_error_missing_source(tmp_path):
-    result = invoke(["import", tmp_path / "nope.csv", "--out", tmp_path / "r.parquet", "--col", "command_v=1", "--col", "force_n=2", "--sample-rate", "10"])
+    result = invoke(
+        [
+            "import",
+            tmp_path / "nope.csv",
+            "--out",
+            tmp_path / "r.parquet",
+            "--col",
+            "command_v=1",
+            "--col",
+            "force_n=2",
+            "--sample-rate",
+            "10",
+        ]
+    )
     assert_one_line_error(result, "nope.csv", "no such file")
 
 
@@ -301,13 +394,29 @@ def test_error_missing_source(tmp_path):
     ],
 )
 def test_error_bad_options(good_csv, tmp_path, extra, mentions):
-    args = ["import", good_csv, "--out", tmp_path / "r.parquet", "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=3"]
+    args = [
+        "import",
+        good_csv,
+        "--out",
+        tmp_path / "r.parquet",
+        "--col",
+        "t_s=1",
+        "--col",
+        "command_v=2",
+        "--col",
+        "displacement_um=3",
+    ]
     assert_one_line_error(invoke(args + extra), *mentions)
 
 
 def test_inspect_reports_bad_files_and_goes_on(good_csv, tmp_path):
     good = tmp_path / "good.parquet"
-    assert invoke(["import", good_csv, "--out", good, "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=3"]).exit_code == 0
+    assert (
+        invoke(
+            ["import", good_csv, "--out", good, "--col", "t_s=1", "--col", "command_v=2", "--col", "displacement_um=3"]
+        ).exit_code
+        == 0
+    )
     bad = write(tmp_path / "bad.parquet", "not parquet")
     result = invoke(["inspect", bad, good])
     assert result.exit_code == 1
@@ -337,7 +446,9 @@ def test_jittery_time_is_resampled_to_an_exact_grid(tmp_path):
 
 def test_header_names_scale_offset_and_whitespace(tmp_path):
     k = np.arange(10)
-    src = write(tmp_path / "ws.txt", "  time   volts   microns\n" + table(k * 0.01, 0.1 * k, k * 1e-3, header=None, sep="   "))
+    src = write(
+        tmp_path / "ws.txt", "  time   volts   microns\n" + table(k * 0.01, 0.1 * k, k * 1e-3, header=None, sep="   ")
+    )
     run = import_table(
         src,
         columns={"t_s": "time", "command_v": "volts", "force_n": "microns"},
@@ -361,7 +472,9 @@ def test_lag_and_rows_pair_input_row_i_with_output_row_i_plus_lag(tmp_path):
     np.testing.assert_array_equal(early.command_v, k[1:])
     np.testing.assert_array_equal(early.data["displacement_um"], 10 * k[:-1])
     # rows select input rows; the lagged output comes from beyond the segment if the file has it.
-    seg = import_table(src, columns=cols, sample_rate_hz=10.0, lag_samples={"displacement_um": 1}, rows=(3, 7), zero_time=False)
+    seg = import_table(
+        src, columns=cols, sample_rate_hz=10.0, lag_samples={"displacement_um": 1}, rows=(3, 7), zero_time=False
+    )
     np.testing.assert_array_equal(seg.command_v, k[3:7])
     np.testing.assert_array_equal(seg.data["displacement_um"], 10 * k[4:8])
     assert seg.t_s[0] == pytest.approx(0.3, abs=1e-12) and seg.meta["import"]["rows"] == [3, 7]
@@ -409,8 +522,23 @@ def test_inspect_takes_a_directory_of_runs(good_csv, tmp_path):
     runs = tmp_path / "runs"
     runs.mkdir()
     for name in ("a", "b"):
-        assert invoke(["import", good_csv, "--out", runs / f"{name}.parquet", "--col", "t_s=1", "--col", "command_v=2",
-                       "--col", "displacement_um=3"]).exit_code == 0
+        assert (
+            invoke(
+                [
+                    "import",
+                    good_csv,
+                    "--out",
+                    runs / f"{name}.parquet",
+                    "--col",
+                    "t_s=1",
+                    "--col",
+                    "command_v=2",
+                    "--col",
+                    "displacement_um=3",
+                ]
+            ).exit_code
+            == 0
+        )
     result = invoke(["inspect", runs])
     assert result.exit_code == 0, result.output
     assert result.output.count("20 samples at 1000 Hz") == 2

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from independent_press import IndependentPress
 
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.plan import DriveLimits
@@ -20,8 +21,6 @@ from piezopress.pipelines import characterize as char
 from piezopress.pipelines import fit as fit_mod
 from piezopress.pipelines import summary
 from piezopress.pipelines import validate as val_mod
-
-from independent_press import IndependentPress
 
 HERE = Path(__file__).resolve().parent
 FORBIDDEN = ("rig_physics", "virtual_rig", "rig_config")
@@ -63,12 +62,12 @@ def test_the_press_creeps_and_rings_near_1_khz():
     fs = 1000.0
     t = np.arange(0, 60, 1 / fs)
     f = press.run(np.where(t >= 1.0, 150.0, 0.0), fs, preload_n=50.0, label="creep").channels["force_n"]
-    early, late = f[int(1.5 * fs):int(1.6 * fs)].mean(), f[-int(fs):].mean()
+    early, late = f[int(1.5 * fs) : int(1.6 * fs)].mean(), f[-int(fs) :].mean()
     assert 0.01 < (late - early) / (early - 50.0) < 0.06  # a few % over a minute
     fs = 50_000.0
     t = np.arange(0, 0.05, 1 / fs)
     f = press.run(np.where(t >= 0.005, 20.0, 0.0), fs, preload_n=50.0, label="step").channels["force_n"]
-    ring = f[int(0.006 * fs):int(0.03 * fs)] - f[int(0.04 * fs):].mean()
+    ring = f[int(0.006 * fs) : int(0.03 * fs)] - f[int(0.04 * fs) :].mean()
     spectrum = np.abs(np.fft.rfft(ring * np.hanning(ring.size), 8 * ring.size))
     peak_hz = np.fft.rfftfreq(8 * ring.size, 1 / fs)[np.argmax(spectrum)]
     assert 850.0 < peak_hz < 1200.0

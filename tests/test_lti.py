@@ -28,8 +28,12 @@ def test_the_mode_has_unit_dc_gain_and_peaks_at_one_over_two_zeta(wn, zeta):
 
 creep_models = st.one_of(
     st.builds(CreepModel.log, st.floats(0.5, 2.0), st.floats(0.0, 0.05)),
-    st.builds(lambda kc, k, tz: CreepModel.poles(kc, k, tz, 46.223, 1.5618, 0.001), st.floats(0.5, 2.0), st.floats(0.0, 0.1),
-              st.floats(0.0, 40.0)),
+    st.builds(
+        lambda kc, k, tz: CreepModel.poles(kc, k, tz, 46.223, 1.5618, 0.001),
+        st.floats(0.5, 2.0),
+        st.floats(0.0, 0.1),
+        st.floats(0.0, 40.0),
+    ),
 )
 
 

@@ -10,6 +10,7 @@ lost. Real-board tests run only with ``pytest --daq DEVICE``.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from collections import Counter
@@ -19,7 +20,6 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress import runformat as rf
 from piezopress.acquisition import daq_config
 from piezopress.acquisition.daq_config import DaqRigConfig, load_daq_rig, parse_daq_rig
@@ -33,6 +33,7 @@ from piezopress.acquisition.nidaq import (
 )
 from piezopress.analysis.rigcheck import rig_check
 from piezopress.errors import BackendError, ConfigError, PiezopressError, PlanError
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import check_rig
 
@@ -63,7 +64,9 @@ class FakeBoard:
     input has returned (as on hardware, where reads lag the clock).
     """
 
-    def __init__(self, *, preload_n=60.0, n_per_v=2.0, sensitivity=0.010003, offset_v=0.0, fail=None, coerce=None, lead=0):
+    def __init__(
+        self, *, preload_n=60.0, n_per_v=2.0, sensitivity=0.010003, offset_v=0.0, fail=None, coerce=None, lead=0
+    ):
         self.preload_n, self.n_per_v, self.sensitivity, self.offset_v = preload_n, n_per_v, sensitivity, offset_v
         self.fail = dict(fail or {})
         self.coerce = coerce
@@ -142,7 +145,9 @@ class FakeTask:
     def write(self, data, auto_start=False):
         data = np.array(data, dtype=np.float64)
         self.board.hit(self.name, "write", data, auto_start)
-        assert self.ao is not None and np.all(data >= self.ao[1]) and np.all(data <= self.ao[2]), "write outside the output range"
+        assert self.ao is not None and np.all(data >= self.ao[1]) and np.all(data <= self.ao[2]), (
+            "write outside the output range"
+        )
         if self.rate is None:  # on demand
             assert auto_start and data.size == 1
             self.board.emit(self.name.split("-")[-1], data)
@@ -195,7 +200,8 @@ def same_calls(actual, expected):
     assert len(actual) == len(expected), "\n".join(map(str, actual))
     for a, e in zip(actual, expected):
         assert len(a) == len(e) and all(
-            np.array_equal(x, y) if isinstance(x, np.ndarray) or isinstance(y, np.ndarray) else x == y for x, y in zip(a, e)
+            np.array_equal(x, y) if isinstance(x, np.ndarray) or isinstance(y, np.ndarray) else x == y
+            for x, y in zip(a, e)
         ), f"call {a} != expected {e}"
 
 
@@ -209,7 +215,9 @@ def assert_safe_end(board, cfg):
     rate_daq = cfg.safety.ramp_down_v_per_s / cfg.amplifier.gain
     for source, values in board.output:
         if source == "ramp":
-            assert values[0] == pytest.approx(level, abs=1e-12), "ramp does not start from the last output value (a jump)"
+            assert values[0] == pytest.approx(level, abs=1e-12), (
+                "ramp does not start from the last output value (a jump)"
+            )
             assert np.max(np.abs(np.diff(values))) * cfg.safety.ramp_sample_rate_hz <= rate_daq * (1 + 1e-9)
             assert values[-1] == 0.0
         level = values[-1]
@@ -326,7 +334,11 @@ def test_the_thin_layer_makes_the_nidaqmx_calls(monkeypatch):
         FINITE, CONTINUOUS = 10178, 10123
 
     nidaqmx = mock.MagicMock(name="nidaqmx")
-    nidaqmx.constants.TerminalConfiguration, nidaqmx.constants.Edge, nidaqmx.constants.AcquisitionType = TerminalConfiguration, Edge, AcquisitionType
+    nidaqmx.constants.TerminalConfiguration, nidaqmx.constants.Edge, nidaqmx.constants.AcquisitionType = (
+        TerminalConfiguration,
+        Edge,
+        AcquisitionType,
+    )
     readers = types.ModuleType("nidaqmx.stream_readers")
 
     class AnalogMultiChannelReader:
@@ -343,15 +355,23 @@ def test_the_thin_layer_makes_the_nidaqmx_calls(monkeypatch):
     task = nidaqmx.Task.return_value
     t = NidaqmxDriver().task("piezopress-ai")
     t.add_ai_voltage_chan("Dev1/ai0", -10.0, 10.0, "diff")
-    task.ai_channels.add_ai_voltage_chan.assert_called_once_with("Dev1/ai0", terminal_config=TerminalConfiguration.DIFF, min_val=-10.0, max_val=10.0)
+    task.ai_channels.add_ai_voltage_chan.assert_called_once_with(
+        "Dev1/ai0", terminal_config=TerminalConfiguration.DIFF, min_val=-10.0, max_val=10.0
+    )
     t.add_ao_voltage_chan("Dev1/ao0", -10.0, 10.0)
     task.ao_channels.add_ao_voltage_chan.assert_called_once_with("Dev1/ao0", min_val=-10.0, max_val=10.0)
     t.cfg_samp_clk_timing(1000.0, 500, source="/Dev1/ai/SampleClock")
     task.timing.cfg_samp_clk_timing.assert_called_once_with(
-        1000.0, source="/Dev1/ai/SampleClock", active_edge=Edge.RISING, sample_mode=AcquisitionType.FINITE, samps_per_chan=500
+        1000.0,
+        source="/Dev1/ai/SampleClock",
+        active_edge=Edge.RISING,
+        sample_mode=AcquisitionType.FINITE,
+        samps_per_chan=500,
     )
     t.cfg_dig_edge_start_trig("/Dev1/ai/StartTrigger")
-    task.triggers.start_trigger.cfg_dig_edge_start_trig.assert_called_once_with("/Dev1/ai/StartTrigger", trigger_edge=Edge.RISING)
+    task.triggers.start_trigger.cfg_dig_edge_start_trig.assert_called_once_with(
+        "/Dev1/ai/StartTrigger", trigger_edge=Edge.RISING
+    )
     out = t.read(4, 2.5)
     assert out.shape == (1, 4) and np.all(out == 1.5)
     task.write.return_value = 3
@@ -396,7 +416,9 @@ def test_drive_outside_the_amplifier_and_output_range_is_refused_before_any_call
     rig, board = backend_with(cfg)
     with pytest.raises(BackendError) as err:
         rig.run(tri(130.0), FS, preload_n=50.0, label="x")
-    assert "[amplifier] output_min_v/output_max_v" in str(err.value) and "[daq] ao_min_v/ao_max_v x 10" in str(err.value)
+    assert "[amplifier] output_min_v/output_max_v" in str(err.value) and "[daq] ao_min_v/ao_max_v x 10" in str(
+        err.value
+    )
     assert board.calls == [] and board.level == 0.0
 
 
@@ -405,10 +427,16 @@ def test_slew_limit_counts_the_first_sample_from_rest(cfg):
     cfg = cfg.replace(actuator={"slew_limit_v_per_s": 5000.0})
     assert drive_problems(np.linspace(0, 10, 11), FS, cfg) == []
     problems = drive_problems(np.full(11, 10.0), FS, cfg)
-    assert len(problems) == 1 and "from the output at rest to the first sample" in problems[0] and "1e+04 V/s" in problems[0]
+    assert (
+        len(problems) == 1
+        and "from the output at rest to the first sample" in problems[0]
+        and "1e+04 V/s" in problems[0]
+    )
 
 
-@pytest.mark.parametrize("preload_n, words", [(40.0, "below [safety] preload_min_n = 50 N"), (250.0, "above [safety] safe_force_n = 200 N")])
+@pytest.mark.parametrize(
+    "preload_n, words", [(40.0, "below [safety] preload_min_n = 50 N"), (250.0, "above [safety] safe_force_n = 200 N")]
+)
 def test_preload_is_read_and_the_run_refused_outside_the_safe_band(cfg, preload_n, words):
     rig, board = backend_with(cfg, preload_n=preload_n)
     with pytest.raises(BackendError, match="run refused") as err:
@@ -558,7 +586,9 @@ def test_zero_output_is_safe_to_call_any_time(cfg):
 # --------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("from_v, rate, fs", [(7.5, 25.0, 1000.0), (-1.5, 25.0, 1000.0), (0.3, 1.0, 7.0), (5.0, 1e6, 1000.0)])
+@pytest.mark.parametrize(
+    "from_v, rate, fs", [(7.5, 25.0, 1000.0), (-1.5, 25.0, 1000.0), (0.3, 1.0, 7.0), (5.0, 1e6, 1000.0)]
+)
 def test_ramp_to_zero_starts_where_the_output_is_ends_at_zero_and_respects_the_rate(from_v, rate, fs):
     ramp = ramp_to_zero(from_v, rate, fs)
     assert ramp[0] == from_v and ramp[-1] == 0.0
@@ -640,13 +670,18 @@ def test_characterize_keeps_an_over_force_run_as_incomplete_and_stops(tmp_path, 
 
 
 def test_characterize_keeps_a_run_cut_by_ctrl_c_as_incomplete_and_says_interrupted(tmp_path, plan, cfg):
-    rig, board = backend_with(cfg, fail={("piezopress-ai", "read", 13): KeyboardInterrupt()})  # 11 reads in 'tri', then 'step'
+    rig, board = backend_with(
+        cfg, fail={("piezopress-ai", "read", 13): KeyboardInterrupt()}
+    )  # 11 reads in 'tri', then 'step'
     out = tmp_path / "runs"
     with pytest.raises(KeyboardInterrupt):
         char.characterize(out, plan_path=plan, backend=rig)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["status"] == "interrupted"
-    assert [(r["file"], r["status"]) for r in manifest["runs"]] == [("tri.parquet", "complete"), ("step.incomplete.parquet", "incomplete")]
+    assert [(r["file"], r["status"]) for r in manifest["runs"]] == [
+        ("tri.parquet", "complete"),
+        ("step.incomplete.parquet", "incomplete"),
+    ]
     run = rf.read_run(out / "step.incomplete.parquet", allow_incomplete=True)
     assert len(run.data) == 50 and "interrupted by the user" in run.meta["status_reason"]
     assert_safe_end(board, cfg)
@@ -683,7 +718,9 @@ def test_cli_characterize_nidaq_without_nidaqmx_one_line_and_nothing_created(tmp
     assert res.exit_code == 1 and "Traceback" not in res.output
     from piezopress.acquisition.nidaq import INSTALL_HINT
 
-    assert res.output.strip().splitlines() == [f"Error: the nidaq backend needs the nidaqmx package, which is not installed: {INSTALL_HINT}"]
+    assert res.output.strip().splitlines() == [
+        f"Error: the nidaq backend needs the nidaqmx package, which is not installed: {INSTALL_HINT}"
+    ]
     assert not out.exists()
 
 
@@ -719,9 +756,11 @@ def test_example_rig_parses_and_documents_every_key():
     text = EXAMPLE.read_text()
     for sec, cls in daq_config.SECTIONS.items():
         assert f"[{sec}]" in text
-        for f in daq_config.fields(cls):
+        for f in dataclasses.fields(cls):
             assert f"\n{f.name} = " in text, f"[{sec}] {f.name} is not in the example file"
-    assert cfg == parse_daq_rig(DaqRigConfig().as_dict(), source=str(EXAMPLE)).replace(rig={"name": "press 1 (NI-DAQmx)"})
+    assert cfg == parse_daq_rig(DaqRigConfig().as_dict(), source=str(EXAMPLE)).replace(
+        rig={"name": "press 1 (NI-DAQmx)"}
+    )
 
 
 def test_every_problem_of_a_rig_file_is_reported_at_once_with_section_and_key():
@@ -810,7 +849,12 @@ def test_check_rig_on_the_fake_board_reports_the_rates_and_the_preload(cfg):
 
 def test_check_rig_cli_without_nidaqmx_is_one_line(no_nidaqmx):
     res = CliRunner().invoke(cli, ["check-rig", "--rig", str(EXAMPLE)])
-    assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1 and "pip install nidaqmx" in res.output and "[nidaq]" in res.output
+    assert (
+        res.exit_code == 1
+        and len(res.output.strip().splitlines()) == 1
+        and "pip install nidaqmx" in res.output
+        and "[nidaq]" in res.output
+    )
 
 
 # --------------------------------------------------------------------------------------

@@ -85,4 +85,6 @@ def test_widened_play_equals_loop(x, r, data):
     widen = data.draw(arrays(np.float64, x.size, elements=st.floats(0, 20)))
     ref = op.play_loop(x, r, 0.0, widen)
     np.testing.assert_allclose(op.play(x, r, 0.0, widen), ref, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(op._play_scan(x, r, op.play_initial_state(x[0], r + widen[0]), widen), ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        op._play_scan(x, r, op.play_initial_state(x[0], r + widen[0]), widen), ref, rtol=0, atol=1e-12
+    )

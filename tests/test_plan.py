@@ -15,7 +15,11 @@ LIMITS = DriveLimits()
 def test_default_plan_covers_thesis_tests():
     plan = load_plan(ROOT / "protocols" / "characterize.toml", LIMITS)
     by = {p.name: p for p in plan.protocols}
-    freqs = sorted(p.params["freq_hz"] for p in plan.protocols if p.kind == "triangle" and p.params.get("peaks_v") is None and p.params.get("random_peaks") is None)
+    freqs = sorted(
+        p.params["freq_hz"]
+        for p in plan.protocols
+        if p.kind == "triangle" and p.params.get("peaks_v") is None and p.params.get("random_peaks") is None
+    )
     assert freqs == [0.1, 1.0, 5.0, 10.0, 50.0, 100.0]
     assert by["creep-150v"].params["hold_s"] == 120.0 and by["creep-150v"].params["level_v"] == 150.0
     levels = sorted(p.params["level_v"] for p in plan.protocols if p.kind == "step")
@@ -28,8 +32,18 @@ def test_default_plan_covers_thesis_tests():
 
 
 def test_triangle_waveform_reaches_peaks_and_is_deterministic():
-    doc = {"plan": {"name": "x"}, "protocol": [{"name": "t", "kind": "triangle", "freq_hz": 1.0, "sample_rate_hz": 100.0,
-                                                "random_peaks": {"count": 3, "min_v": 10.0, "max_v": 20.0, "seed": 4}}]}
+    doc = {
+        "plan": {"name": "x"},
+        "protocol": [
+            {
+                "name": "t",
+                "kind": "triangle",
+                "freq_hz": 1.0,
+                "sample_rate_hz": 100.0,
+                "random_peaks": {"count": 3, "min_v": 10.0, "max_v": 20.0, "seed": 4},
+            }
+        ],
+    }
     p1 = parse_plan(doc, LIMITS).protocols[0]
     t, v = p1.waveform()
     _, v2 = parse_plan(doc, LIMITS).protocols[0].waveform()
@@ -71,7 +85,10 @@ def test_sample_rate_above_backend_limit():
 
 def test_limits_come_from_the_rig():
     # the same plan is fine on a rig allowing 200 V and refused on the default 150 V one
-    doc = {"plan": {"name": "x"}, "protocol": [{"name": "s", "kind": "step", "level_v": 180.0, "hold_s": 0.1, "sample_rate_hz": 1000.0}]}
+    doc = {
+        "plan": {"name": "x"},
+        "protocol": [{"name": "s", "kind": "step", "level_v": 180.0, "hold_s": 0.1, "sample_rate_hz": 1000.0}],
+    }
     parse_plan(doc, DriveLimits(drive_max_v=200.0))
     with pytest.raises(PlanError, match="180 V"):
         parse_plan(doc, LIMITS)
@@ -97,10 +114,13 @@ def test_rig_keys_lists_every_key_including_those_with_one_bound():
     assert "seed = 20261121, range >= 0:" in res.output  # a lower bound only: once a TypeError
 
 
-@pytest.mark.parametrize("text, message", [
-    ("[rig]\nseed = -1\n", "[rig] seed = -1: outside the allowed range >= 0"),
-    ("[rig]\nseed = 1.5\n", "[rig] seed = 1.5: expected int"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[rig]\nseed = -1\n", "[rig] seed = -1: outside the allowed range >= 0"),
+        ("[rig]\nseed = 1.5\n", "[rig] seed = 1.5: expected int"),
+    ],
+)
 def test_a_rig_value_outside_its_range_is_one_line_naming_it(tmp_path, text, message):
     from click.testing import CliRunner
 

@@ -63,7 +63,9 @@ def _random_drive(kind: str, rng: np.random.Generator):
         return W.time_axis(x.size, fs), x, {"kind": "creep", "level": hi}
     if kind == "staircase":
         count = int(rng.integers(3, 12))
-        x = W.staircase(lo, (hi - lo) / count, count, float(rng.uniform(0.5, 3.0)), float(rng.uniform(0.01, 0.2)), 0.5, fs)
+        x = W.staircase(
+            lo, (hi - lo) / count, count, float(rng.uniform(0.5, 3.0)), float(rng.uniform(0.01, 0.2)), 0.5, fs
+        )
         return W.time_axis(x.size, fs), x, {"kind": "staircase"}
     if kind == "random":
         x = W.random_band(0.2, 20.0, float(rng.uniform(5, 20)), lo, hi, int(rng.integers(0, 2**31)), 0.5, fs)
@@ -112,7 +114,9 @@ def test_every_run_of_the_default_characterization_matches_its_plan():
 
 
 def _run(kind: str, t, x, y, **meta):
-    return runformat.make_run({"t_s": t, "command_v": x, "force_n": y}, runformat.make_meta(kind, "r", 1.0 / (t[1] - t[0]), **meta))
+    return runformat.make_run(
+        {"t_s": t, "command_v": x, "force_n": y}, runformat.make_meta(kind, "r", 1.0 / (t[1] - t[0]), **meta)
+    )
 
 
 def test_crosscheck_is_silent_on_agreement_and_names_run_recorded_and_measured_value():
@@ -167,8 +171,13 @@ def test_runs_as_other_programs_write_them_are_read(tmp_path):
     import pyarrow.parquet as pq
 
     src = runformat.read_run(SAMPLE_CHAR / "triangle-1hz.parquet")
-    table = pa.table({"t_s": (src.t_s + 1000.0).astype(np.float64), "command_v": np.round(src.command_v).astype(np.int32),
-                      "force_n": src.output.astype(np.float32)})
+    table = pa.table(
+        {
+            "t_s": (src.t_s + 1000.0).astype(np.float64),
+            "command_v": np.round(src.command_v).astype(np.int32),
+            "force_n": src.output.astype(np.float32),
+        }
+    )
     meta = {k: src.meta[k] for k in runformat.REQUIRED_METADATA}
     table = table.replace_schema_metadata({runformat.METADATA_KEY: __import__("json").dumps(meta).encode()})
     pq.write_table(table, tmp_path / "other.parquet")
@@ -178,11 +187,17 @@ def test_runs_as_other_programs_write_them_are_read(tmp_path):
     assert p.kind == "triangle" and p.freq_hz == pytest.approx(1.0, rel=0.01) and p.t0_s == pytest.approx(1000.0)
 
     table32 = pa.table({"t_s": src.t_s.astype(np.float32), "command_v": src.command_v, "force_n": src.output})
-    pq.write_table(table32.replace_schema_metadata({runformat.METADATA_KEY: __import__("json").dumps(meta).encode()}), tmp_path / "t32.parquet")
+    pq.write_table(
+        table32.replace_schema_metadata({runformat.METADATA_KEY: __import__("json").dumps(meta).encode()}),
+        tmp_path / "t32.parquet",
+    )
     assert runformat.read_run(tmp_path / "t32.parquet").sample_rate_hz == pytest.approx(src.sample_rate_hz)
 
     bad = dict(meta, sample_rate_hz=2 * src.sample_rate_hz)
-    pq.write_table(table.replace_schema_metadata({runformat.METADATA_KEY: __import__("json").dumps(bad).encode()}), tmp_path / "bad.parquet")
+    pq.write_table(
+        table.replace_schema_metadata({runformat.METADATA_KEY: __import__("json").dumps(bad).encode()}),
+        tmp_path / "bad.parquet",
+    )
     with pytest.raises(runformat.RunFormatError) as err:
         runformat.read_run(tmp_path / "bad.parquet")
     assert "sample_rate_hz is 4000" in str(err.value) and "2000" in str(err.value) and "\n" not in str(err.value)
@@ -203,8 +218,10 @@ def test_quasi_static_sweeps_are_chosen_by_measured_frequency_not_by_label(tmp_p
     custom is; with only a 1 Hz sine (as the real records hold) the slowest sweep is used."""
     from piezopress.pipelines.fit import hysteresis_runs
 
-    runs = [profiles.measured(foreign_run(runformat.read_run(SAMPLE_CHAR / f"triangle-{f}.parquet"), custom=True))
-            for f in ("0.1hz", "1hz", "100hz")]
+    runs = [
+        profiles.measured(foreign_run(runformat.read_run(SAMPLE_CHAR / f"triangle-{f}.parquet"), custom=True))
+        for f in ("0.1hz", "1hz", "100hz")
+    ]
     assert [r.name for r in hysteresis_runs(runs, False)] == ["triangle-0.1hz"]
     profiles.trust_metadata(False)
     assert [r.name for r in hysteresis_runs(runs[1:], False)] == ["triangle-1hz"]
@@ -232,9 +249,11 @@ def test_fit_agrees_with_full_and_minimal_metadata_and_custom_kinds(tmp_path):
     from piezopress.pipelines.fit import fit_bundle
 
     limits = char.rig_limits(None)
-    variants = {"full": SAMPLE_CHAR,
-                "minimal": foreign_dir(SAMPLE_CHAR, tmp_path / "minimal"),
-                "custom": foreign_dir(SAMPLE_CHAR, tmp_path / "custom", custom=True)}
+    variants = {
+        "full": SAMPLE_CHAR,
+        "minimal": foreign_dir(SAMPLE_CHAR, tmp_path / "minimal"),
+        "custom": foreign_dir(SAMPLE_CHAR, tmp_path / "custom", custom=True),
+    }
     results = {k: fit_bundle([v], limits).result for k, v in variants.items()}
     ref = results["full"]
     for name, res in results.items():

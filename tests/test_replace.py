@@ -45,7 +45,9 @@ def test_two_replaces_in_a_row_keep_every_version(tmp_path):
     kept2 = files.write_output(out, _text_writer("v2"), replace=True)
     kept3 = files.write_output(out, _text_writer("v3"), replace=True)
     assert kept2 != kept3 and kept2.read_text() == "v1" and kept3.read_text() == "v2" and out.read_text() == "v3"
-    assert kept2.name.startswith("doc.json.replaced-") and not kept2.name.endswith(".json")  # not picked up as a document
+    assert kept2.name.startswith("doc.json.replaced-") and not kept2.name.endswith(
+        ".json"
+    )  # not picked up as a document
     assert versions(out) == ["v1", "v2", "v3"]
     assert not [p for p in tmp_path.iterdir() if "partial" in p.name or p.name.endswith(".lock")]
 
@@ -120,9 +122,13 @@ def test_an_unwritable_folder_is_one_line(tmp_path, monkeypatch):
     folder.mkdir()
     real = os.access
     monkeypatch.setattr(os, "access", lambda p, mode, **kw: False if Path(p) == folder else real(p, mode, **kw))
-    with pytest.raises(PiezopressError, match=r"ro: cannot write there \(permission denied\); expected a folder you may write to"):
+    with pytest.raises(
+        PiezopressError, match=r"ro: cannot write there \(permission denied\); expected a folder you may write to"
+    ):
         files.check_output(folder / "out.json")
-    code, out = invoke("compensate", "--bundle", BUNDLE, "--reference", tmp_path / "missing.csv", "--out", folder / "d.csv")
+    code, out = invoke(
+        "compensate", "--bundle", BUNDLE, "--reference", tmp_path / "missing.csv", "--out", folder / "d.csv"
+    )
     assert code == 1 and out.count("\n") == 1 and "cannot write there" in out  # refused before the reference is read
 
 
@@ -168,7 +174,9 @@ def _kept_from(output: str) -> Path:
 @pytest.mark.parametrize("command", ["compensate", "simulate", "import"])
 def test_every_writer_refuses_then_replaces_keeping_the_old_version(command, tmp_path, ref_csv):
     src = tmp_path / "src.csv"
-    pd.DataFrame({"t_s": np.arange(100) / 100.0, "command_v": np.linspace(0, 1, 100), "force_n": np.linspace(0, 2, 100)}).to_csv(src, index=False)
+    pd.DataFrame(
+        {"t_s": np.arange(100) / 100.0, "command_v": np.linspace(0, 1, 100), "force_n": np.linspace(0, 2, 100)}
+    ).to_csv(src, index=False)
     out = tmp_path / ("out.csv" if command == "compensate" else "out.parquet")
     args = {
         "compensate": ["compensate", "--bundle", BUNDLE, "--reference", ref_csv, "--out", out],
@@ -203,7 +211,17 @@ def test_every_file_writer_has_replace_with_one_spelling():
     import click
 
     ctx = click.Context(cli)
-    writers = ["import", "compensate", "simulate", "report", "bundle", "fit", "fit-hysteresis", "fit-creep", "fit-shaper"]
+    writers = [
+        "import",
+        "compensate",
+        "simulate",
+        "report",
+        "bundle",
+        "fit",
+        "fit-hysteresis",
+        "fit-creep",
+        "fit-shaper",
+    ]
     for name in writers:
         opts = {o for p in cli.get_command(ctx, name).params for o in getattr(p, "opts", [])}
         assert "--replace" in opts, name

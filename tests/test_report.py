@@ -14,12 +14,12 @@ import math
 import pytest
 from click.testing import CliRunner
 
+from piezopress import thesis
 from piezopress.piezocli.main import cli
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import report as rep
 from piezopress.pipelines import summary
 from piezopress.pipelines import validate as val
-from piezopress import thesis
 
 CHAR_PLAN = """
 [plan]
@@ -113,7 +113,17 @@ def inputs(tmp_path_factory):
 @pytest.fixture(scope="module")
 def full(inputs, tmp_path_factory):
     out = tmp_path_factory.mktemp("reports") / "full"
-    res = invoke("report", "--characterization", inputs["char"], "--validation", inputs["val"], "--bundle", inputs["bundle"], "--out", out)
+    res = invoke(
+        "report",
+        "--characterization",
+        inputs["char"],
+        "--validation",
+        inputs["val"],
+        "--bundle",
+        inputs["bundle"],
+        "--out",
+        out,
+    )
     assert res.exit_code == 0, res.output
     return out, res.output
 
@@ -125,21 +135,52 @@ def read_metrics(path):
 
 def test_writes_every_file_and_prints_the_table_and_the_page(full):
     out, output = full
-    for name in ("metrics.csv", "report.md", "report.html", "hysteresis_loops.png", "creep.png", "steps.png", "tracking.png",
-                 "model_residuals.png", "compensated_drive.png", "mode_bode.png", "shaper_sensitivity.png", "creep_bode.png"):
+    for name in (
+        "metrics.csv",
+        "report.md",
+        "report.html",
+        "hysteresis_loops.png",
+        "creep.png",
+        "steps.png",
+        "tracking.png",
+        "model_residuals.png",
+        "compensated_drive.png",
+        "mode_bode.png",
+        "shaper_sensitivity.png",
+        "creep_bode.png",
+    ):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     assert "| quantity" in output and "controlled (thesis)" in output
     assert output.rstrip().splitlines()[-1].endswith(str(out / "report.html"))
     md = (out / "report.md").read_text()
-    for section in ("Table 6.13", "Characterization", "Validation", "Model quality", "Hysteresis", "Creep", "shaper", "Table 6.8",
-                    "held out", "](steps.png)"):
+    for section in (
+        "Table 6.13",
+        "Characterization",
+        "Validation",
+        "Model quality",
+        "Hysteresis",
+        "Creep",
+        "shaper",
+        "Table 6.8",
+        "held out",
+        "](steps.png)",
+    ):
         assert section in md, section
 
 
 def test_metrics_csv_is_byte_identical_for_the_same_inputs(inputs, full, tmp_path):
     out, _ = full
-    res = invoke("report", "--characterization", inputs["char"], "--validation", inputs["val"], "--bundle", inputs["bundle"],
-                 "--out", tmp_path / "again")
+    res = invoke(
+        "report",
+        "--characterization",
+        inputs["char"],
+        "--validation",
+        inputs["val"],
+        "--bundle",
+        inputs["bundle"],
+        "--out",
+        tmp_path / "again",
+    )
     assert res.exit_code == 0, res.output
     assert (tmp_path / "again" / "metrics.csv").read_bytes() == (out / "metrics.csv").read_bytes()
 
@@ -150,16 +191,26 @@ def test_metrics_csv_layout(full):
     assert text.splitlines()[0] == "table,test,metric,unit,value,thesis,thesis_source"
     rows = read_metrics(out / "metrics.csv")
     first = [(r["table"], r["test"], r["metric"]) for r in rows[:16]]
-    assert first == [("6.13", t, f"{side}_{end}") for t in ("max_static_hysteresis", "creep", "overshoot", "tracking_error")
-                     for side in ("uncontrolled", "controlled") for end in ("min", "max")]
+    assert first == [
+        ("6.13", t, f"{side}_{end}")
+        for t in ("max_static_hysteresis", "creep", "overshoot", "tracking_error")
+        for side in ("uncontrolled", "controlled")
+        for end in ("min", "max")
+    ]
     tables = {r["table"] for r in rows[16:]}
     assert {"5.1", "5.2", "5.3", "6.6", "6.5", "6.9", "6.6-tracking"} <= tables
     th = {(r["test"], r["metric"]): r for r in rows[:16]}
     # the thesis's ranges, as printed (%.6g of the constants)
-    assert float(th["max_static_hysteresis", "uncontrolled_min"]["thesis"]) == thesis.TABLE_6_13["max_static_hysteresis_pct"]["uncontrolled"][0]
+    assert (
+        float(th["max_static_hysteresis", "uncontrolled_min"]["thesis"])
+        == thesis.TABLE_6_13["max_static_hysteresis_pct"]["uncontrolled"][0]
+    )
     assert float(th["overshoot", "uncontrolled_max"]["thesis"]) == thesis.OVERSHOOT_20V_PCT
     assert float(th["tracking_error", "controlled_min"]["thesis"]) == thesis.TRACKING_RELATIVE_ERROR_PCT[0]
-    assert th["tracking_error", "uncontrolled_min"]["value"] == "" and th["tracking_error", "uncontrolled_min"]["thesis"] == ""
+    assert (
+        th["tracking_error", "uncontrolled_min"]["value"] == ""
+        and th["tracking_error", "uncontrolled_min"]["thesis"] == ""
+    )
 
 
 def test_table_6_13_equals_the_summary_tables(inputs, full):
@@ -174,7 +225,9 @@ def test_table_6_13_equals_the_summary_tables(inputs, full):
 
     expect = {
         ("max_static_hysteresis", "uncontrolled"): [value(c, "triangle-0.1hz", "max_hysteresis")],
-        ("max_static_hysteresis", "controlled"): [value(v, "tri-300n-0.1hz", "max_hysteresis")],  # tri-75n does not suit
+        ("max_static_hysteresis", "controlled"): [
+            value(v, "tri-300n-0.1hz", "max_hysteresis")
+        ],  # tri-75n does not suit
         ("creep", "uncontrolled"): [value(c, "creep-150v", "creep")],
         ("creep", "controlled"): [value(v, "creep-300n", "creep")],
         ("overshoot", "uncontrolled"): [value(c, "step-20v", "overshoot")],
@@ -208,12 +261,25 @@ def test_a_run_that_does_not_suit_its_metric_is_listed(full):
     assert "tri-75n-0.1hz: does not suit its metric" in md and "tri-75n-0.1hz: does not suit its metric" in output
 
 
-@pytest.mark.parametrize("given, expected, absent", [
-    (("char",), ["No validation runs given: controlled figures are missing (run `piezopress validate`).",
-                 "No bundle given"], ["tracking.png", "model_residuals.png"]),
-    (("bundle",), ["No characterization runs given", "No validation runs given"], ["steps.png", "creep.png", "tracking.png"]),
-    (("char", "bundle"), ["No validation runs given"], ["tracking.png"]),
-])
+@pytest.mark.parametrize(
+    "given, expected, absent",
+    [
+        (
+            ("char",),
+            [
+                "No validation runs given: controlled figures are missing (run `piezopress validate`).",
+                "No bundle given",
+            ],
+            ["tracking.png", "model_residuals.png"],
+        ),
+        (
+            ("bundle",),
+            ["No characterization runs given", "No validation runs given"],
+            ["steps.png", "creep.png", "tracking.png"],
+        ),
+        (("char", "bundle"), ["No validation runs given"], ["tracking.png"]),
+    ],
+)
 def test_missing_pieces_are_said_not_crashed_on(inputs, tmp_path, given, expected, absent):
     opts = {"char": "--characterization", "val": "--validation", "bundle": "--bundle"}
     args = [a for k in given for a in (opts[k], inputs[k])]
@@ -250,7 +316,9 @@ def test_replace_keeps_the_old_report_under_a_timestamped_name(inputs, tmp_path)
     assert invoke("report", "--bundle", inputs["bundle"], "--out", out).exit_code == 0
     res = invoke("report", "--bundle", inputs["bundle"], "--out", out)
     assert res.exit_code == 1  # never overwritten without --replace
-    res = invoke("report", "--characterization", inputs["char"], "--bundle", inputs["bundle"], "--out", out, "--replace")
+    res = invoke(
+        "report", "--characterization", inputs["char"], "--bundle", inputs["bundle"], "--out", out, "--replace"
+    )
     assert res.exit_code == 0, res.output
     kept = list(tmp_path.glob("r.replaced-*"))  # a new timestamped name each time: nothing is lost
     assert len(kept) == 1 and str(kept[0]) in res.output
@@ -271,7 +339,9 @@ def test_an_empty_out_dir_is_accepted_and_inputs_are_checked(inputs, tmp_path):
 def test_markdown_and_html_render_the_same_blocks():
     blocks = [rep.Heading("T", 1), rep.Para("a `code` |x|"), rep.Table(("h", "n"), (("a|b", "1.00"),), ("l", "r"))]
     md = rep.render_markdown(blocks)
-    assert "# T" in md and "| a\\|b | 1.00 |" in md and "|------|-----:|" in md  # pipe escaped in its cell; numbers right-aligned
+    assert (
+        "# T" in md and "| a\\|b | 1.00 |" in md and "|------|-----:|" in md
+    )  # pipe escaped in its cell; numbers right-aligned
     page = rep.render_html(blocks)
     assert "<code>code</code>" in page and "<td>a|b</td>" in page and '<td class="r">1.00</td>' in page
     csv_text = rep.metrics_csv(rep.metrics_table(None, None))

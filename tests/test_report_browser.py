@@ -33,8 +33,9 @@ window.addEventListener('load', () => {
   }).map(e => e.tagName + (e.id ? '#' + e.id : ''));
   document.getElementById('piezopress-probe').textContent = JSON.stringify({
     scrollWidth: document.documentElement.scrollWidth, innerWidth: vw, wide: wide,
-    images: [...document.images].map(i => ({alt: i.alt, complete: i.complete, width: i.naturalWidth, height: i.naturalHeight,
-                                            shown: i.getBoundingClientRect().width, box: i.parentElement.getBoundingClientRect().width}))});
+    images: [...document.images].map(i => ({
+        alt: i.alt, complete: i.complete, width: i.naturalWidth, height: i.naturalHeight,
+        shown: i.getBoundingClientRect().width, box: i.parentElement.getBoundingClientRect().width}))});
 });
 </script>"""
 
@@ -50,9 +51,22 @@ def chromium() -> str | None:
 @pytest.fixture(scope="module")
 def sample_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("browser") / "report"
-    res = CliRunner().invoke(cli, ["report", "--characterization", str(SAMPLES / "characterization"), "--validation",
-                                   str(SAMPLES / "validation"), "--bundle", str(SAMPLES / "bundle.json"), "--diagnosis",
-                                   str(SAMPLES / "diagnosis"), "--out", str(out)])
+    res = CliRunner().invoke(
+        cli,
+        [
+            "report",
+            "--characterization",
+            str(SAMPLES / "characterization"),
+            "--validation",
+            str(SAMPLES / "validation"),
+            "--bundle",
+            str(SAMPLES / "bundle.json"),
+            "--diagnosis",
+            str(SAMPLES / "diagnosis"),
+            "--out",
+            str(out),
+        ],
+    )
     assert res.exit_code == 0, res.output
     return out
 
@@ -61,8 +75,22 @@ def render(browser: str, page: Path, width: int, tmp_path: Path) -> dict:
     """The probe's findings on ``page`` at ``width`` px (a copy with the probe appended; the report holds no script)."""
     probe = tmp_path / f"probe-{width}.html"
     probe.write_text(page.read_text(encoding="utf-8").replace("</body>", PROBE + "\n</body>"), encoding="utf-8")
-    done = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", f"--window-size={width},2000",
-                           "--virtual-time-budget=10000", "--dump-dom", probe.as_uri()], capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [
+            browser,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            f"--window-size={width},2000",
+            "--virtual-time-budget=10000",
+            "--dump-dom",
+            probe.as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     m = re.search(r'<pre id="piezopress-probe">(.*?)</pre>', done.stdout, re.S)
     assert m and m.group(1), f"chromium gave no probe result (exit {done.returncode}): {done.stderr[-500:]}"
     return json.loads(m.group(1).replace("&quot;", '"').replace("&amp;", "&").replace("&lt;", "<").replace("&gt;", ">"))

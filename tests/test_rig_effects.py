@@ -69,8 +69,12 @@ def test_creep_after_120_s(default_runs):
 
 
 def test_overshoot_of_20_v_step_and_trend(default_runs):
-    over = {lv: metrics.overshoot(*default_runs[f"step-{lv}v"][:1], default_runs[f"step-{lv}v"][2], drive=default_runs[f"step-{lv}v"][1]).percent
-            for lv in (20, 50, 100, 150)}
+    over = {
+        lv: metrics.overshoot(
+            *default_runs[f"step-{lv}v"][:1], default_runs[f"step-{lv}v"][2], drive=default_runs[f"step-{lv}v"][1]
+        ).percent
+        for lv in (20, 50, 100, 150)
+    }
     assert over[20] == pytest.approx(thesis.OVERSHOOT_20V_PCT, abs=3.0)
     assert over[20] > over[50] > over[100] > over[150]  # Table 6.9's trend: larger steps overshoot less
 
@@ -88,8 +92,13 @@ def test_clean_and_only_switch_exactly_one_effect():
     assert RigConfig.clean().effects_on() == []
     for name in EFFECTS:
         assert RigConfig.only(name).effects_on() == [name]
-    assert set(RigConfig().effects_on()) >= {"rate_dependent_hysteresis", "amplifier_slew_limit", "drive_coupled_interference",
-                                             "logarithmic_creep", "hysteresis_order"}
+    assert set(RigConfig().effects_on()) >= {
+        "rate_dependent_hysteresis",
+        "amplifier_slew_limit",
+        "drive_coupled_interference",
+        "logarithmic_creep",
+        "hysteresis_order",
+    }
     assert RigConfig.only("input_delay", delay_s=1e-3).press.delay_s == 1e-3
 
 
@@ -149,7 +158,9 @@ def test_contact_the_cell_reads_no_tension():
     assert np.all(force(clean, v, 1000.0, preload=-10.0) >= 0.0)
     touching = force(clean, v, 1000.0, preload=-10.0)[-1]
     pressed = force(clean, v, 1000.0, preload=0.0)[-1]
-    assert touching == pytest.approx(pressed - 10.0, abs=0.01)  # pressed once the stack has crossed the gap (0.01 N: ringing clipped at contact)
+    assert touching == pytest.approx(
+        pressed - 10.0, abs=0.01
+    )  # pressed once the stack has crossed the gap (0.01 N: ringing clipped at contact)
     no_contact = force(clean.replace(press={"contact": False}), v, 1000.0, preload=-10.0)
     assert no_contact[0] == pytest.approx(-10.0, abs=0.01)
 
@@ -178,7 +189,11 @@ def test_log_creep_keeps_growing_where_poles_saturate():
     log, poles = RigConfig.only("logarithmic_creep"), RigConfig.clean()
     # log creep: about the same per decade, 1-10 s, 10-100 s, 100-1000 s
     d1, d2, d3 = rise(log, 1, 10), rise(log, 10, 100), rise(log, 100, 1000)
-    assert d1 == pytest.approx(0.0112, rel=0.25) and d3 == pytest.approx(d1, rel=0.25) and d2 == pytest.approx(d1, rel=0.25)
+    assert (
+        d1 == pytest.approx(0.0112, rel=0.25)
+        and d3 == pytest.approx(d1, rel=0.25)
+        and d2 == pytest.approx(d1, rel=0.25)
+    )
     # two poles (1.5 s, 40 s): nearly done by 200 s, so the last decade adds little
     assert rise(poles, 100, 1000) < 0.3 * rise(poles, 1, 10)
 
@@ -189,7 +204,7 @@ def test_second_resonance_adds_a_spectral_peak():
 
     def peak_near(cfg, w_rad_s):
         f = force(quiet(cfg), v, fs)
-        ring = f[int(0.02 * fs) + 5:] - f[-500:].mean()
+        ring = f[int(0.02 * fs) + 5 :] - f[-500:].mean()
         freqs, p = signal.periodogram(ring, fs, window="hann")  # Hann: no leakage from the main mode
         band = (freqs > 0.8 * w_rad_s / (2 * np.pi)) & (freqs < 1.2 * w_rad_s / (2 * np.pi))
         return p[band].max()

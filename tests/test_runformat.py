@@ -41,7 +41,10 @@ def test_displacement_only_run_is_accepted(tmp_path):
 
 def test_round_trip_keeps_metadata_and_columns(tmp_path):
     meta = rf.make_meta("step", "s1", 2000.0, protocol={"level_v": 20.0}, seed=[1, 2])
-    run = rf.make_run({"t_s": np.arange(10) / 2000.0, "command_v": np.ones(10), "force_n": np.ones(10), "reference_n": np.ones(10)}, meta)
+    run = rf.make_run(
+        {"t_s": np.arange(10) / 2000.0, "command_v": np.ones(10), "force_n": np.ones(10), "reference_n": np.ones(10)},
+        meta,
+    )
     sha = rf.write_run(run, tmp_path / "a.parquet")
     back = rf.read_run(tmp_path / "a.parquet")
     assert back.meta == meta
@@ -52,14 +55,35 @@ def test_round_trip_keeps_metadata_and_columns(tmp_path):
 @pytest.mark.parametrize(
     "table, message",
     [
-        (lambda: minimal_table().drop_columns(["command_v"]), "missing column command_v; expected columns t_s, command_v"),
-        (lambda: minimal_table().drop_columns(["force_n"]), "no measured output; expected a column force_n and/or displacement_um"),
-        (lambda: minimal_table(force_n=np.r_[np.zeros(50), np.nan, np.zeros(49)]), "column force_n has 1 NaN/infinite value(s), first at row 50"),
+        (
+            lambda: minimal_table().drop_columns(["command_v"]),
+            "missing column command_v; expected columns t_s, command_v",
+        ),
+        (
+            lambda: minimal_table().drop_columns(["force_n"]),
+            "no measured output; expected a column force_n and/or displacement_um",
+        ),
+        (
+            lambda: minimal_table(force_n=np.r_[np.zeros(50), np.nan, np.zeros(49)]),
+            "column force_n has 1 NaN/infinite value(s), first at row 50",
+        ),
         (lambda: minimal_table(t_s=np.r_[np.arange(50), np.arange(51, 101)] / 1000.0), "t_s is not uniformly sampled"),
-        (lambda: minimal_table(t_s=np.r_[np.arange(50), np.arange(49, 99)] / 1000.0), "t_s is not strictly increasing at row 50"),
-        (lambda: minimal_table(meta={"schema_version": 2, "kind": "custom", "name": "x", "sample_rate_hz": 1000.0}), "schema_version is 2, expected 1"),
-        (lambda: minimal_table(meta={"schema_version": 1, "kind": "zigzag", "name": "x", "sample_rate_hz": 1000.0}), "kind is 'zigzag', expected one of triangle, step"),
-        (lambda: minimal_table(meta={"schema_version": 1, "kind": "custom", "name": "x", "sample_rate_hz": 500.0}), "sample_rate_hz is 500 but t_s is sampled at 1000 Hz"),
+        (
+            lambda: minimal_table(t_s=np.r_[np.arange(50), np.arange(49, 99)] / 1000.0),
+            "t_s is not strictly increasing at row 50",
+        ),
+        (
+            lambda: minimal_table(meta={"schema_version": 2, "kind": "custom", "name": "x", "sample_rate_hz": 1000.0}),
+            "schema_version is 2, expected 1",
+        ),
+        (
+            lambda: minimal_table(meta={"schema_version": 1, "kind": "zigzag", "name": "x", "sample_rate_hz": 1000.0}),
+            "kind is 'zigzag', expected one of triangle, step",
+        ),
+        (
+            lambda: minimal_table(meta={"schema_version": 1, "kind": "custom", "name": "x", "sample_rate_hz": 500.0}),
+            "sample_rate_hz is 500 but t_s is sampled at 1000 Hz",
+        ),
         (lambda: minimal_table(meta={"schema_version": 1, "kind": "custom"}), "metadata lacks name, sample_rate_hz"),
         (lambda: minimal_table(meta=False), "has no 'piezopress' metadata"),
         (lambda: minimal_table(force_n=np.arange(100) % 2 == 0), "column force_n has type bool, expected float64"),

@@ -19,7 +19,9 @@ SAMPLES = Path(__file__).resolve().parents[1] / "sample_runs"
 
 @pytest.fixture(scope="module")
 def regenerated():
-    rep = R.build_report(SAMPLES / "characterization", SAMPLES / "validation", SAMPLES / "bundle.json", SAMPLES / "diagnosis")
+    rep = R.build_report(
+        SAMPLES / "characterization", SAMPLES / "validation", SAMPLES / "bundle.json", SAMPLES / "diagnosis"
+    )
     return rep, pd.read_csv(io.StringIO(rep.metrics_csv()))
 
 
@@ -31,12 +33,16 @@ def test_every_expected_metric_is_within_its_tolerance(regenerated):
     missing = merged[merged.value_now.isna()]
     assert missing.empty, f"metrics no longer produced:\n{missing[key].to_string()}"
     moved = merged[(merged.value_now - merged.value_expected).abs() > merged.tolerance]
-    assert moved.empty, "metrics moved beyond tolerance:\n" + moved[key + ["value_expected", "value_now", "tolerance"]].to_string()
+    assert moved.empty, (
+        "metrics moved beyond tolerance:\n" + moved[key + ["value_expected", "value_now", "tolerance"]].to_string()
+    )
 
 
 def test_metrics_csv_is_byte_identical_for_the_same_inputs(regenerated):
     rep, _ = regenerated
-    again = R.build_report(SAMPLES / "characterization", SAMPLES / "validation", SAMPLES / "bundle.json", SAMPLES / "diagnosis")
+    again = R.build_report(
+        SAMPLES / "characterization", SAMPLES / "validation", SAMPLES / "bundle.json", SAMPLES / "diagnosis"
+    )
     assert again.metrics_csv() == rep.metrics_csv()
 
 

@@ -68,8 +68,10 @@ def test_residual_formula_matches_the_ringing_of_an_analytic_response():
         t_last = times.max()
         tau = np.linspace(0, 3 * TD, 400)
         t = t_last + tau
-        e = -sum(a * np.exp(-sigma * (t - ti)) * (np.cos(WD * (t - ti)) + sigma / WD * np.sin(WD * (t - ti)))
-                 for a, ti in zip(amps, times))
+        e = -sum(
+            a * np.exp(-sigma * (t - ti)) * (np.cos(WD * (t - ti)) + sigma / WD * np.sin(WD * (t - ti)))
+            for a, ti in zip(amps, times)
+        )
         basis = np.column_stack([np.exp(-sigma * tau) * np.cos(WD * tau), np.exp(-sigma * tau) * np.sin(WD * tau)])
         (c1, c2), *_ = np.linalg.lstsq(basis, e, rcond=None)
         v_sim = math.hypot(c1, c2) * math.sqrt(1 - ZETA**2)
@@ -155,7 +157,7 @@ def test_shaped_step_leaves_no_ringing_on_the_sampled_mode(name, fs):
     s = design_shaper(name, WN, ZETA)
     offsets, _ = s.discretize(fs)
     y = lfilter(b, a, s.apply(x, fs))
-    after = y[start + offsets[-1]:]
+    after = y[start + offsets[-1] :]
     assert np.max(np.abs(after - 1)) < 1e-6
 
 

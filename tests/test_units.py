@@ -19,15 +19,15 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from piezopress.piezocli.main import cli
 from piezopress import units
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.hysteresis import PIModel
-from piezopress.runformat import read_run
+from piezopress.piezocli.main import cli
 from piezopress.pipelines import bundle as B
 from piezopress.pipelines import diagnose as D
 from piezopress.pipelines import fit as F
 from piezopress.pipelines import report as R
+from piezopress.runformat import read_run
 
 DATASETS = Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
 SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
@@ -38,14 +38,46 @@ if os.environ.get("CI") and not _HAVE:
 needs_datasets = pytest.mark.skipif(not _HAVE, reason=f"shared data sets not found in {DATASETS}")
 
 IMPORT_ARGS = {
-    "smart": [str(SMART), "--no-header", "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4",
-              "--sample-rate", "5000", "--rows", "15000:35000"],
-    "aye": [str(AYE), "--no-header", "--delimiter", "tab", "--kind", "sine", "--col", "command_v=1", "--col", "displacement_um=5",
-            "--lag", "displacement_um=1", "--sample-rate", "200",
-            "--units-note", "command_v: amplifier input, gain undocumented; displacement_um: raw sensor units"],
+    "smart": [
+        str(SMART),
+        "--no-header",
+        "--kind",
+        "sine",
+        "--col",
+        "t_s=2",
+        "--col",
+        "displacement_um=3",
+        "--col",
+        "command_v=4",
+        "--sample-rate",
+        "5000",
+        "--rows",
+        "15000:35000",
+    ],
+    "aye": [
+        str(AYE),
+        "--no-header",
+        "--delimiter",
+        "tab",
+        "--kind",
+        "sine",
+        "--col",
+        "command_v=1",
+        "--col",
+        "displacement_um=5",
+        "--lag",
+        "displacement_um=1",
+        "--sample-rate",
+        "200",
+        "--units-note",
+        "command_v: amplifier input, gain undocumented; displacement_um: raw sensor units",
+    ],
 }
 NO_CREEP = "creep: not fitted: no creep run (a step held for a long time, kind 'creep') among the runs given"
-NO_SHAPER = "shaper: not fitted: no low-amplitude step run (kind 'step', at most 25 % of the largest drive) among the runs given"
+NO_SHAPER = (
+    "shaper: not fitted: no low-amplitude step run (kind 'step', at most 25 % of the largest drive) "
+    "among the runs given"
+)
 #: A figure followed by the unit N (``0.5 N``, ``3 N/ms``): must not appear for a displacement run.
 FORCE_FIGURE = re.compile(r"\d N\b")
 
@@ -124,8 +156,10 @@ def test_displacement_predictions_are_not_clipped_at_zero(fitted, imported, name
     bundle = B.read_document(fitted[name, True][0], "bundle")
     y = run.output
     assert y.min() < 0  # both data sets read below zero
-    for pred in (PIModel.from_dict(bundle["hysteresis"]["model"]).forward(run.command_v)[0],
-                 D.base_model(bundle).predict(D.run_data(run))):  # the simulation diagnose judges
+    for pred in (
+        PIModel.from_dict(bundle["hysteresis"]["model"]).forward(run.command_v)[0],
+        D.base_model(bundle).predict(D.run_data(run)),
+    ):  # the simulation diagnose judges
         # judged on the second half, where the model's state no longer depends on the rest it starts from
         half = slice(y.size // 2, None)
         neg = y[half] < -1.0
@@ -143,14 +177,19 @@ def test_compensate_takes_a_reference_in_um(fitted, work):
     ref = model.forward(target_v)[0] - model.y0  # the reference that drive makes (µm from the model's rest)
     assert (model.y0 + ref).min() < 0.0  # reaches negative displacements
     pd.DataFrame({"t_s": t, "reference_um": ref}).to_csv(work / "ref_um.csv", index=False)
-    out = invoke("compensate", "--bundle", str(path), "--reference", str(work / "ref_um.csv"), "--out", str(work / "drive.csv"))
+    out = invoke(
+        "compensate", "--bundle", str(path), "--reference", str(work / "ref_um.csv"), "--out", str(work / "drive.csv")
+    )
     assert "Wrote" in out and "Warning" not in out
     drive = pd.read_csv(work / "drive.csv")
     assert list(drive.columns) == ["t_s", "reference_um", "command_v"]
     np.testing.assert_allclose(drive.command_v, target_v, atol=1e-5)  # the exact inverse, no clip of the output
     # a force reference does not fit a displacement bundle: the error names the column it needs
     pd.DataFrame({"t_s": t, "reference_n": ref}).to_csv(work / "ref_n.csv", index=False)
-    res = CliRunner().invoke(cli, ["compensate", "--bundle", str(path), "--reference", str(work / "ref_n.csv"), "--out", str(work / "d2.csv")])
+    res = CliRunner().invoke(
+        cli,
+        ["compensate", "--bundle", str(path), "--reference", str(work / "ref_n.csv"), "--out", str(work / "d2.csv")],
+    )
     assert res.exit_code == 1 and "reference_um" in res.output
 
 
@@ -180,7 +219,14 @@ def test_diagnose_a_displacement_run_reports_in_um(fitted, imported, work):
     ext = json.loads((out_dir / "extended_bundle.json").read_text())
     assert ext["hysteresis"]["model"]["output_unit"] == "um"
     # simulate: the prediction beside the measurement, in µm and unclipped
-    printed = invoke("simulate", str(imported["aye"]), "--bundle", str(fitted["aye", True][0]), "--out", str(work / "sim-aye.parquet"))
+    printed = invoke(
+        "simulate",
+        str(imported["aye"]),
+        "--bundle",
+        str(fitted["aye", True][0]),
+        "--out",
+        str(work / "sim-aye.parquet"),
+    )
     assert "µm RMS" in printed and not FORCE_FIGURE.search(printed)
     sim = read_run(work / "sim-aye.parquet")
     assert sim.data["predicted"].max() < 0  # the whole Aye-Ang record reads below zero

@@ -48,8 +48,12 @@ def test_load_cell_quantization_and_noise():
 def test_mode_frequency_and_damping_from_ringing():
     # Without hysteresis, creep or low-pass, a 20 V step rings at wd = wn sqrt(1 - z^2);
     # the logarithmic decrement of successive peaks gives the damping.
-    cfg = RigConfig.clean().replace(hysteresis={"enabled": False}, creep={"enabled": False}, load_cell={"noise_v": 0.0, "lowpass_hz": 1e7},
-                                    daq={"adc_bits": 24})
+    cfg = RigConfig.clean().replace(
+        hysteresis={"enabled": False},
+        creep={"enabled": False},
+        load_cell={"noise_v": 0.0, "lowpass_hz": 1e7},
+        daq={"adc_bits": 24},
+    )
     fs = 100_000.0
     v = np.r_[np.zeros(100), np.full(3000, 20.0)]
     f = run(VirtualRig(cfg), v, fs)["force_n"][100:] - (50 + 40)
@@ -81,7 +85,7 @@ def test_creep_grows_during_hold():
     fs = 100.0
     v = np.r_[np.zeros(100), np.full(120 * 100, 150.0)]
     f = run(rig, v, fs)["force_n"]
-    f1 = f[100 + 100 - 5:100 + 100 + 5].mean()
+    f1 = f[100 + 100 - 5 : 100 + 100 + 5].mean()
     f_end = f[-10:].mean()
     assert 0.01 < (f_end - f1) / (f1 - 50.0) < 0.04  # a few percent over two decades of time
 
@@ -99,7 +103,9 @@ def test_backend_rejects_out_of_range_drive():
 
 def test_config_errors_name_every_key():
     with pytest.raises(ConfigError) as err:
-        parse_rig({"mode": {"damping": -1.0, "colour": 3}, "amplifier": {"gain": "high"}, "tables": {}}, source="rig.toml")
+        parse_rig(
+            {"mode": {"damping": -1.0, "colour": 3}, "amplifier": {"gain": "high"}, "tables": {}}, source="rig.toml"
+        )
     text = str(err.value)
     assert text.startswith("rig.toml: 4 problem(s)")
     assert "[mode] damping = -1.0: outside the allowed range (0, 2]" in text

@@ -29,14 +29,31 @@ def _run(args, cwd, env=None):
 def test_the_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     # built from a copy of the tree, so the build leaves nothing (build/, *.egg-info) in the checkout
     src = tmp_path / "src"
-    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", ".git", "out", "build", "report", "*.egg-info", "__pycache__",
-                                                            ".pytest_cache", ".hypothesis", "sample_runs"))
+    shutil.copytree(
+        ROOT,
+        src,
+        ignore=shutil.ignore_patterns(
+            ".venv",
+            ".git",
+            "out",
+            "build",
+            "report",
+            "*.egg-info",
+            "__pycache__",
+            ".pytest_cache",
+            ".hypothesis",
+            "sample_runs",
+        ),
+    )
     dist = tmp_path / "dist"
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, src], cwd=tmp_path)
     (wheel,) = dist.glob("piezopress-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     # only the project's own name at the top level; the plans and rig files inside the package
-    assert {n.split("/")[0] for n in names} == {"piezopress", wheel.name.split("-py3")[0].replace("-", "-", 1) + ".dist-info"}
+    assert {n.split("/")[0] for n in names} == {
+        "piezopress",
+        wheel.name.split("-py3")[0].replace("-", "-", 1) + ".dist-info",
+    }
     assert "piezopress/protocols/characterize.toml" in names and "piezopress/rigs/thesis-press.toml" in names
     assert "piezopress/piezocli/main.py" in names and "piezopress/pipelines/fit.py" in names
 
@@ -57,8 +74,22 @@ def test_the_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     _run([exe, "characterize", "--out", "char"], cwd=work, env=env)
     _run([exe, "fit", "char", "--out", "bundle.json"], cwd=work, env=env)
     _run([exe, "validate", "--bundle", "bundle.json", "--out", "val"], cwd=work, env=env)
-    out = _run([exe, "report", "--characterization", "char", "--validation", "val", "--bundle", "bundle.json", "--out", "report"],
-               cwd=work, env=env)
+    out = _run(
+        [
+            exe,
+            "report",
+            "--characterization",
+            "char",
+            "--validation",
+            "val",
+            "--bundle",
+            "bundle.json",
+            "--out",
+            "report",
+        ],
+        cwd=work,
+        env=env,
+    )
     assert (work / "report" / "report.html").is_file() and "Report:" in out
     _run([exe, "protocols", "--copy", "plans"], cwd=work, env=env)
     assert (work / "plans" / "characterize.toml").read_text() == (ROOT / "protocols" / "characterize.toml").read_text()

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import re
 import tomllib
-from dataclasses import dataclass, fields
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.acquisition.rig_config import SectionedConfig, _check, describe_sections, param
@@ -44,15 +45,24 @@ class BoardSection:
 
     device: str = param("Dev1", "NI-DAQmx device name, as NI MAX shows it (Dev1, PXI1Slot2, ...)")
     ao_channel: str = param("ao0", "analog output driving the amplifier's input (ao0, ao1, ...)")
-    ao_min_v: float = param(-10.0, "lowest analog output voltage (the output range configured on the board)", "V", -100, 100)
+    ao_min_v: float = param(
+        -10.0, "lowest analog output voltage (the output range configured on the board)", "V", -100, 100
+    )
     ao_max_v: float = param(10.0, "highest analog output voltage", "V", -100, 100)
     ai_min_v: float = param(-10.0, "lowest analog input voltage (input range of every input channel)", "V", -100, 100)
     ai_max_v: float = param(10.0, "highest analog input voltage", "V", -100, 100)
     ai_terminal: str = param("diff", "input terminal configuration: 'diff', 'rse', 'nrse', 'pseudo_diff' or 'default'")
     max_sample_rate_hz: float = param(
-        100_000.0, "highest sample rate for output and input together on one clock (the lower of the board's AO and AI rates)", "Hz", 0, 1e8, True
+        100_000.0,
+        "highest sample rate for output and input together on one clock (the lower of the board's AO and AI rates)",
+        "Hz",
+        0,
+        1e8,
+        True,
     )
-    chunk_s: float = param(0.05, "input is read back in chunks this long; the over-force check runs once per chunk", "s", 0, 10, True)
+    chunk_s: float = param(
+        0.05, "input is read back in chunks this long; the over-force check runs once per chunk", "s", 0, 10, True
+    )
 
 
 @dataclass(frozen=True)
@@ -60,14 +70,21 @@ class ActuatorSection:
     drive_min_v: float = param(-30.0, "lowest allowed actuator voltage (PSt 150: -30 V)", "V", -1000, 1000)
     drive_max_v: float = param(150.0, "highest allowed actuator voltage (PSt 150: 150 V)", "V", -1000, 1000)
     slew_limit_v_per_s: float = param(
-        3.0e6, "fastest allowed drive change, max |dV/dt| of command_v (3e6: a 150 V step in one sample at 20 kHz)", "V/s", 0, 1e9, True
+        3.0e6,
+        "fastest allowed drive change, max |dV/dt| of command_v (3e6: a 150 V step in one sample at 20 kHz)",
+        "V/s",
+        0,
+        1e9,
+        True,
     )
     max_force_n: float = param(800.0, "maximum load force of the stack (PSt 150/5/100 VS10: 800 N)", "N", 0, 1e5, True)
 
 
 @dataclass(frozen=True)
 class AmplifierSection:
-    gain: float = param(20.0, "voltage gain of the piezo amplifier: actuator volts per DAQ output volt", "V/V", 0, 1000, True)
+    gain: float = param(
+        20.0, "voltage gain of the piezo amplifier: actuator volts per DAQ output volt", "V/V", 0, 1000, True
+    )
     output_min_v: float = param(-200.0, "lowest output voltage of the amplifier", "V", -1000, 1000)
     output_max_v: float = param(200.0, "highest output voltage of the amplifier", "V", -1000, 1000)
 
@@ -75,33 +92,60 @@ class AmplifierSection:
 @dataclass(frozen=True)
 class LoadCellSection:
     channel: str = param("ai0", "analog input of the amplified load-cell signal")
-    sensitivity_v_per_n: float = param(0.010003, "load cell with its amplifier, volts per newton (thesis Eq. 4.6: 10.003 mV/N)", "V/N", 0, 100, True)
-    offset_v: float = param(0.0, "reading at zero force; force_n = (volts - offset_v) / sensitivity_v_per_n", "V", -100, 100)
+    sensitivity_v_per_n: float = param(
+        0.010003, "load cell with its amplifier, volts per newton (thesis Eq. 4.6: 10.003 mV/N)", "V/N", 0, 100, True
+    )
+    offset_v: float = param(
+        0.0, "reading at zero force; force_n = (volts - offset_v) / sensitivity_v_per_n", "V", -100, 100
+    )
 
 
 @dataclass(frozen=True)
 class DisplacementSection:
     channel: str = param("", "analog input of a displacement sensor ('' : none)")
-    sensitivity_v_per_um: float = param(0.1, "volts per micrometre; displacement_um = (volts - offset_v) / sensitivity_v_per_um", "V/um", 0, 1e3, True)
+    sensitivity_v_per_um: float = param(
+        0.1, "volts per micrometre; displacement_um = (volts - offset_v) / sensitivity_v_per_um", "V/um", 0, 1e3, True
+    )
     offset_v: float = param(0.0, "reading at zero displacement", "V", -100, 100)
 
 
 @dataclass(frozen=True)
 class MonitorSection:
     channel: str = param("", "analog input of the amplifier's monitor output ('' : none); recorded as monitor_v")
-    scale_v_per_v: float = param(20.0, "actuator volts per monitor volt; monitor_v = volts * scale_v_per_v", "V/V", 0, 1e4, True)
+    scale_v_per_v: float = param(
+        20.0, "actuator volts per monitor volt; monitor_v = volts * scale_v_per_v", "V/V", 0, 1e4, True
+    )
 
 
 @dataclass(frozen=True)
 class SafetySection:
     """Interlocks (see :mod:`piezopress.acquisition.nidaq`)."""
 
-    preload_min_n: float = param(50.0, "a run refuses to start if the preload read before it is below this (thesis Section 6.1: at least 50 N)", "N", 0, 1e5)
-    safe_force_n: float = param(200.0, "a run refuses to start if the force read before it is above this; plans' preload_n must be below it", "N", 0, 1e5, True)
-    over_force_n: float = param(500.0, "a run aborts (and the drive ramps down) as soon as the force read back exceeds this", "N", 0, 1e5, True)
-    ramp_down_v_per_s: float = param(500.0, "rate of the ramp back to 0 V however a run ends (150 V in 0.3 s)", "V/s", 0, 1e6, True)
+    preload_min_n: float = param(
+        50.0,
+        "a run refuses to start if the preload read before it is below this (thesis Section 6.1: at least 50 N)",
+        "N",
+        0,
+        1e5,
+    )
+    safe_force_n: float = param(
+        200.0,
+        "a run refuses to start if the force read before it is above this; plans' preload_n must be below it",
+        "N",
+        0,
+        1e5,
+        True,
+    )
+    over_force_n: float = param(
+        500.0, "a run aborts (and the drive ramps down) as soon as the force read back exceeds this", "N", 0, 1e5, True
+    )
+    ramp_down_v_per_s: float = param(
+        500.0, "rate of the ramp back to 0 V however a run ends (150 V in 0.3 s)", "V/s", 0, 1e6, True
+    )
     ramp_sample_rate_hz: float = param(1000.0, "update rate of that ramp", "Hz", 0, 1e7, True)
-    preload_read_s: float = param(0.1, "duration of the input acquisition that reads the preload before a run", "s", 0, 10, True)
+    preload_read_s: float = param(
+        0.1, "duration of the input acquisition that reads the preload before a run", "s", 0, 10, True
+    )
     preload_sample_rate_hz: float = param(1000.0, "sample rate of that acquisition", "Hz", 0, 1e7, True)
 
 
@@ -158,8 +202,13 @@ class DaqRigConfig(SectionedConfig):
     @property
     def limits(self) -> DriveLimits:
         lo, hi = self.drive_range_v
-        return DriveLimits(drive_min_v=lo, drive_max_v=hi, max_sample_rate_hz=self.daq.max_sample_rate_hz, max_force_n=self.safety.safe_force_n,
-                           slew_limit_v_per_s=self.actuator.slew_limit_v_per_s)
+        return DriveLimits(
+            drive_min_v=lo,
+            drive_max_v=hi,
+            max_sample_rate_hz=self.daq.max_sample_rate_hz,
+            max_force_n=self.safety.safe_force_n,
+            slew_limit_v_per_s=self.actuator.slew_limit_v_per_s,
+        )
 
     def physical(self, channel: str) -> str:
         """``Dev1/ai0`` from ``ai0``."""
@@ -172,7 +221,11 @@ class DaqRigConfig(SectionedConfig):
     @property
     def inputs(self) -> tuple[InputChannel, ...]:
         """The analog inputs in acquisition order: the load cell first, then the optional ones."""
-        out = [InputChannel("force_n", self.load_cell.channel, 1.0 / self.load_cell.sensitivity_v_per_n, self.load_cell.offset_v)]
+        out = [
+            InputChannel(
+                "force_n", self.load_cell.channel, 1.0 / self.load_cell.sensitivity_v_per_n, self.load_cell.offset_v
+            )
+        ]
         if self.displacement.channel:
             d = self.displacement
             out.append(InputChannel("displacement_um", d.channel, 1.0 / d.sensitivity_v_per_um, d.offset_v))
@@ -181,7 +234,7 @@ class DaqRigConfig(SectionedConfig):
         return tuple(out)
 
     @classmethod
-    def _parse(cls, doc: Mapping[str, Any], source: str) -> "DaqRigConfig":
+    def _parse(cls, doc: Mapping[str, Any], source: str) -> DaqRigConfig:
         return parse_daq_rig(doc, source=source)
 
 
@@ -209,45 +262,67 @@ def _relations(s: Mapping[str, Any]) -> list[str]:
             problems.append(f"[{sec}] {lo_key} = {lo:g} must be below {hi_key} = {hi:g}")
         elif sec != "daq" or lo_key == "ao_min_v":
             if not lo <= 0.0 <= hi:
-                problems.append(f"[{sec}] {what} {lo:g} to {hi:g} V must include 0 V (every run ends by ramping the drive to 0 V)")
+                problems.append(
+                    f"[{sec}] {what} {lo:g} to {hi:g} V must include 0 V (every run ends by ramping the drive to 0 V)"
+                )
     channels = [("load_cell", lc.channel, True), ("displacement", disp.channel, False), ("monitor", mon.channel, False)]
     seen: dict[str, str] = {}
     for sec, ch, required in channels:
         if not ch and not required:
             continue
         if not _AI.match(ch):
-            problems.append(f"[{sec}] channel = {ch!r}: expected an analog input such as 'ai0'{'' if required else ' (or empty for none)'}")
+            problems.append(
+                f"[{sec}] channel = {ch!r}: expected an analog input such as "
+                f"'ai0'{'' if required else ' (or empty for none)'}"
+            )
         elif ch in seen:
             problems.append(f"[{sec}] channel = {ch!r} is already the [{seen[ch]}] channel; expected distinct inputs")
         else:
             seen[ch] = sec
     if not problems:
-        lo, hi = (max(a.drive_min_v, amp.output_min_v, amp.gain * d.ao_min_v), min(a.drive_max_v, amp.output_max_v, amp.gain * d.ao_max_v))
+        lo, hi = (
+            max(a.drive_min_v, amp.output_min_v, amp.gain * d.ao_min_v),
+            min(a.drive_max_v, amp.output_max_v, amp.gain * d.ao_max_v),
+        )
         if lo >= hi:
             problems.append(
-                f"[amplifier] gain = {amp.gain:g} x [daq] ao range {d.ao_min_v:g} to {d.ao_max_v:g} V, the amplifier's output and the actuator's "
+                f"[amplifier] gain = {amp.gain:g} x [daq] ao range {d.ao_min_v:g} to {d.ao_max_v:g} V, the "
+                "amplifier's output and the actuator's "
                 f"range leave no drive range ({lo:g} to {hi:g} V)"
             )
     if not saf.preload_min_n < saf.safe_force_n:
-        problems.append(f"[safety] preload_min_n = {saf.preload_min_n:g} N must be below safe_force_n = {saf.safe_force_n:g} N")
+        problems.append(
+            f"[safety] preload_min_n = {saf.preload_min_n:g} N must be below safe_force_n = {saf.safe_force_n:g} N"
+        )
     if not saf.safe_force_n <= saf.over_force_n:
-        problems.append(f"[safety] safe_force_n = {saf.safe_force_n:g} N must not exceed over_force_n = {saf.over_force_n:g} N")
+        problems.append(
+            f"[safety] safe_force_n = {saf.safe_force_n:g} N must not exceed over_force_n = {saf.over_force_n:g} N"
+        )
     if saf.over_force_n > a.max_force_n:
-        problems.append(f"[safety] over_force_n = {saf.over_force_n:g} N exceeds the stack's [actuator] max_force_n = {a.max_force_n:g} N")
+        problems.append(
+            f"[safety] over_force_n = {saf.over_force_n:g} N exceeds the stack's [actuator] max_force_n = "
+            f"{a.max_force_n:g} N"
+        )
     # the load cell must still read below full scale at the over-force level, else a saturated
     # input would hide the very force the interlock is there to catch
     full_scale_n = (d.ai_max_v - lc.offset_v) / lc.sensitivity_v_per_n
     if full_scale_n < saf.over_force_n:
         problems.append(
-            f"[safety] over_force_n = {saf.over_force_n:g} N is above what the load cell can read: [daq] ai_max_v = {d.ai_max_v:g} V "
-            f"is {full_scale_n:.4g} N at sensitivity_v_per_n = {lc.sensitivity_v_per_n:g} and offset_v = {lc.offset_v:g}"
+            f"[safety] over_force_n = {saf.over_force_n:g} N is above what the load cell can read: [daq] ai_max_v = "
+            f"{d.ai_max_v:g} V "
+            f"is {full_scale_n:.4g} N at sensitivity_v_per_n = {lc.sensitivity_v_per_n:g} and offset_v = "
+            f"{lc.offset_v:g}"
         )
     for key in ("ramp_sample_rate_hz", "preload_sample_rate_hz"):
         if getattr(saf, key) > d.max_sample_rate_hz:
-            problems.append(f"[safety] {key} = {getattr(saf, key):g} Hz exceeds [daq] max_sample_rate_hz = {d.max_sample_rate_hz:g} Hz")
+            problems.append(
+                f"[safety] {key} = {getattr(saf, key):g} Hz exceeds [daq] max_sample_rate_hz = "
+                f"{d.max_sample_rate_hz:g} Hz"
+            )
     if saf.preload_read_s * saf.preload_sample_rate_hz < 10:
         problems.append(
-            f"[safety] preload_read_s = {saf.preload_read_s:g} s at preload_sample_rate_hz = {saf.preload_sample_rate_hz:g} Hz "
+            f"[safety] preload_read_s = {saf.preload_read_s:g} s at preload_sample_rate_hz = "
+            f"{saf.preload_sample_rate_hz:g} Hz "
             "gives fewer than 10 samples; expected a longer read"
         )
     return problems

@@ -14,12 +14,13 @@ states. A hardware backend may add ranges of its own (amplifier, analog output).
 from __future__ import annotations
 
 import math
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 
 from piezopress.acquisition.plan import BYTES_PER_SAMPLE, DriveLimits, memory_text
 from piezopress.errors import BackendError
+
 
 class DriveRefused(BackendError):
     """A drive was refused before anything was output (one line: where, what, the limit)."""
@@ -41,8 +42,11 @@ def sample_rate_problems(sample_rate_hz: float, limits: DriveLimits, key: str = 
 def sample_count_problems(samples: float, sample_rate_hz: float, limits: DriveLimits, what: str = "drive") -> list[str]:
     """Why a waveform of ``samples`` samples is too long for the rig (empty: fine)."""
     if samples > limits.max_samples:
-        return [f"{what} of {samples:.4g} samples ({samples / sample_rate_hz:.4g} s at {sample_rate_hz:g} Hz, {memory_text(samples)} "
-                f"in memory) exceeds the rig's limit of {limits.max_samples} samples; lower the sample rate or shorten it"]
+        return [
+            f"{what} of {samples:.4g} samples ({samples / sample_rate_hz:.4g} s at {sample_rate_hz:g} Hz, "
+            f"{memory_text(samples)} "
+            f"in memory) exceeds the rig's limit of {limits.max_samples} samples; lower the sample rate or shorten it"
+        ]
     return []
 
 
@@ -74,7 +78,10 @@ def drive_problems(
     finite = np.isfinite(v)
     if not finite.all():
         k = int(np.argmin(finite))
-        return problems + [f"drive holds {int((~finite).sum())} NaN or infinite value(s) (first at sample {k}: {v[k]!r}); expected finite volts"]
+        return problems + [
+            f"drive holds {int((~finite).sum())} NaN or infinite value(s) (first at sample {k}: {v[k]!r}); expected "
+            "finite volts"
+        ]
     lo, hi = float(v.min()), float(v.max())
     if ranges is None:
         ranges = [("the actuator's range", limits.drive_min_v, limits.drive_max_v)]
@@ -98,15 +105,28 @@ def check_sample_rate(sample_rate_hz: float, limits: DriveLimits, who: str) -> N
     """Refuse a sample rate the rig cannot run, before any work: ``who`` names the file or step."""
     problems = sample_rate_problems(sample_rate_hz, limits)
     if problems:
-        raise DriveRefused(f"{who}: {problems[0]}; expected at most {limits.max_sample_rate_hz:g} Hz (resample the reference, or use a rig file that allows it)")
+        raise DriveRefused(
+            f"{who}: {problems[0]}; expected at most {limits.max_sample_rate_hz:g} Hz (resample the reference, or use "
+            "a rig file that allows it)"
+        )
 
 
-def check_drive(command_v: np.ndarray, sample_rate_hz: float, limits: DriveLimits, who: str, *, start_v: float = 0.0) -> None:
+def check_drive(
+    command_v: np.ndarray, sample_rate_hz: float, limits: DriveLimits, who: str, *, start_v: float = 0.0
+) -> None:
     """Raise :class:`DriveRefused` (one line, every problem) unless the drive may be played."""
     problems = drive_problems(command_v, sample_rate_hz, limits, start_v=start_v)
     if problems:
         raise DriveRefused(f"{who}: drive refused: " + "; ".join(problems))
 
 
-__all__ = ["BYTES_PER_SAMPLE", "DriveRefused", "memory_text", "sample_rate_problems", "sample_count_problems", "drive_problems",
-           "check_sample_rate", "check_drive"]
+__all__ = [
+    "BYTES_PER_SAMPLE",
+    "DriveRefused",
+    "memory_text",
+    "sample_rate_problems",
+    "sample_count_problems",
+    "drive_problems",
+    "check_sample_rate",
+    "check_drive",
+]

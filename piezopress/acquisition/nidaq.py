@@ -51,7 +51,8 @@ from __future__ import annotations
 
 import math
 import signal
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -61,8 +62,10 @@ from piezopress.acquisition.drive_check import drive_problems as shared_drive_pr
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import BackendError, PiezopressError
 
-INSTALL_HINT = ("pip install nidaqmx into piezopress's environment (or reinstall piezopress with its extra: pip install "
-                "'PATH-TO-PIEZOPRESS[nidaq]'), and the NI-DAQmx driver from ni.com")
+INSTALL_HINT = (
+    "pip install nidaqmx into piezopress's environment (or reinstall piezopress with its extra: pip install "
+    "'PATH-TO-PIEZOPRESS[nidaq]'), and the NI-DAQmx driver from ni.com"
+)
 #: Added to the expected duration of every blocking driver call before it times out.
 TIMEOUT_MARGIN_S = 2.0
 #: Relative difference allowed between the requested and the board's coerced sample rate.
@@ -79,7 +82,9 @@ class DaqTask(Protocol):
 
     name: str
 
-    def add_ai_voltage_chan(self, physical_channel: str, min_val: float, max_val: float, terminal_config: str) -> None: ...
+    def add_ai_voltage_chan(
+        self, physical_channel: str, min_val: float, max_val: float, terminal_config: str
+    ) -> None: ...
 
     def add_ao_voltage_chan(self, physical_channel: str, min_val: float, max_val: float) -> None: ...
 
@@ -123,7 +128,9 @@ def import_nidaqmx() -> Any:
     try:
         import nidaqmx  # noqa: PLC0415  (optional dependency, imported only when asked for)
     except ImportError:
-        raise BackendError(f"the nidaq backend needs the nidaqmx package, which is not installed: {INSTALL_HINT}") from None
+        raise BackendError(
+            f"the nidaq backend needs the nidaqmx package, which is not installed: {INSTALL_HINT}"
+        ) from None
     return nidaqmx
 
 
@@ -137,13 +144,18 @@ class NidaqmxTask:
             self._task = nidaqmx.Task()
         except Exception as exc:  # DaqNotFoundError: the package is there, the NI-DAQmx driver is not
             if type(exc).__name__ == "DaqNotFoundError":
-                raise BackendError(f"NI-DAQmx (the driver under the nidaqmx package) is not installed: install it from ni.com or run `python -m nidaqmx installdriver` ({exc})") from None
+                raise BackendError(
+                    "NI-DAQmx (the driver under the nidaqmx package) is not installed: install it from ni.com or run "
+                    f"`python -m nidaqmx installdriver` ({exc})"
+                ) from None
             raise
         self._n_inputs = 0
 
     def add_ai_voltage_chan(self, physical_channel: str, min_val: float, max_val: float, terminal_config: str) -> None:
         tc = self._nidaqmx.constants.TerminalConfiguration(TERMINALS[terminal_config])
-        self._task.ai_channels.add_ai_voltage_chan(physical_channel, terminal_config=tc, min_val=min_val, max_val=max_val)
+        self._task.ai_channels.add_ai_voltage_chan(
+            physical_channel, terminal_config=tc, min_val=min_val, max_val=max_val
+        )
         self._n_inputs += 1
 
     def add_ao_voltage_chan(self, physical_channel: str, min_val: float, max_val: float) -> None:
@@ -152,18 +164,28 @@ class NidaqmxTask:
     def cfg_samp_clk_timing(self, rate: float, samps_per_chan: int, source: str = "") -> None:
         c = self._nidaqmx.constants
         self._task.timing.cfg_samp_clk_timing(
-            rate, source=source, active_edge=c.Edge.RISING, sample_mode=c.AcquisitionType.FINITE, samps_per_chan=int(samps_per_chan)
+            rate,
+            source=source,
+            active_edge=c.Edge.RISING,
+            sample_mode=c.AcquisitionType.FINITE,
+            samps_per_chan=int(samps_per_chan),
         )
 
     def cfg_dig_edge_start_trig(self, trigger_source: str) -> None:
-        self._task.triggers.start_trigger.cfg_dig_edge_start_trig(trigger_source, trigger_edge=self._nidaqmx.constants.Edge.RISING)
+        self._task.triggers.start_trigger.cfg_dig_edge_start_trig(
+            trigger_source, trigger_edge=self._nidaqmx.constants.Edge.RISING
+        )
 
     def samp_clk_rate(self) -> float:
         return float(self._task.timing.samp_clk_rate)
 
     def write(self, data: np.ndarray, auto_start: bool = False) -> int:
         data = np.ascontiguousarray(data, dtype=np.float64)
-        return int(self._task.write(float(data[0]) if data.size == 1 else data, auto_start=auto_start, timeout=TIMEOUT_MARGIN_S + 10.0))
+        return int(
+            self._task.write(
+                float(data[0]) if data.size == 1 else data, auto_start=auto_start, timeout=TIMEOUT_MARGIN_S + 10.0
+            )
+        )
 
     def start(self) -> None:
         self._task.start()
@@ -172,7 +194,9 @@ class NidaqmxTask:
         from nidaqmx.stream_readers import AnalogMultiChannelReader  # noqa: PLC0415
 
         out = np.zeros((self._n_inputs, int(number_of_samples_per_channel)), dtype=np.float64)
-        AnalogMultiChannelReader(self._task.in_stream).read_many_sample(out, number_of_samples_per_channel=int(number_of_samples_per_channel), timeout=timeout)
+        AnalogMultiChannelReader(self._task.in_stream).read_many_sample(
+            out, number_of_samples_per_channel=int(number_of_samples_per_channel), timeout=timeout
+        )
         return out
 
     def wait_until_done(self, timeout: float) -> None:
@@ -203,7 +227,9 @@ class NidaqmxDriver:
 # --------------------------------------------------------------------------------------
 
 
-def drive_problems(command_v: np.ndarray, sample_rate_hz: float, config: DaqRigConfig, *, start_v: float = 0.0) -> list[str]:
+def drive_problems(
+    command_v: np.ndarray, sample_rate_hz: float, config: DaqRigConfig, *, start_v: float = 0.0
+) -> list[str]:
     """Every reason the drive may not be played, before anything is output (empty: fine).
 
     Checks: a finite 1-D waveform of at least 2 samples, a sample rate the board can run,
@@ -213,13 +239,25 @@ def drive_problems(command_v: np.ndarray, sample_rate_hz: float, config: DaqRigC
     """
     a, amp, d = config.actuator, config.amplifier, config.daq
     return shared_drive_problems(
-        command_v, sample_rate_hz, config.limits, start_v=start_v,
+        command_v,
+        sample_rate_hz,
+        config.limits,
+        start_v=start_v,
         ranges=[
             ("the actuator's range ([actuator] drive_min_v/drive_max_v)", a.drive_min_v, a.drive_max_v),
-            ("the amplifier's output range ([amplifier] output_min_v/output_max_v)", amp.output_min_v, amp.output_max_v),
-            (f"the analog output range x gain ([daq] ao_min_v/ao_max_v x {amp.gain:g})", amp.gain * d.ao_min_v, amp.gain * d.ao_max_v),
+            (
+                "the amplifier's output range ([amplifier] output_min_v/output_max_v)",
+                amp.output_min_v,
+                amp.output_max_v,
+            ),
+            (
+                f"the analog output range x gain ([daq] ao_min_v/ao_max_v x {amp.gain:g})",
+                amp.gain * d.ao_min_v,
+                amp.gain * d.ao_max_v,
+            ),
         ],
-        rate_key="[daq] max_sample_rate_hz", slew_key="the slew limit [actuator] slew_limit_v_per_s",
+        rate_key="[daq] max_sample_rate_hz",
+        slew_key="the slew limit [actuator] slew_limit_v_per_s",
     )
 
 
@@ -234,11 +272,15 @@ def check_preload(force_n: float, safety: SafetySection) -> None:
         raise BackendError(f"nidaq: preload read as {force_n!r}; expected a finite force: check the load cell channel")
     if force_n < safety.preload_min_n:
         raise BackendError(
-            f"nidaq: run refused: preload reads {force_n:.2f} N, below [safety] preload_min_n = {safety.preload_min_n:g} N "
+            f"nidaq: run refused: preload reads {force_n:.2f} N, below [safety] preload_min_n = "
+            f"{safety.preload_min_n:g} N "
             "(thesis Section 6.1); tighten the preload"
         )
     if force_n > safety.safe_force_n:
-        raise BackendError(f"nidaq: run refused: force at rest reads {force_n:.2f} N, above [safety] safe_force_n = {safety.safe_force_n:g} N")
+        raise BackendError(
+            f"nidaq: run refused: force at rest reads {force_n:.2f} N, above [safety] safe_force_n = "
+            f"{safety.safe_force_n:g} N"
+        )
 
 
 def over_force(force_n: np.ndarray, first_sample: int, sample_rate_hz: float, safety: SafetySection) -> str:
@@ -252,7 +294,10 @@ def over_force(force_n: np.ndarray, first_sample: int, sample_rate_hz: float, sa
         return ""
     i = int(np.argmax(bad))
     k = first_sample + i
-    return f"over-force: {force_n[i]:.1f} N at t = {k / sample_rate_hz:.4g} s (sample {k}), above [safety] over_force_n = {safety.over_force_n:g} N"
+    return (
+        f"over-force: {force_n[i]:.1f} N at t = {k / sample_rate_hz:.4g} s (sample {k}), "
+        f"above [safety] over_force_n = {safety.over_force_n:g} N"
+    )
 
 
 def ramp_to_zero(from_v: float, rate_v_per_s: float, sample_rate_hz: float) -> np.ndarray:
@@ -347,7 +392,13 @@ class NidaqBackend:
         self.check_drive(command_v, sample_rate_hz, label)
         preload_measured_n = self.read_preload_n()
         check_preload(preload_measured_n, self.config.safety)
-        m = self._play(command_v, float(sample_rate_hz), label, progress, {"preload_requested_n": float(preload_n), "preload_measured_n": preload_measured_n})
+        m = self._play(
+            command_v,
+            float(sample_rate_hz),
+            label,
+            progress,
+            {"preload_requested_n": float(preload_n), "preload_measured_n": preload_measured_n},
+        )
         if m.info.get("interrupted"):
             raise RunInterrupted(m, getattr(signal, str(m.info.get("signal")), None))
         return m
@@ -370,7 +421,9 @@ class NidaqBackend:
 
     def check_drive(self, command_v: np.ndarray, sample_rate_hz: float, label: str = "drive") -> None:
         """Refuse a drive outside the limits (see :func:`drive_problems`), all problems in one error."""
-        problems = drive_problems(command_v, sample_rate_hz, self.config, start_v=self.output_daq_v * self.config.amplifier.gain)
+        problems = drive_problems(
+            command_v, sample_rate_hz, self.config, start_v=self.output_daq_v * self.config.amplifier.gain
+        )
         if problems:
             raise BackendError(f"nidaq: {label}: drive refused: " + "; ".join(problems))
 
@@ -380,7 +433,9 @@ class NidaqBackend:
         n = max(10, int(round(s.preload_read_s * s.preload_sample_rate_hz)))
         task = self.driver.task("piezopress-preload")
         try:
-            task.add_ai_voltage_chan(cfg.physical(cfg.load_cell.channel), cfg.daq.ai_min_v, cfg.daq.ai_max_v, cfg.daq.ai_terminal)
+            task.add_ai_voltage_chan(
+                cfg.physical(cfg.load_cell.channel), cfg.daq.ai_min_v, cfg.daq.ai_max_v, cfg.daq.ai_terminal
+            )
             task.cfg_samp_clk_timing(s.preload_sample_rate_hz, n)
             task.start()
             volts = np.asarray(task.read(n, n / s.preload_sample_rate_hz + TIMEOUT_MARGIN_S), dtype=np.float64)[0]
@@ -403,7 +458,8 @@ class NidaqBackend:
             achieved = ai.samp_clk_rate()
             if abs(achieved - fs) > RATE_RTOL * fs:
                 raise BackendError(
-                    f"nidaq: the board runs at {achieved:.6g} Hz when asked for {fs:g} Hz; choose a sample rate that divides "
+                    f"nidaq: the board runs at {achieved:.6g} Hz when asked for {fs:g} Hz; choose a sample rate that "
+                    "divides "
                     "the board's timebase (run files assume exactly the requested rate)"
                 )
             ao = self.driver.task("piezopress-ao")
@@ -417,7 +473,14 @@ class NidaqBackend:
             raise
         return ai, ao, achieved
 
-    def _play(self, command_v: np.ndarray, fs: float, label: str, progress: Callable[[float], None] | None, info: dict[str, Any]) -> Measurement:
+    def _play(
+        self,
+        command_v: np.ndarray,
+        fs: float,
+        label: str,
+        progress: Callable[[float], None] | None,
+        info: dict[str, Any],
+    ) -> Measurement:
         cfg = self.config
         gain = cfg.amplifier.gain
         daq_v = command_v / gain
@@ -428,7 +491,9 @@ class NidaqBackend:
         except PiezopressError:
             raise
         except Exception as exc:  # a driver error while configuring: nothing was output
-            raise BackendError(f"nidaq: {label}: configuring the tasks failed, nothing was output: {type(exc).__name__}: {exc}") from exc
+            raise BackendError(
+                f"nidaq: {label}: configuring the tasks failed, nothing was output: {type(exc).__name__}: {exc}"
+            ) from exc
         columns = [ch.column for ch in cfg.inputs]
         buf = np.empty((len(columns), n), dtype=np.float64)
         got = 0
@@ -490,7 +555,9 @@ class NidaqBackend:
         channels = {col: buf[row, :got].copy() for row, col in enumerate(columns)}
         return Measurement(channels=channels, complete=complete, reason=reason, info=info)
 
-    def _stop_run(self, ai: DaqTask, ao: DaqTask, daq_v: np.ndarray, got: int, chunk: int, started: bool, errors: list[str]) -> float:
+    def _stop_run(
+        self, ai: DaqTask, ao: DaqTask, daq_v: np.ndarray, got: int, chunk: int, started: bool, errors: list[str]
+    ) -> float:
         """Stop and close both tasks; return (and remember) the last value the output generated."""
         self._step(errors, "stop output", ao.stop)
         self._step(errors, "stop input", ai.stop)
@@ -516,7 +583,12 @@ class NidaqBackend:
         cfg, s = self.config, self.config.safety
         d, gain = cfg.daq, cfg.amplifier.gain
         ramp = ramp_to_zero(self.output_daq_v, s.ramp_down_v_per_s / gain, s.ramp_sample_rate_hz)
-        info: dict[str, Any] = {"from_v": self.output_daq_v * gain, "samples": int(len(ramp)), "rate_v_per_s": s.ramp_down_v_per_s, "sample_rate_hz": s.ramp_sample_rate_hz}
+        info: dict[str, Any] = {
+            "from_v": self.output_daq_v * gain,
+            "samples": int(len(ramp)),
+            "rate_v_per_s": s.ramp_down_v_per_s,
+            "sample_rate_hz": s.ramp_sample_rate_hz,
+        }
         phys = cfg.physical(d.ao_channel)
         if len(ramp) > 1:
             task = None

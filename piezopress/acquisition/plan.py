@@ -26,9 +26,10 @@ import dataclasses
 import math
 import re
 import tomllib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -137,7 +138,11 @@ def _check_triangle(p: Mapping[str, Any], fs: float) -> list[str]:
         problems.append("keys 'peaks_v' and 'random_peaks' exclude each other; give one")
     if p.get("peaks_v") is not None:
         peaks = p["peaks_v"]
-        if not isinstance(peaks, list) or not peaks or not all(isinstance(v, _NUM) and not isinstance(v, bool) for v in peaks):
+        if (
+            not isinstance(peaks, list)
+            or not peaks
+            or not all(isinstance(v, _NUM) and not isinstance(v, bool) for v in peaks)
+        ):
             problems.append(f"key 'peaks_v' = {peaks!r} must be a non-empty list of voltages")
     rp = p.get("random_peaks")
     if rp is not None:
@@ -165,7 +170,9 @@ def _check_step(p: Mapping[str, Any], fs: float) -> list[str]:
         if p[k] < 0:
             problems.append(f"key '{k}' = {p[k]} must not be negative")
     if p["hold_s"] * fs < 10:
-        problems.append(f"key 'hold_s' = {p['hold_s']} lasts fewer than 10 samples at {fs:g} Hz; expected a longer hold")
+        problems.append(
+            f"key 'hold_s' = {p['hold_s']} lasts fewer than 10 samples at {fs:g} Hz; expected a longer hold"
+        )
     if p["pre_s"] > 0 and p["pre_s"] * fs < 1:
         problems.append(f"key 'pre_s' = {p['pre_s']} is shorter than one sample at {fs:g} Hz")
     return problems
@@ -176,7 +183,9 @@ def _check_staircase(p: Mapping[str, Any], fs: float) -> list[str]:
     if not isinstance(p["count"], int) or p["count"] < 1:
         problems.append(f"key 'count' = {p['count']!r} must be a whole number of at least 1")
     if p["ramp_s"] * fs < 1:
-        problems.append(f"key 'ramp_s' = {p['ramp_s']} is shorter than one sample at {fs:g} Hz; expected at least {1 / fs:g} s")
+        problems.append(
+            f"key 'ramp_s' = {p['ramp_s']} is shorter than one sample at {fs:g} Hz; expected at least {1 / fs:g} s"
+        )
     if p["dwell_s"] * fs < 10:
         problems.append(f"key 'dwell_s' = {p['dwell_s']} lasts fewer than 10 samples at {fs:g} Hz")
     if p["pre_s"] < 0:
@@ -186,8 +195,13 @@ def _check_staircase(p: Mapping[str, Any], fs: float) -> list[str]:
 
 def _check_custom(p: Mapping[str, Any], fs: float) -> list[str]:
     pts = p["points"]
-    ok = isinstance(pts, list) and len(pts) >= 2 and all(
-        isinstance(q, list) and len(q) == 2 and all(isinstance(x, _NUM) and not isinstance(x, bool) for x in q) for q in pts
+    ok = (
+        isinstance(pts, list)
+        and len(pts) >= 2
+        and all(
+            isinstance(q, list) and len(q) == 2 and all(isinstance(x, _NUM) and not isinstance(x, bool) for x in q)
+            for q in pts
+        )
     )
     if not ok:
         return [f"key 'points' must be a list of at least two [t_s, volts] pairs, got {pts!r}"[:200]]
@@ -200,11 +214,18 @@ def _check_custom(p: Mapping[str, Any], fs: float) -> list[str]:
 def _check_random(p: Mapping[str, Any], fs: float) -> list[str]:
     problems = []
     if not 0 < p["low_hz"] < p["high_hz"]:
-        problems.append(f"keys 'low_hz' = {p['low_hz']:g} and 'high_hz' = {p['high_hz']:g}: expected 0 < low_hz < high_hz")
+        problems.append(
+            f"keys 'low_hz' = {p['low_hz']:g} and 'high_hz' = {p['high_hz']:g}: expected 0 < low_hz < high_hz"
+        )
     elif fs < 20 * p["high_hz"]:
-        problems.append(f"key 'sample_rate_hz' = {fs:g} is too low for high_hz = {p['high_hz']:g}: expected at least {20 * p['high_hz']:g} Hz")
+        problems.append(
+            f"key 'sample_rate_hz' = {fs:g} is too low for high_hz = {p['high_hz']:g}: expected at least "
+            f"{20 * p['high_hz']:g} Hz"
+        )
     elif p["duration_s"] * p["low_hz"] < 1:
-        problems.append(f"key 'duration_s' = {p['duration_s']:g} is shorter than one period of low_hz = {p['low_hz']:g}")
+        problems.append(
+            f"key 'duration_s' = {p['duration_s']:g} is shorter than one period of low_hz = {p['low_hz']:g}"
+        )
     if p["taper_s"] < 0:
         problems.append(f"key 'taper_s' = {p['taper_s']:g} must not be negative")
     if p["low_v"] > p["peak_v"]:
@@ -270,7 +291,9 @@ KINDS: dict[str, KindSpec] = {
             "ramp_s": Key(_NUM, REQUIRED, "duration of the linear ramp to each stair", "s"),
             "pre_s": Key(_NUM, 0.0, "time at base_v before the first ramp", "s"),
         },
-        lambda p, fs: waveforms.staircase(p["base_v"], p["step_v"], p["count"], p["dwell_s"], p["ramp_s"], p["pre_s"], fs),
+        lambda p, fs: waveforms.staircase(
+            p["base_v"], p["step_v"], p["count"], p["dwell_s"], p["ramp_s"], p["pre_s"], fs
+        ),
         _check_staircase,
         "stairs reached by short ramps (tracking; Section 6.6)",
     ),
@@ -285,19 +308,27 @@ KINDS: dict[str, KindSpec] = {
             "seed": Key(int, 1, "seed of the random phases (same seed, same trajectory)"),
             "taper_s": Key(_NUM, 0.5, "fade in from and out to low_v over this long", "s"),
         },
-        lambda p, fs: waveforms.random_band(p["low_hz"], p["high_hz"], p["duration_s"], p["low_v"], p["peak_v"], p["seed"],
-                                            p["taper_s"], fs),
+        lambda p, fs: waveforms.random_band(
+            p["low_hz"], p["high_hz"], p["duration_s"], p["low_v"], p["peak_v"], p["seed"], p["taper_s"], fs
+        ),
         _check_random,
         "a seeded random trajectory, flat spectrum low_hz to high_hz (tracking of a random force)",
     ),
     "custom": KindSpec(
         "custom",
-        {"points": Key(list, REQUIRED, "piecewise-linear drive: [[t_s, volts], ...], times from 0 strictly increasing")},
-        lambda p, fs: waveforms.piecewise_linear(np.array([q[0] for q in p["points"]]), np.array([q[1] for q in p["points"]]), fs),
+        {
+            "points": Key(
+                list, REQUIRED, "piecewise-linear drive: [[t_s, volts], ...], times from 0 strictly increasing"
+            )
+        },
+        lambda p, fs: waveforms.piecewise_linear(
+            np.array([q[0] for q in p["points"]]), np.array([q[1] for q in p["points"]]), fs
+        ),
         _check_custom,
         "any piecewise-linear drive",
     ),
 }
+
 
 def estimated_duration_s(kind: str, p: Mapping[str, Any]) -> float:
     """How long a checked protocol lasts, from its keys alone (nothing built): the cost of a
@@ -358,7 +389,13 @@ class Protocol:
         """The protocol as stored in run metadata and manifests (TOML-compatible values), with
         the key names of its plan (``_n`` for a reference plan)."""
         params = _rename_keys(dict(self.params), "_v", "_n") if self.unit == "N" else dict(self.params)
-        return {"name": self.name, "kind": self.kind, "sample_rate_hz": self.sample_rate_hz, "preload_n": self.preload_n, **params}
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "sample_rate_hz": self.sample_rate_hz,
+            "preload_n": self.preload_n,
+            **params,
+        }
 
 
 @dataclass(frozen=True)
@@ -386,7 +423,9 @@ def _type_name(expected: type | tuple[type, ...]) -> str:
     return {str: "a string", int: "a whole number", list: "a list", dict: "a table"}.get(expected, str(expected))
 
 
-def _resolve(table: Mapping[str, Any], keys: Mapping[str, Key], where: str, limits: DriveLimits, problems: list[str]) -> dict[str, Any]:
+def _resolve(
+    table: Mapping[str, Any], keys: Mapping[str, Key], where: str, limits: DriveLimits, problems: list[str]
+) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k in sorted(set(table) - set(keys)):
         problems.append(f"{where}: unknown key '{k}'; expected one of {', '.join(keys)}")
@@ -409,8 +448,17 @@ def _resolve(table: Mapping[str, Any], keys: Mapping[str, Key], where: str, limi
     return out
 
 
-_UNIT_WORDS = {"N": [(" V,", " N,"), (" V ", " N "), (" V)", " N)"), ("drive reaches", "reference reaches"),
-                      ("the actuator's range", "the allowed reference range"), ("voltages", "forces"), ("maximum drive", "maximum force")]}
+_UNIT_WORDS = {
+    "N": [
+        (" V,", " N,"),
+        (" V ", " N "),
+        (" V)", " N)"),
+        ("drive reaches", "reference reaches"),
+        ("the actuator's range", "the allowed reference range"),
+        ("voltages", "forces"),
+        ("maximum drive", "maximum force"),
+    ]
+}
 
 
 def _keys(obj: Any) -> list[str]:
@@ -423,7 +471,10 @@ def _keys(obj: Any) -> list[str]:
 def _rename_keys(obj: Any, old: str, new: str) -> Any:
     """Rename keys ending in ``old`` (recursively in tables): ``level_n`` <-> ``level_v``."""
     if isinstance(obj, dict):
-        return {(k[: -len(old)] + new if isinstance(k, str) and k.endswith(old) else k): _rename_keys(v, old, new) for k, v in obj.items()}
+        return {
+            (k[: -len(old)] + new if isinstance(k, str) and k.endswith(old) else k): _rename_keys(v, old, new)
+            for k, v in obj.items()
+        }
     if isinstance(obj, list):
         return [_rename_keys(v, old, new) for v in obj]
     return obj
@@ -443,11 +494,23 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
     if unit not in ("V", "N"):
         raise ValueError(f"unit = {unit!r}; expected 'V' or 'N'")
     if unit == "N":
-        volts = sorted({f"{p.get('name', i)}: {k}" for i, p in enumerate(doc.get("protocol") or []) if isinstance(p, Mapping)
-                        for k in _keys(p) if k.endswith("_v")})
+        volts = sorted(
+            {
+                f"{p.get('name', i)}: {k}"
+                for i, p in enumerate(doc.get("protocol") or [])
+                if isinstance(p, Mapping)
+                for k in _keys(p)
+                if k.endswith("_v")
+            }
+        )
         if volts:  # a drive plan (characterize's) read as references: volts would be played as newtons
-            raise PlanError(source, [f"protocol {volts[0]} is in volts (_v); a reference plan's keys end in _n (N above the preload); "
-                                     f"expected a validation plan, not a characterization plan ({len(volts)} key(s) in V)"])
+            raise PlanError(
+                source,
+                [
+                    f"protocol {volts[0]} is in volts (_v); a reference plan's keys end in _n (N above the preload); "
+                    f"expected a validation plan, not a characterization plan ({len(volts)} key(s) in V)"
+                ],
+            )
         translated = {k: (_rename_keys(v, "_n", "_v") if k == "protocol" else v) for k, v in doc.items()}
         try:
             plan = parse_plan(translated, limits, source, "V")
@@ -459,11 +522,19 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
                     problem = problem.replace(a, b)
                 fixed.append(problem)
             raise PlanError(source, fixed) from None
-        return Plan(plan.name, plan.description, tuple(dataclasses.replace(p, unit="N") for p in plan.protocols), source, dict(doc))
+        return Plan(
+            plan.name,
+            plan.description,
+            tuple(dataclasses.replace(p, unit="N") for p in plan.protocols),
+            source,
+            dict(doc),
+        )
     problems: list[str] = []
     for k in sorted(set(doc) - {"plan", "protocol"}):
         problems.append(f"unknown top-level key '{k}'; expected [plan] and [[protocol]] tables")
-    head = _resolve(doc.get("plan", {}) if isinstance(doc.get("plan", {}), dict) else {}, PLAN_KEYS, "[plan]", limits, problems)
+    head = _resolve(
+        doc.get("plan", {}) if isinstance(doc.get("plan", {}), dict) else {}, PLAN_KEYS, "[plan]", limits, problems
+    )
     tables = doc.get("protocol", [])
     if not isinstance(tables, list) or not tables:
         problems.append("no [[protocol]] table; expected at least one protocol")
@@ -492,19 +563,30 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
         if name in seen:
             problems.append(f"{where}: name '{name}' is used by an earlier protocol; names must be unique")
         elif name.casefold() in folded:
-            problems.append(f"{where}: name '{name}' differs from the earlier protocol '{folded[name.casefold()]}' only in case; "
-                            "expected names that differ otherwise (their run files would overwrite each other on Windows and macOS)")
+            problems.append(
+                f"{where}: name '{name}' differs from the earlier protocol '{folded[name.casefold()]}' only in case; "
+                "expected names that differ otherwise (their run files would overwrite each other on Windows and macOS)"
+            )
         seen.add(name)
         folded.setdefault(name.casefold(), name)
-        if not (name.replace("-", "").replace("_", "").replace(".", "").isalnum() and name.isascii()) or name.startswith("."):
-            problems.append(f"{where}: name '{name[:MAX_NAME_CHARS]}' may hold only ASCII letters, digits, '-', '_' and '.', "
-                            "not starting with '.' (it names a file)")
+        if not (
+            name.replace("-", "").replace("_", "").replace(".", "").isalnum() and name.isascii()
+        ) or name.startswith("."):
+            problems.append(
+                f"{where}: name '{name[:MAX_NAME_CHARS]}' may hold only ASCII letters, digits, '-', '_' and '.', "
+                "not starting with '.' (it names a file)"
+            )
         elif len(name) > MAX_NAME_CHARS:
-            problems.append(f"{where}: name of {len(name)} characters is longer than {MAX_NAME_CHARS}; expected a shorter name "
-                            "(it names the run file, and file systems limit names to 255 bytes)")
+            problems.append(
+                f"{where}: name of {len(name)} characters is longer than {MAX_NAME_CHARS}; expected a shorter name "
+                "(it names the run file, and file systems limit names to 255 bytes)"
+            )
         fs = p["sample_rate_hz"]
         if not 0 < fs <= limits.max_sample_rate_hz:
-            problems.append(f"{where}: key 'sample_rate_hz' = {fs:g} is outside 0 to {limits.max_sample_rate_hz:g} Hz (the backend's maximum)")
+            problems.append(
+                f"{where}: key 'sample_rate_hz' = {fs:g} is outside 0 to {limits.max_sample_rate_hz:g} Hz (the "
+                "backend's maximum)"
+            )
             continue
         preload = p["preload_n"] if p["preload_n"] is not None else head.get("preload_n", 50.0)
         if not 0 <= preload < limits.max_force_n:
@@ -517,8 +599,11 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
         proto = Protocol(name=name, kind=kind, sample_rate_hz=fs, preload_n=float(preload), params=params)
         estimate = estimated_duration_s(kind, params) * fs  # before anything is built
         if not estimate <= 1.01 * limits.max_samples + 10:
-            problems.append(f"{where}: {estimate:.4g} samples ({estimate / fs:.4g} s at {fs:g} Hz, {memory_text(estimate)} in memory) "
-                            f"exceed the limit of {limits.max_samples} samples per run; lower sample_rate_hz or shorten it")
+            problems.append(
+                f"{where}: {estimate:.4g} samples ({estimate / fs:.4g} s at {fs:g} Hz, {memory_text(estimate)} in "
+                "memory) "
+                f"exceed the limit of {limits.max_samples} samples per run; lower sample_rate_hz or shorten it"
+            )
             total_s += estimate / fs
             total_samples += int(min(estimate, 1e18))
             continue
@@ -527,26 +612,39 @@ def parse_plan(doc: Mapping[str, Any], limits: DriveLimits, source: str = "<plan
         total_s += duration
         total_samples += n
         if n > limits.max_samples:
-            problems.append(f"{where}: {n} samples ({memory_text(n)} in memory) exceed the limit of {limits.max_samples} samples per run; "
-                            "lower sample_rate_hz or shorten it")
+            problems.append(
+                f"{where}: {n} samples ({memory_text(n)} in memory) exceed the limit of {limits.max_samples} samples "
+                "per run; "
+                "lower sample_rate_hz or shorten it"
+            )
             continue
         _, v = proto.waveform()
         lo, hi = float(v.min()), float(v.max())
         if lo < limits.drive_min_v - 1e-9 or hi > limits.drive_max_v + 1e-9:
             bad = hi if hi > limits.drive_max_v else lo
             problems.append(
-                f"{where}: drive reaches {bad:g} V, outside the actuator's range {limits.drive_min_v:g} to {limits.drive_max_v:g} V"
+                f"{where}: drive reaches {bad:g} V, outside the actuator's range {limits.drive_min_v:g} to "
+                f"{limits.drive_max_v:g} V"
             )
             continue
         protocols.append(proto)
     if total_s > limits.max_duration_s:
         problems.append(f"the plan lasts {total_s:.0f} s, more than the limit of {limits.max_duration_s:.0f} s")
     if total_samples > limits.max_plan_samples:
-        problems.append(f"the plan totals {total_samples:.4g} samples ({memory_text(total_samples)} of runs), more than the limit of "
-                        f"{limits.max_plan_samples} samples per plan; lower sample rates or split the plan")
+        problems.append(
+            f"the plan totals {total_samples:.4g} samples ({memory_text(total_samples)} of runs), more than the limit "
+            "of "
+            f"{limits.max_plan_samples} samples per plan; lower sample rates or split the plan"
+        )
     if problems:
         raise PlanError(source, problems)
-    return Plan(name=head["name"], description=head.get("description", ""), protocols=tuple(protocols), source=source, raw=dict(doc))
+    return Plan(
+        name=head["name"],
+        description=head.get("description", ""),
+        protocols=tuple(protocols),
+        source=source,
+        raw=dict(doc),
+    )
 
 
 def load_plan(path: str | Path, limits: DriveLimits, unit: str = "V") -> Plan:
@@ -567,9 +665,15 @@ def describe_kinds() -> str:
     common = ", ".join(COMMON_KEYS)
     lines.append(f"Every protocol: {common}")
     for kind, spec in KINDS.items():
-        lines.append(f"\nkind = \"{kind}\": {spec.summary}")
+        lines.append(f'\nkind = "{kind}": {spec.summary}')
         for k, key in spec.keys.items():
-            default = "required" if key.default is REQUIRED else "max drive" if key.default is DRIVE_MAX else repr(key.default)
+            default = (
+                "required"
+                if key.default is REQUIRED
+                else "max drive"
+                if key.default is DRIVE_MAX
+                else repr(key.default)
+            )
             unit = f" [{key.unit}]" if key.unit else ""
             lines.append(f"  {k}{unit}: {key.help} (default: {default})")
     return "\n".join(lines)

@@ -11,9 +11,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import ConfigError
@@ -28,7 +29,9 @@ def allowed_range(lo: float | None, hi: float | None, lo_open: bool = False) -> 
     return f"<= {hi:g}" if hi is not None else "any value"
 
 
-def param(default: Any, help: str, unit: str = "", lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> Any:
+def param(
+    default: Any, help: str, unit: str = "", lo: float | None = None, hi: float | None = None, lo_open: bool = False
+) -> Any:
     """A configuration key: default, meaning, unit and allowed range ``[lo, hi]`` (``(lo, hi]`` if lo_open)."""
     return field(default=default, metadata={"help": help, "unit": unit, "lo": lo, "hi": hi, "lo_open": lo_open})
 
@@ -42,9 +45,18 @@ class RigSection:
 
 @dataclass(frozen=True)
 class ActuatorSection:
-    drive_min_v: float = param(-30.0, "lowest allowed actuator voltage (PSt 150 stacks: -30 V, semi-bipolar)", "V", -200, 200)
+    drive_min_v: float = param(
+        -30.0, "lowest allowed actuator voltage (PSt 150 stacks: -30 V, semi-bipolar)", "V", -200, 200
+    )
     drive_max_v: float = param(150.0, "highest allowed actuator voltage (PSt 150: 150 V)", "V", -200, 200)
-    capacitance_uf: float = param(4.8, "stack capacitance; with the current limit it sets the slew rate (calibrated to the 20 V overshoot)", "uF", 0, 1000, True)
+    capacitance_uf: float = param(
+        4.8,
+        "stack capacitance; with the current limit it sets the slew rate (calibrated to the 20 V overshoot)",
+        "uF",
+        0,
+        1000,
+        True,
+    )
     max_force_n: float = param(800.0, "maximum load force of the stack (PSt 150/5/100 VS10: 800 N)", "N", 0, 1e5, True)
 
 
@@ -70,11 +82,17 @@ class DaqSection:
 
 @dataclass(frozen=True)
 class LoadCellSection:
-    sensitivity_v_per_n: float = param(0.010003, "load cell with its amplifier (thesis Eq. 4.6: 10.003 mV/N)", "V/N", 0, 100, True)
+    sensitivity_v_per_n: float = param(
+        0.010003, "load cell with its amplifier (thesis Eq. 4.6: 10.003 mV/N)", "V/N", 0, 100, True
+    )
     noise_v: float = param(0.000578, "RMS noise at the board input (thesis Section 4.2: 0.578 mV)", "V", 0, 10)
     offset_v: float = param(0.0, "offset of the amplified load-cell signal", "V", -10, 10)
-    lowpass_hz: float = param(9596.0, "analog RC low-pass before the board (thesis Eq. 4.5: 9.6 kHz)", "Hz", 0, 1e7, True)
-    drift_n_per_min: float = param(0.0, "effect sensor_offset_drift: slow drift of the offset, in newtons per minute", "N/min", -100, 100)
+    lowpass_hz: float = param(
+        9596.0, "analog RC low-pass before the board (thesis Eq. 4.5: 9.6 kHz)", "Hz", 0, 1e7, True
+    )
+    drift_n_per_min: float = param(
+        0.0, "effect sensor_offset_drift: slow drift of the offset, in newtons per minute", "N/min", -100, 100
+    )
 
 
 @dataclass(frozen=True)
@@ -85,7 +103,9 @@ class PressSection:
     ``max(0, preload + gain * x)``; a negative preload is a gap (no contact at rest).
     """
 
-    gain_n_per_v: float = param(2.0, "force per actuator volt of the stack pressing on the cell (~300 N over 150 V)", "N/V", 0, 1e4, True)
+    gain_n_per_v: float = param(
+        2.0, "force per actuator volt of the stack pressing on the cell (~300 N over 150 V)", "N/V", 0, 1e4, True
+    )
     contact: bool = param(True, "model contact: the cell reads no tension (off: force may go negative)")
     delay_s: float = param(0.0, "effect input_delay: pure delay between command and response", "s", 0, 1.0)
 
@@ -108,7 +128,11 @@ class HysteresisSection:
     n_operators: int = param(24, "number of play operators (fidelity of the simulation)", "", 1, 500)
     saturation: float = param(0.35, "effect hysteresis_order: saturation k of the static map (0: none)", "", 0, 5)
     rate_v_per_kv_s: float = param(
-        0.10, "effect rate_dependent_hysteresis: every threshold grows this much per kV/s of drive rate", "V/(kV/s)", 0, 100
+        0.10,
+        "effect rate_dependent_hysteresis: every threshold grows this much per kV/s of drive rate",
+        "V/(kV/s)",
+        0,
+        100,
     )
     rate_tau_s: float = param(5e-4, "time constant over which the drive rate is felt", "s", 0, 1, True)
 
@@ -181,7 +205,9 @@ class InterferenceSection:
 @dataclass(frozen=True)
 class SimulationSection:
     min_rate_hz: float = param(20_000.0, "simulate fast drive changes at least this fast", "Hz", 0, 1e7, True)
-    fast_step_v: float = param(1.0, "a drive change larger than this in one sample is simulated finely", "V", 0, 1e4, True)
+    fast_step_v: float = param(
+        1.0, "a drive change larger than this in one sample is simulated finely", "V", 0, 1e4, True
+    )
     fine_window_s: float = param(0.02, "how long after a fast change the fine simulation goes on", "s", 0, 10, True)
 
 
@@ -219,8 +245,12 @@ class Effect:
 #: Effects beyond the core, by the id ``diagnose`` uses.
 EFFECTS: dict[str, Effect] = {
     "rate_dependent_hysteresis": Effect("hysteresis", "rate_v_per_kv_s", 0.0, 0.10, "loop widens with the drive rate"),
-    "amplifier_slew_limit": Effect("amplifier", "slew_limit", False, True, "current limit into the capacitance: dV/dt <= I/C"),
-    "drive_coupled_interference": Effect("interference", "enabled", False, True, "drive current couples into the load-cell reading"),
+    "amplifier_slew_limit": Effect(
+        "amplifier", "slew_limit", False, True, "current limit into the capacitance: dV/dt <= I/C"
+    ),
+    "drive_coupled_interference": Effect(
+        "interference", "enabled", False, True, "drive current couples into the load-cell reading"
+    ),
     "logarithmic_creep": Effect("creep", "form", "poles", "log", "creep grows with log time instead of saturating"),
     "second_resonance": Effect("mode2", "enabled", False, True, "a second, weaker mode"),
     "sensor_offset_drift": Effect("load_cell", "drift_n_per_min", 0.0, 0.5, "slow drift of the load-cell offset"),
@@ -246,7 +276,9 @@ class SectionedConfig:
         doc = self.as_dict()
         for sec, values in sections.items():
             if sec not in doc:
-                raise ConfigError(self.source, [f"unknown section [{sec}]; expected one of {', '.join(self.SECTION_TYPES)}"])
+                raise ConfigError(
+                    self.source, [f"unknown section [{sec}]; expected one of {', '.join(self.SECTION_TYPES)}"]
+                )
             doc[sec] = {**doc[sec], **values}
         return self._parse(doc, source=self.source)
 
@@ -276,7 +308,7 @@ class RigConfig(SectionedConfig):
     source: str = "<defaults>"
 
     @classmethod
-    def clean(cls) -> "RigConfig":
+    def clean(cls) -> RigConfig:
         """The default press with every effect of :data:`EFFECTS` switched off.
 
         What is left is what the thesis's model describes: rate-independent hysteresis
@@ -286,7 +318,7 @@ class RigConfig(SectionedConfig):
         return cls().replace(**_effect_values({name: False for name in EFFECTS}))
 
     @classmethod
-    def only(cls, effect: str, **magnitude: Any) -> "RigConfig":
+    def only(cls, effect: str, **magnitude: Any) -> RigConfig:
         """The clean rig with one effect on: ``RigConfig.only("input_delay", delay_s=5e-4)``.
 
         Keyword arguments set keys of the effect's section (its magnitude).
@@ -310,7 +342,7 @@ class RigConfig(SectionedConfig):
         )
 
     @classmethod
-    def _parse(cls, doc: Mapping[str, Any], source: str) -> "RigConfig":
+    def _parse(cls, doc: Mapping[str, Any], source: str) -> RigConfig:
         return parse_rig(doc, source=source)
 
 
@@ -331,7 +363,7 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
 DETECTABLE_ACTUATOR = {"capacitance_uf": (3.0, 8.0)}
 
 
-def hidden_effect(effect: str, rng, base: "RigConfig | None" = None) -> "RigConfig":
+def hidden_effect(effect: str, rng, base: RigConfig | None = None) -> RigConfig:
     """A clean rig (or ``base``) with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`,
     and a noise seed drawn too: the rig a diagnosis test hides one effect in."""
     cfg = base or RigConfig.clean()
@@ -367,7 +399,12 @@ def _check(section: str, cls: type, table: Mapping[str, Any], problems: list[str
         kind = f.type if isinstance(f.type, type) else {"float": float, "int": int, "bool": bool, "str": str}[f.type]
         if kind is float and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
-        if kind is bool and not isinstance(v, bool) or kind is not bool and (isinstance(v, bool) or not isinstance(v, kind)):
+        if (
+            kind is bool
+            and not isinstance(v, bool)
+            or kind is not bool
+            and (isinstance(v, bool) or not isinstance(v, kind))
+        ):
             problems.append(f"{where}: expected {kind.__name__}")
             continue
         if kind in (float, int):
@@ -403,7 +440,8 @@ def parse_rig(doc: Mapping[str, Any], source: str = "<rig>") -> RigConfig:
             problems.append(f"[actuator] drive_min_v = {a.drive_min_v} must be below drive_max_v = {a.drive_max_v}")
         if amp.output_min_v > a.drive_min_v or amp.output_max_v < a.drive_max_v:
             problems.append(
-                f"[amplifier] output range {amp.output_min_v:g} to {amp.output_max_v:g} V does not cover the drive range "
+                f"[amplifier] output range {amp.output_min_v:g} to {amp.output_max_v:g} V does not cover the drive "
+                "range "
                 f"{a.drive_min_v:g} to {a.drive_max_v:g} V"
             )
         if sections["rig"].backend != "virtual":

@@ -27,7 +27,6 @@ from scipy import signal
 from piezopress import operators, signals
 from piezopress.acquisition.rig_config import CreepSection, HysteresisSection, RigConfig
 
-
 # --------------------------------------------------------------------------- converters
 
 
@@ -76,8 +75,13 @@ def saturate(u: np.ndarray, k: float, full_scale_v: float) -> np.ndarray:
     return full_scale_v * np.tanh(k * u / full_scale_v) / np.tanh(k)
 
 
-def hysteresis(v: np.ndarray, cfg: HysteresisSection, full_scale_v: float, play_state: np.ndarray | None = None,
-               rate_v_per_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def hysteresis(
+    v: np.ndarray,
+    cfg: HysteresisSection,
+    full_scale_v: float,
+    play_state: np.ndarray | None = None,
+    rate_v_per_s: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Hysteresis of the stack: ``(h, play state after the last sample)``.
 
     Rate dependence (a rate-dependent Prandtl-Ishlinskii model): every threshold grows by
@@ -107,7 +111,7 @@ class Modal:
     residues: np.ndarray
 
     @classmethod
-    def second_order(cls, wn: float, zeta: float) -> "Modal":
+    def second_order(cls, wn: float, zeta: float) -> Modal:
         """``wn^2 / (s^2 + 2 zeta wn s + wn^2)``."""
         if abs(zeta - 1.0) < 1e-6:  # a double pole has no partial fractions; split it
             zeta = 1.0 + 1e-6
@@ -134,7 +138,9 @@ class Modal:
 
 
 @lru_cache(maxsize=64)
-def _modes(wn1: float, z1: float, on1: bool, wn2: float, z2: float, share2: float, on2: bool) -> tuple[Modal, np.ndarray]:
+def _modes(
+    wn1: float, z1: float, on1: bool, wn2: float, z2: float, share2: float, on2: bool
+) -> tuple[Modal, np.ndarray]:
     parts, weights = [], []
     if on1:
         parts.append(Modal.second_order(wn1, z1))
@@ -152,7 +158,9 @@ def _modes(wn1: float, z1: float, on1: bool, wn2: float, z2: float, share2: floa
 def modes(cfg: RigConfig) -> Modal | None:
     """The press's modes as one modal system with unit static gain (``None``: no dynamics)."""
     m, m2 = cfg.mode, cfg.mode2
-    modal, _ = _modes(m.natural_freq_rad_s, m.damping, m.enabled, m2.natural_freq_rad_s, m2.damping, m2.share, m2.enabled)
+    modal, _ = _modes(
+        m.natural_freq_rad_s, m.damping, m.enabled, m2.natural_freq_rad_s, m2.damping, m2.share, m2.enabled
+    )
     if modal.poles.size == 0:
         return None
     if not m.enabled:  # only the second mode: give it the whole response
@@ -211,7 +219,7 @@ class FastState:
     current_env_a: float  # envelope of the drive current (interference)
 
     @classmethod
-    def at_rest(cls, cfg: RigConfig) -> "FastState":
+    def at_rest(cls, cfg: RigConfig) -> FastState:
         r, _ = hysteresis_operators(cfg.hysteresis)
         m = modes(cfg)
         return cls(0.0, 0.0, np.zeros(r.size), np.zeros(0 if m is None else m.poles.size, complex), 0.0)
@@ -287,7 +295,9 @@ def fine_windows(u: np.ndarray, fs_hz: float, cfg: RigConfig) -> tuple[int, list
     return factor, segments
 
 
-def simulate(command_v: np.ndarray, fs_hz: float, preload_n: float, cfg: RigConfig, rng: np.random.Generator) -> dict[str, np.ndarray]:
+def simulate(
+    command_v: np.ndarray, fs_hz: float, preload_n: float, cfg: RigConfig, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
     """The whole chain for one run: the measured channels ``force_n`` and ``monitor_v``."""
     amp, daq, lc = cfg.amplifier, cfg.daq, cfg.load_cell
     dac_v = quantize(np.asarray(command_v, dtype=np.float64) / amp.gain, daq.dac_bits, daq.dac_range_v)
@@ -316,4 +326,3 @@ def simulate(command_v: np.ndarray, fs_hz: float, preload_n: float, cfg: RigConf
 def fast_only(cfg: RigConfig) -> RigConfig:
     """The same rig simulated entirely at its fine rate (a reference for tests)."""
     return cfg.replace(simulation={"fast_step_v": 1e-9, "fine_window_s": 10.0})
-

@@ -9,7 +9,8 @@ the same data, whatever the order of the protocols. It never sleeps.
 from __future__ import annotations
 
 import hashlib
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -48,7 +49,9 @@ class VirtualRig:
     def describe(self) -> dict[str, Any]:
         return {"backend": self.name, "source": self.config.source, "config": self.config.as_dict()}
 
-    def simulate(self, command_v: np.ndarray, sample_rate_hz: float, preload_n: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    def simulate(
+        self, command_v: np.ndarray, sample_rate_hz: float, preload_n: float, rng: np.random.Generator
+    ) -> dict[str, np.ndarray]:
         """The physics, without the backend bookkeeping: returns the measured channels."""
         return phys.simulate(command_v, sample_rate_hz, preload_n, self.config, rng)
 

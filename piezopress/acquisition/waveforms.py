@@ -45,7 +45,9 @@ def sine(freq_hz: float, cycles: int, low_v: float, peak_v: float, sample_rate_h
     return low_v + (peak_v - low_v) * 0.5 * (1.0 - np.cos(2.0 * np.pi * freq_hz * t))
 
 
-def step(base_v: float, level_v: float, pre_s: float, hold_s: float, post_s: float, sample_rate_hz: float) -> np.ndarray:
+def step(
+    base_v: float, level_v: float, pre_s: float, hold_s: float, post_s: float, sample_rate_hz: float
+) -> np.ndarray:
     """``base_v`` for ``pre_s``, an ideal step to ``level_v`` held ``hold_s``, back to ``base_v`` for ``post_s``."""
     n_pre = int(round(pre_s * sample_rate_hz))
     n_hold = int(round(hold_s * sample_rate_hz))
@@ -53,7 +55,9 @@ def step(base_v: float, level_v: float, pre_s: float, hold_s: float, post_s: flo
     return np.concatenate([np.full(n_pre, base_v), np.full(n_hold, level_v), np.full(max(n_post, 1), base_v)])
 
 
-def staircase(base_v: float, step_v: float, count: int, dwell_s: float, ramp_s: float, pre_s: float, sample_rate_hz: float) -> np.ndarray:
+def staircase(
+    base_v: float, step_v: float, count: int, dwell_s: float, ramp_s: float, pre_s: float, sample_rate_hz: float
+) -> np.ndarray:
     """``count`` steps of ``step_v``, each reached by a linear ramp of ``ramp_s`` and held ``dwell_s``."""
     knots_t = [0.0, pre_s]
     knots_v = [base_v, base_v]
@@ -83,8 +87,16 @@ def piecewise_linear(knots_t_s: np.ndarray, knots_v: np.ndarray, sample_rate_hz:
     return np.interp(t, knots_t_s, knots_v)
 
 
-def random_band(low_hz: float, high_hz: float, duration_s: float, low_v: float, peak_v: float, seed: int,
-                taper_s: float, sample_rate_hz: float) -> np.ndarray:
+def random_band(
+    low_hz: float,
+    high_hz: float,
+    duration_s: float,
+    low_v: float,
+    peak_v: float,
+    seed: int,
+    taper_s: float,
+    sample_rate_hz: float,
+) -> np.ndarray:
     """A seeded random trajectory with a flat spectrum from ``low_hz`` to ``high_hz``.
 
     Random phases on a flat band, scaled to span ``low_v`` to ``peak_v``, faded in from and

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -94,10 +95,15 @@ class _Checker:
 
     def get(self, d: Mapping[str, Any], where: str, key: str) -> Any:
         if key not in d:
-            raise BundleError(f"{self.source}: {where} has no key {key!r}; expected it (a bundle made by `piezopress fit` or `bundle`)")
+            raise BundleError(
+                f"{self.source}: {where} has no key {key!r}; expected it (a bundle made by `piezopress fit` or "
+                "`bundle`)"
+            )
         return d[key]
 
-    def number(self, value: Any, where: str, lo: float, hi: float, what: str, *, lo_open: bool = False, hi_open: bool = False) -> float:
+    def number(
+        self, value: Any, where: str, lo: float, hi: float, what: str, *, lo_open: bool = False, hi_open: bool = False
+    ) -> float:
         if not _is_number(value) or not math.isfinite(float(value)):
             self.fail(where, value, f"a finite number ({what})")
         v = float(value)
@@ -108,7 +114,9 @@ class _Checker:
     def optional(self, value: Any, where: str, lo: float, hi: float, what: str, **kw) -> float | None:
         return None if value is None else self.number(value, where, lo, hi, what, **kw)
 
-    def numbers(self, value: Any, where: str, lo: float, hi: float, what: str, *, min_len: int = 1) -> tuple[float, ...]:
+    def numbers(
+        self, value: Any, where: str, lo: float, hi: float, what: str, *, min_len: int = 1
+    ) -> tuple[float, ...]:
         if not isinstance(value, (list, tuple)) or not min_len <= len(value) <= MAX_OPERATORS:
             self.fail(where, value, f"a list of {min_len} to {MAX_OPERATORS} numbers ({what})")
         return tuple(self.number(v, f"{where}[{i}]", lo, hi, what) for i, v in enumerate(value))
@@ -129,12 +137,26 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
     ou = _unit(c, c.get(m, w, "output_unit"), f"{w}.output_unit")
     col = sec.get("output_column")
     if col is not None and units.COLUMN_UNITS.get(col) != ou:
-        c.fail("hysteresis.output_column", col, f"the column of the model's unit {ou!r} "
-               f"({', '.join(k for k, v in units.COLUMN_UNITS.items() if v == ou)}): one unit across the section")
+        c.fail(
+            "hysteresis.output_column",
+            col,
+            f"the column of the model's unit {ou!r} "
+            f"({', '.join(k for k, v in units.COLUMN_UNITS.items() if v == ou)}): one unit across the section",
+        )
     r = c.numbers(c.get(m, w, "play_thresholds"), f"{w}.play_thresholds", 0.0, MAX_DRIVE_V, "thresholds in V")
-    pw = c.numbers(c.get(m, w, "play_weights"), f"{w}.play_weights", -MAX_WEIGHT, MAX_WEIGHT, f"weights in {units.label(ou)}/V")
-    d = c.numbers(c.get(m, w, "dead_zone_thresholds"), f"{w}.dead_zone_thresholds", -MAX_OUTPUT, MAX_OUTPUT, f"thresholds in {units.label(ou)}")
-    s = c.numbers(c.get(m, w, "dead_zone_weights"), f"{w}.dead_zone_weights", -MAX_WEIGHT, MAX_WEIGHT, "dimensionless weights")
+    pw = c.numbers(
+        c.get(m, w, "play_weights"), f"{w}.play_weights", -MAX_WEIGHT, MAX_WEIGHT, f"weights in {units.label(ou)}/V"
+    )
+    d = c.numbers(
+        c.get(m, w, "dead_zone_thresholds"),
+        f"{w}.dead_zone_thresholds",
+        -MAX_OUTPUT,
+        MAX_OUTPUT,
+        f"thresholds in {units.label(ou)}",
+    )
+    s = c.numbers(
+        c.get(m, w, "dead_zone_weights"), f"{w}.dead_zone_weights", -MAX_WEIGHT, MAX_WEIGHT, "dimensionless weights"
+    )
     if len(r) != len(pw):
         c.fail(f"{w}.play_weights", list(pw), f"one weight per play threshold ({len(r)})")
     if len(d) != len(s):
@@ -153,7 +175,11 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
     slopes_up = np.cumsum(s[i0:])
     slopes_down = np.cumsum(s[i0::-1])
     if s[i0] <= 0 or np.any(slopes_up <= 0) or np.any(slopes_down <= 0):
-        c.fail(f"{w}.dead_zone_weights", list(s), "an invertible model: the weight at threshold 0 and every slope outward from it > 0")
+        c.fail(
+            f"{w}.dead_zone_weights",
+            list(s),
+            "an invertible model: the weight at threshold 0 and every slope outward from it > 0",
+        )
     model = PIModel(r, pw, d, s, x0, y0, "V", ou)
     inv = model.inverse_parameters()
     if not all(np.all(np.isfinite(v)) for v in inv.values()):
@@ -162,11 +188,23 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
     if stored is not None:  # written for people to read; the compensator recomputes it, so it must agree
         stored = c.mapping(stored, f"{w}.inverse", "a mapping (the inverse model's thresholds and weights)")
         for key, value in inv.items():
-            got = c.numbers(c.get(stored, f"{w}.inverse", key), f"{w}.inverse.{key}", -MAX_OUTPUT * MAX_WEIGHT, MAX_OUTPUT * MAX_WEIGHT,
-                            "a number of the inverse model")
-            if len(got) != len(value) or not np.allclose(got, value, rtol=INVERSE_RTOL, atol=INVERSE_RTOL * float(np.max(np.abs(value)))):
-                c.fail(f"{w}.inverse.{key}", list(got), f"the inverse of the forward model's parameters (within {INVERSE_RTOL:g}: "
-                       f"{', '.join(f'{v:.6g}' for v in value[:4])}{', ...' if len(value) > 4 else ''}); the file was edited or corrupted")
+            got = c.numbers(
+                c.get(stored, f"{w}.inverse", key),
+                f"{w}.inverse.{key}",
+                -MAX_OUTPUT * MAX_WEIGHT,
+                MAX_OUTPUT * MAX_WEIGHT,
+                "a number of the inverse model",
+            )
+            if len(got) != len(value) or not np.allclose(
+                got, value, rtol=INVERSE_RTOL, atol=INVERSE_RTOL * float(np.max(np.abs(value)))
+            ):
+                c.fail(
+                    f"{w}.inverse.{key}",
+                    list(got),
+                    f"the inverse of the forward model's parameters (within {INVERSE_RTOL:g}: "
+                    f"{', '.join(f'{v:.6g}' for v in value[:4])}{', ...' if len(value) > 4 else ''}); the file was "
+                    "edited or corrupted",
+                )
     # the model maps the rest drive and the drive range's ends to finite outputs, and back
     y, _ = model.forward(np.array([x0, x0 + r[-1] + 1.0, x0]))
     if not np.all(np.isfinite(y)) or not np.all(np.isfinite(model.inverse(y)[0])):
@@ -177,10 +215,24 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
 def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:
     m = c.mapping(c.get(sec, "creep", "model"), "creep.model", "a mapping (the creep model)")
     w = "creep.model"
-    form = c.get(m, w, "form")
-    kc = c.number(c.get(m, w, "static_gain"), f"{w}.static_gain", 0.0, MAX_CREEP_GAIN, "K_c > 0 (a stable creep compensator)", lo_open=True)
+    c.get(m, w, "form")  # present (the model's own check names a form it does not know)
+    kc = c.number(
+        c.get(m, w, "static_gain"),
+        f"{w}.static_gain",
+        0.0,
+        MAX_CREEP_GAIN,
+        "K_c > 0 (a stable creep compensator)",
+        lo_open=True,
+    )
     taus = c.numbers(c.get(m, w, "taus_s"), f"{w}.taus_s", *CREEP_TAU_S, "time constants in s", min_len=0)
-    gains = c.numbers(c.get(m, w, "gains"), f"{w}.gains", -MAX_CREEP_ELEMENT_GAIN, MAX_CREEP_ELEMENT_GAIN, "dimensionless gains", min_len=0)
+    gains = c.numbers(
+        c.get(m, w, "gains"),
+        f"{w}.gains",
+        -MAX_CREEP_ELEMENT_GAIN,
+        MAX_CREEP_ELEMENT_GAIN,
+        "dimensionless gains",
+        min_len=0,
+    )
     if len(taus) != len(gains):
         c.fail(f"{w}.gains", list(gains), f"one gain per time constant ({len(taus)})")
     params = m.get("params") or {}
@@ -192,12 +244,20 @@ def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:
     fit = sec.get("fit") if isinstance(sec.get("fit"), Mapping) else {}
     fit_unit = fit.get("output_unit")
     if fit_unit is not None and units.normalise(fit_unit) != unit:
-        c.fail("creep.fit.output_unit", fit_unit, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
+        c.fail(
+            "creep.fit.output_unit",
+            fit_unit,
+            f"{unit!r}, the hysteresis model's output unit (one unit across the sections)",
+        )
     for other in units.LABELS:  # a section written before the unit was recorded: its figures' keys say it
         key = f"rms_{units.key(other)}"
         if fit_unit is None and other != unit and key in fit:
-            c.fail(f"creep.fit.{key}", fit[key], f"a creep fitted in {units.label(unit)} (rms_{units.key(unit)}), the hysteresis "
-                   "model's output unit (one unit across the sections)")
+            c.fail(
+                f"creep.fit.{key}",
+                fit[key],
+                f"a creep fitted in {units.label(unit)} (rms_{units.key(unit)}), the hysteresis "
+                "model's output unit (one unit across the sections)",
+            )
     try:
         return CreepModel.from_dict(m)
     except FitError as exc:
@@ -214,10 +274,21 @@ def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
     if len(t) != len(a):
         c.fail(f"{where}.amplitudes", list(a), f"one amplitude per impulse time ({len(t)})")
     if min(a) <= 0 or abs(sum(a) - 1.0) > SHAPER_SUM_TOL:
-        c.fail(f"{where}.amplitudes", list(a), f"positive impulses summing to 1 (within {SHAPER_SUM_TOL:g}; they sum to {sum(a):.9g})")
+        c.fail(
+            f"{where}.amplitudes",
+            list(a),
+            f"positive impulses summing to 1 (within {SHAPER_SUM_TOL:g}; they sum to {sum(a):.9g})",
+        )
     if any(t1 < t0 for t0, t1 in zip(t, t[1:])):
         c.fail(f"{where}.times_s", list(t), "non-decreasing impulse times")
-    wn = c.number(c.get(s, where, "natural_freq_rad_s"), f"{where}.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
+    wn = c.number(
+        c.get(s, where, "natural_freq_rad_s"),
+        f"{where}.natural_freq_rad_s",
+        0.0,
+        MAX_WN_RAD_S,
+        "a natural frequency in rad/s",
+        lo_open=True,
+    )
     zeta = c.number(c.get(s, where, "damping"), f"{where}.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
     zp = s.get("zv_power")
     if zp is not None and not (isinstance(zp, int) and not isinstance(zp, bool) and 1 <= zp <= 20):
@@ -228,14 +299,29 @@ def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
         raise BundleError(f"{c.source}: {where}: {exc}") from None
 
 
-def check_shaper(c: _Checker, sec: Mapping[str, Any], unit: str) -> tuple[Shaper, Shaper | None, tuple[float, float, float | None]]:
+def check_shaper(
+    c: _Checker, sec: Mapping[str, Any], unit: str
+) -> tuple[Shaper, Shaper | None, tuple[float, float, float | None]]:
     mode = c.mapping(c.get(sec, "shaper", "mode"), "shaper.mode", "a mapping (the identified mode)")
-    wn = c.number(c.get(mode, "shaper.mode", "natural_freq_rad_s"), "shaper.mode.natural_freq_rad_s", 0.0, MAX_WN_RAD_S, "a natural frequency in rad/s", lo_open=True)
-    zeta = c.number(c.get(mode, "shaper.mode", "damping"), "shaper.mode.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
+    wn = c.number(
+        c.get(mode, "shaper.mode", "natural_freq_rad_s"),
+        "shaper.mode.natural_freq_rad_s",
+        0.0,
+        MAX_WN_RAD_S,
+        "a natural frequency in rad/s",
+        lo_open=True,
+    )
+    zeta = c.number(
+        c.get(mode, "shaper.mode", "damping"), "shaper.mode.damping", 0.0, 1.0, "a damping ratio", hi_open=True
+    )
     lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 1.0, 1e9, "null or a cut-off in Hz")
     mu = mode.get("output_unit")
     if mu is not None and units.normalise(mu) != unit:
-        c.fail("shaper.mode.output_unit", mu, f"{unit!r}, the hysteresis model's output unit (one unit across the sections)")
+        c.fail(
+            "shaper.mode.output_unit",
+            mu,
+            f"{unit!r}, the hysteresis model's output unit (one unit across the sections)",
+        )
     sh = _check_shaper(c, c.get(sec, "shaper", "shaper"), "shaper.shaper")
     sh2 = _check_shaper(c, sec["shaper2"], "shaper.shaper2") if sec.get("shaper2") else None
     return sh, sh2, (wn, zeta, lp)
@@ -265,23 +351,48 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
     for other in units.LABELS:
         ok = f"max_rate_{units.key(other)}_per_s"
         if other != unit and comp.get(ok) is not None:
-            c.fail(f"{w}.{ok}", comp[ok], f"no rate limit in {units.label(other)}/s: the hysteresis model's output is in "
-                   f"{units.label(unit)} (max_rate_{k}_per_s; one unit across the sections)")
-    rate_limit = c.optional(comp.get(f"max_rate_{k}_per_s"), f"{w}.max_rate_{k}_per_s", 0.0, MAX_RATE,
-                            f"null (no limit) or a positive rate in {units.label(unit)}/s", lo_open=True)
+            c.fail(
+                f"{w}.{ok}",
+                comp[ok],
+                f"no rate limit in {units.label(other)}/s: the hysteresis model's output is in "
+                f"{units.label(unit)} (max_rate_{k}_per_s; one unit across the sections)",
+            )
+    rate_limit = c.optional(
+        comp.get(f"max_rate_{k}_per_s"),
+        f"{w}.max_rate_{k}_per_s",
+        0.0,
+        MAX_RATE,
+        f"null (no limit) or a positive rate in {units.label(unit)}/s",
+        lo_open=True,
+    )
     lead = c.number(comp.get("lead_s", 0.0), f"{w}.lead_s", 0.0, MAX_LEAD_S, "the drive's lead in s", hi_open=True)
-    delay = c.number(comp.get("delay_lead_s", 0.0), f"{w}.delay_lead_s", 0.0, MAX_LEAD_S, "the input delay's lead in s", hi_open=True)
-    slew = c.optional(comp.get("slew_v_per_s"), f"{w}.slew_v_per_s", 0.0, MAX_RATE, "null or a positive slew limit in V/s", lo_open=True)
+    delay = c.number(
+        comp.get("delay_lead_s", 0.0), f"{w}.delay_lead_s", 0.0, MAX_LEAD_S, "the input delay's lead in s", hi_open=True
+    )
+    slew = c.optional(
+        comp.get("slew_v_per_s"),
+        f"{w}.slew_v_per_s",
+        0.0,
+        MAX_RATE,
+        "null or a positive slew limit in V/s",
+        lo_open=True,
+    )
     rd = comp.get("rate_dependence")
     rate = None
     if rd:
         rd = c.mapping(rd, f"{w}.rate_dependence", "a mapping (the rate-dependent hysteresis)")
         q = f"{w}.rate_dependence"
-        sat = c.optional(rd.get("saturation_v_per_s") or None, f"{q}.saturation_v_per_s", 0.0, MAX_RATE, "null or V/s", lo_open=True)
-        rate = RateDependence(widen_v_per_kv_s=c.number(rd.get("widen_v_per_kv_s", 0.0), f"{q}.widen_v_per_kv_s", 0.0, MAX_DRIVE_V, "V per kV/s"),
-                              loss_per_kv_s=c.number(rd.get("loss_per_kv_s", 0.0), f"{q}.loss_per_kv_s", 0.0, 1e3, "per kV/s"),
-                              saturation_v_per_s=sat,
-                              tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True))
+        sat = c.optional(
+            rd.get("saturation_v_per_s") or None, f"{q}.saturation_v_per_s", 0.0, MAX_RATE, "null or V/s", lo_open=True
+        )
+        rate = RateDependence(
+            widen_v_per_kv_s=c.number(
+                rd.get("widen_v_per_kv_s", 0.0), f"{q}.widen_v_per_kv_s", 0.0, MAX_DRIVE_V, "V per kV/s"
+            ),
+            loss_per_kv_s=c.number(rd.get("loss_per_kv_s", 0.0), f"{q}.loss_per_kv_s", 0.0, 1e3, "per kV/s"),
+            saturation_v_per_s=sat,
+            tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True),
+        )
     return Settings(lo, hi, rate_limit, lead, delay, slew, rate)
 
 
@@ -296,7 +407,11 @@ def check_section(kind: str, doc: Any, source: str) -> None:
     if kind == "hysteresis":
         check_hysteresis(c, doc)
     elif kind == "creep":
-        check_creep(c, doc, units.normalise(doc.get("fit", {}).get("output_unit") if isinstance(doc.get("fit"), Mapping) else None))
+        check_creep(
+            c,
+            doc,
+            units.normalise(doc.get("fit", {}).get("output_unit") if isinstance(doc.get("fit"), Mapping) else None),
+        )
     elif kind == "shaper":
         mode = doc.get("mode")
         unit = units.normalise(mode.get("output_unit")) if isinstance(mode, Mapping) else units.FORCE
@@ -323,7 +438,7 @@ class Bundle:
     # ------------------------------------------------------------------ reading and writing
 
     @classmethod
-    def from_dict(cls, doc: Any, source: str = "bundle") -> "Bundle":
+    def from_dict(cls, doc: Any, source: str = "bundle") -> Bundle:
         """The bundle a document describes, checked; :class:`BundleError` (one line naming
         ``source``, the section and key, and what was expected) otherwise."""
         c = _Checker(str(source))
@@ -331,12 +446,16 @@ class Bundle:
         if doc.get("bundle_version") != BUNDLE_VERSION:
             c.fail("bundle_version", doc.get("bundle_version"), f"{BUNDLE_VERSION} (this software's bundle schema)")
         if "hysteresis" not in doc:
-            raise BundleError(f"{source}: has no hysteresis section; expected a bundle made by `piezopress fit` or `bundle`")
+            raise BundleError(
+                f"{source}: has no hysteresis section; expected a bundle made by `piezopress fit` or `bundle`"
+            )
         for name in SECTIONS:
             if name in doc:
                 sec = c.mapping(doc[name], name, f"a mapping (the {name} section)")
                 if "bundle_version" in sec and sec["bundle_version"] != BUNDLE_VERSION:
-                    c.fail(f"{name}.bundle_version", sec["bundle_version"], f"{BUNDLE_VERSION} (this software's schema)")
+                    c.fail(
+                        f"{name}.bundle_version", sec["bundle_version"], f"{BUNDLE_VERSION} (this software's schema)"
+                    )
         hyst = check_hysteresis(c, doc["hysteresis"])
         unit = hyst.output_unit
         creep = check_creep(c, doc["creep"], unit) if "creep" in doc else None
@@ -362,8 +481,10 @@ class Bundle:
         ``expected`` says what would do)."""
         if units.normalise(unit) != self.unit:
             expected = expected or f"a {units.quantity(self.unit)} run for this bundle"
-            raise BundleError(f"{what}: is in {units.label(unit)} ({units.quantity(unit)}), the bundle {self.source} in "
-                              f"{units.label(self.unit)} ({units.quantity(self.unit)}); expected one unit: {expected}")
+            raise BundleError(
+                f"{what}: is in {units.label(unit)} ({units.quantity(unit)}), the bundle {self.source} in "
+                f"{units.label(self.unit)} ({units.quantity(self.unit)}); expected one unit: {expected}"
+            )
 
     def check_reference(self, n_samples: int, fs_hz: float, what: str, *, use_creep: bool = True) -> None:
         """What the compensator needs of a reference of ``n_samples`` at ``fs_hz``: a lead
@@ -371,8 +492,10 @@ class Bundle:
         duration = (n_samples - 1) / fs_hz if n_samples > 1 else 0.0
         for key, lead in (("lead_s", self.settings.lead_s), ("delay_lead_s", self.settings.delay_lead_s)):
             if lead > LEAD_MAX_FRACTION * duration:
-                raise BundleError(f"{self.source}: compensation.{key} = {lead:.6g} s; expected less than "
-                                  f"{LEAD_MAX_FRACTION:g} of the reference's {duration:.6g} s ({what})")
+                raise BundleError(
+                    f"{self.source}: compensation.{key} = {lead:.6g} s; expected less than "
+                    f"{LEAD_MAX_FRACTION:g} of the reference's {duration:.6g} s ({what})"
+                )
         if use_creep and self.creep is not None:
             try:
                 self.creep.check_stable(fs_hz)
@@ -383,8 +506,10 @@ class Bundle:
         """Refuse a compensation drive range outside the rig's."""
         s = self.settings
         if s.drive_min_v < drive_min_v - 1e-9 or s.drive_max_v > drive_max_v + 1e-9:
-            raise BundleError(f"{self.source}: compensation drive range {s.drive_min_v:g} to {s.drive_max_v:g} V; expected inside "
-                              f"the rig's {drive_min_v:g} to {drive_max_v:g} V ({rig})")
+            raise BundleError(
+                f"{self.source}: compensation drive range {s.drive_min_v:g} to {s.drive_max_v:g} V; expected inside "
+                f"the rig's {drive_min_v:g} to {drive_max_v:g} V ({rig})"
+            )
 
     # ------------------------------------------------------------------ the models
 
@@ -420,7 +545,7 @@ class Bundle:
         ``sample_rate_hz`` (a :class:`piezopress.runformat.Run`)."""
         return creep_removed(self.creep, run.command_v, run.output, run.sample_rate_hz)
 
-    def extended(self, findings: Iterable[Any], model: Any = None) -> "Bundle":
+    def extended(self, findings: Iterable[Any], model: Any = None) -> Bundle:
         """The bundle with every diagnosis finding recorded; those the compensator applies change
         it (:func:`extend_document`)."""
         return Bundle.from_dict(extend_document(self.doc, list(findings), model), self.source)
@@ -442,9 +567,17 @@ def second_shaper(parameters: Mapping[str, float]) -> dict[str, Any]:
     """A ZVD shaper for a second mode (``natural_freq_rad_s``, ``damping``), as a bundle's
     ``shaper.shaper2`` (the compensator applies it after the first shaper)."""
     sh = design_shaper("zvd", float(parameters["natural_freq_rad_s"]), float(parameters["damping"]))
-    return {"name": sh.name, "times_s": list(sh.times_s), "amplitudes": list(sh.amplitudes), "natural_freq_rad_s": sh.wn,
-            "damping": sh.zeta, "zv_power": sh.zv_power, "delay_ms": 1e3 * sh.delay_s, "centroid_ms": 1e3 * sh.centroid_s,
-            "for": "diagnose: second_resonance"}
+    return {
+        "name": sh.name,
+        "times_s": list(sh.times_s),
+        "amplitudes": list(sh.amplitudes),
+        "natural_freq_rad_s": sh.wn,
+        "damping": sh.zeta,
+        "zv_power": sh.zv_power,
+        "delay_ms": 1e3 * sh.delay_s,
+        "centroid_ms": 1e3 * sh.centroid_s,
+        "for": "diagnose: second_resonance",
+    }
 
 
 #: Findings whose fit refits the main mode freely because the effect distorts its
@@ -460,8 +593,12 @@ MODE_REFIT_CAUSES = ("input_delay",)
 def rate_dependence(model: Any) -> dict[str, Any]:
     """A model's rate dependence as the bundle's ``compensation.rate_dependence``."""
     sat = getattr(model, "rate_saturation_v_per_s", None)
-    return {"widen_v_per_kv_s": float(model.rate_v_per_kv_s), "loss_per_kv_s": float(getattr(model, "rate_loss_per_kv_s", 0.0)),
-            "saturation_v_per_s": float(sat) if sat and np.isfinite(sat) else None, "tau_s": float(getattr(model, "rate_tau_s", 5e-4))}
+    return {
+        "widen_v_per_kv_s": float(model.rate_v_per_kv_s),
+        "loss_per_kv_s": float(getattr(model, "rate_loss_per_kv_s", 0.0)),
+        "saturation_v_per_s": float(sat) if sat and np.isfinite(sat) else None,
+        "tau_s": float(getattr(model, "rate_tau_s", 5e-4)),
+    }
 
 
 #: Creep elements (not the log tail) faster than this are folded into the compensator's
@@ -484,12 +621,21 @@ def creep_for_compensator(model: CreepModel) -> CreepModel:
     if model.form != "kv" or gamma is None:
         return model
     tail_gain = 0.5 * float(gamma)
-    fast = [i for i, (t, g) in enumerate(zip(model.taus_s, model.gains)) if t < FAST_CREEP_S and not np.isclose(g, tail_gain, rtol=1e-9)]
+    fast = [
+        i
+        for i, (t, g) in enumerate(zip(model.taus_s, model.gains))
+        if t < FAST_CREEP_S and not np.isclose(g, tail_gain, rtol=1e-9)
+    ]
     if not fast:
         return model
     keep = [i for i in range(len(model.taus_s)) if i not in fast]
-    return CreepModel("kv", model.static_gain + sum(model.gains[i] for i in fast), tuple(model.taus_s[i] for i in keep),
-                      tuple(model.gains[i] for i in keep), dict(model.params))
+    return CreepModel(
+        "kv",
+        model.static_gain + sum(model.gains[i] for i in fast),
+        tuple(model.taus_s[i] for i in keep),
+        tuple(model.gains[i] for i in keep),
+        dict(model.params),
+    )
 
 
 def modal_delay_s(model: Any) -> float:
@@ -540,7 +686,11 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
         elif f.cause == "logarithmic_creep" and "creep" in ext:
             # the creep model the finding fitted and judged (its elements and log tail), not a log form rebuilt
             # from two of its numbers: the compensator inverts what was found
-            log = f.model.creep if f.model.creep is not None else CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
+            log = (
+                f.model.creep
+                if f.model.creep is not None
+                else CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
+            )
             ext["creep"]["model"] = creep_for_compensator(log).to_dict()
             ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
     refit_by = [f.cause for f in findings if f.cause in MODE_REFIT_CAUSES]
@@ -551,18 +701,45 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
         except FitError:
             new = None  # the design does not hold at the refitted damping: the base shaper stays
         if new is not None:
-            sh["shaper"] = {**sh["shaper"], "times_s": list(new.times_s), "amplitudes": list(new.amplitudes),
-                            "natural_freq_rad_s": new.wn, "damping": new.zeta, "zv_power": new.zv_power,
-                            "delay_ms": 1e3 * new.delay_s, "centroid_ms": 1e3 * new.centroid_s}
+            sh["shaper"] = {
+                **sh["shaper"],
+                "times_s": list(new.times_s),
+                "amplitudes": list(new.amplitudes),
+                "natural_freq_rad_s": new.wn,
+                "damping": new.zeta,
+                "zv_power": new.zv_power,
+                "delay_ms": 1e3 * new.delay_s,
+                "centroid_ms": 1e3 * new.centroid_s,
+            }
             sh["mode"] = {**sh["mode"], "natural_freq_rad_s": float(model.wn), "damping": float(model.zeta)}
             sh["extended_by"] = f"diagnose: the mode refitted with {', '.join(refit_by)}"
             # the lead's modal part (2 zeta / wn of the base mode) replaced by the refitted modes' low-frequency delay
-            old_modal = 2.0 * float(bundle["shaper"]["mode"]["damping"]) / float(bundle["shaper"]["mode"]["natural_freq_rad_s"])
-            comp["lead_s"] = float(bundle.get("compensation", {}).get("lead_s", old_modal)) - old_modal + modal_delay_s(model) \
+            old_modal = (
+                2.0 * float(bundle["shaper"]["mode"]["damping"]) / float(bundle["shaper"]["mode"]["natural_freq_rad_s"])
+            )
+            comp["lead_s"] = (
+                float(bundle.get("compensation", {}).get("lead_s", old_modal))
+                - old_modal
+                + modal_delay_s(model)
                 + comp.get("delay_lead_s", 0.0)
+            )
     return ext
 
 
-__all__ = ["Bundle", "BundleError", "Settings", "BUNDLE_VERSION", "SECTIONS", "LEAD_MAX_FRACTION", "creep_removed", "check_section",
-           "extend_document", "second_shaper", "rate_dependence", "creep_for_compensator", "modal_delay_s", "MODE_REFIT_CAUSES",
-           "FAST_CREEP_S"]
+__all__ = [
+    "Bundle",
+    "BundleError",
+    "Settings",
+    "BUNDLE_VERSION",
+    "SECTIONS",
+    "LEAD_MAX_FRACTION",
+    "creep_removed",
+    "check_section",
+    "extend_document",
+    "second_shaper",
+    "rate_dependence",
+    "creep_for_compensator",
+    "modal_delay_s",
+    "MODE_REFIT_CAUSES",
+    "FAST_CREEP_S",
+]

@@ -100,7 +100,9 @@ def _direction(z: np.ndarray) -> np.ndarray:
 REACHABLE_PASSES = 12
 
 
-def reachable(model: PIModel, creep: CreepModel | None, r: np.ndarray, fs_hz: float, lo_v: float, hi_v: float) -> np.ndarray:
+def reachable(
+    model: PIModel, creep: CreepModel | None, r: np.ndarray, fs_hz: float, lo_v: float, hi_v: float
+) -> np.ndarray:
     """The reference ``r`` (above ``y0``, before the creep compensator) where the drive range
     ``lo_v`` to ``hi_v`` reaches it, else what the clipped drive delivers.
 
@@ -123,7 +125,7 @@ def reachable(model: PIModel, creep: CreepModel | None, r: np.ndarray, fs_hz: fl
         # a stretch the reference holds on after (a creep hold at the range's edge: the press creeps
         # up to it) is left as it was; where the reference moves on (over a loop's top) it is settled
         for a, b in _segments(out):
-            tail = r0[b: b + (b - a) + 1]
+            tail = r0[b : b + (b - a) + 1]
             if tail.size < 2 or np.ptp(tail) == 0:
                 out[a:b] = False
                 done[a:b] = True
@@ -178,7 +180,9 @@ RATE_INVERSE_TOL_V = 1e-4
 RATE_INVERSE_PASSES = 40
 
 
-def rate_aware_inverse(model: PIModel, y_ref: np.ndarray, fs_hz: float, rate: RateDependence) -> tuple[np.ndarray, dict[str, Any]]:
+def rate_aware_inverse(
+    model: PIModel, y_ref: np.ndarray, fs_hz: float, rate: RateDependence
+) -> tuple[np.ndarray, dict[str, Any]]:
     """The drive ``x`` whose rate-dependent model output is ``y_ref``: ``(x, info)``.
 
     With the rate-independent inverse ``z = H^-1[y_ref]`` and ``G(x) = H^-1[F_rate(x)]`` (the
@@ -204,7 +208,7 @@ def rate_aware_inverse(model: PIModel, y_ref: np.ndarray, fs_hz: float, rate: Ra
         x = z + rate.widen_v_per_kv_s * rate.rate(z, fs_hz) / 1000.0 * _direction(z)
     res = np.inf
     passes = 0
-    for passes in range(1, RATE_INVERSE_PASSES + 1):
+    for passes in range(1, RATE_INVERSE_PASSES + 1):  # noqa: B007 - the count is reported after the loop
         g, _ = model.inverse(rate.forward(model, x, fs_hz))
         err = z - g
         res = float(np.max(np.abs(err)))
@@ -277,8 +281,15 @@ class Compensator:
     rate: RateDependence | None = None
     slew_v_per_s: float | None = None
 
-    def _to_drive(self, r: np.ndarray, fs_hz: float, max_step: float | np.ndarray | None, k: str,
-                  stages: dict[str, np.ndarray], notes: list[str]) -> np.ndarray:
+    def _to_drive(
+        self,
+        r: np.ndarray,
+        fs_hz: float,
+        max_step: float | np.ndarray | None,
+        k: str,
+        stages: dict[str, np.ndarray],
+        notes: list[str],
+    ) -> np.ndarray:
         """Rate limit, shapers, creep compensator, inverse and lead: the drive before clipping."""
         if max_step is not None:
             r = signals.rate_limit(r, r[0], max_step)
@@ -307,14 +318,19 @@ class Compensator:
             x, info = rate_aware_inverse(self.hysteresis, self.hysteresis.y0 + r, fs_hz, self.rate)
             stages["rate_independent_inverse_v"] = self.hysteresis.inverse(self.hysteresis.y0 + r)[0]
             if info["residual_v"] > 0.01:
-                note = f"rate-aware inverse: {info['residual_v']:.3g} V from the rate model's solution after {info['passes']} passes"
+                note = (
+                    f"rate-aware inverse: {info['residual_v']:.3g} V from the rate model's solution "
+                    f"after {info['passes']} passes"
+                )
                 if note not in notes:
                     notes.append(note)
         else:
             x, _ = self.hysteresis.inverse(self.hysteresis.y0 + r)
         return advance(x, self.lead_s, fs_hz)
 
-    def _slew_feasible(self, r: np.ndarray, fs_hz: float, k: str, stages: dict[str, np.ndarray], notes: list[str]) -> np.ndarray:
+    def _slew_feasible(
+        self, r: np.ndarray, fs_hz: float, k: str, stages: dict[str, np.ndarray], notes: list[str]
+    ) -> np.ndarray:
         """The drive with the reference slowed where the drive would outrun the slew limit.
 
         Each pass measures how far the drive's rate exceeds ``SLEW_MARGIN * slew``, maps the
@@ -326,8 +342,14 @@ class Compensator:
         limit = SLEW_MARGIN * float(self.slew_v_per_s) / fs_hz  # V per sample
         base = np.full(r.size, self.max_rate_per_s / fs_hz if self.max_rate_per_s else np.inf)
         step = base.copy()
-        span = sum(int(sh.discretize(fs_hz)[0][-1]) if fs_hz > 2 * sh.wn / (2 * np.pi) else 0
-                   for sh in (self.shaper, self.shaper2) if sh is not None) + 1
+        span = (
+            sum(
+                int(sh.discretize(fs_hz)[0][-1]) if fs_hz > 2 * sh.wn / (2 * np.pi) else 0
+                for sh in (self.shaper, self.shaper2)
+                if sh is not None
+            )
+            + 1
+        )
         n_lead = int(np.ceil(self.lead_s * fs_hz))
         x = self._to_drive(r, fs_hz, None if np.all(np.isinf(step)) else step, k, stages, notes)
         for _ in range(int(self.options.get("slew_passes", 8))):
@@ -377,7 +399,10 @@ class Compensator:
         """
         r = np.asarray(reference, dtype=np.float64)
         if r.ndim != 1 or r.size < 2 or not np.all(np.isfinite(r)):
-            raise ValueError(f"reference of shape {r.shape} with non-finite values or fewer than 2 samples; expected a finite 1-D trajectory")
+            raise ValueError(
+                f"reference of shape {r.shape} with non-finite values or fewer than 2 samples; expected a finite 1-D "
+                "trajectory"
+            )
         k = units.key(self.hysteresis.output_unit)
         stages: dict[str, np.ndarray] = {f"reference_{k}": r}
         notes: list[str] = []
@@ -394,7 +419,9 @@ class Compensator:
                 f"the reference cannot be reached everywhere: {clipped} of {x.size} samples need a drive outside "
                 f"{self.drive_min_v:g} to {self.drive_max_v:g} V (requested {lo:.1f} to {hi:.1f} V); clipped"
             )
-        return CompensationResult(np.clip(x, self.drive_min_v, self.drive_max_v), stages, clipped, lo, hi, tuple(warnings), tuple(notes))
+        return CompensationResult(
+            np.clip(x, self.drive_min_v, self.drive_max_v), stages, clipped, lo, hi, tuple(warnings), tuple(notes)
+        )
 
 
 def _segments(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -51,9 +51,10 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -173,14 +174,19 @@ def _signal(where: str, name: str, values, min_len: int = 0) -> np.ndarray:
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
-        raise FitError(f"{where}: {name} is not numeric ({type(values).__name__}); expected a 1-D array of numbers") from None
+        raise FitError(
+            f"{where}: {name} is not numeric ({type(values).__name__}); expected a 1-D array of numbers"
+        ) from None
     if arr.ndim != 1:
         raise FitError(f"{where}: {name} has shape {arr.shape}; expected a 1-D array")
     if arr.size < min_len:
         raise FitError(f"{where}: {name} has {arr.size} sample(s); expected at least {min_len}")
     bad = ~np.isfinite(arr)
     if bad.any():
-        raise FitError(f"{where}: {name} has {int(bad.sum())} NaN/infinite value(s), first at index {int(np.argmax(bad))}; expected finite numbers")
+        raise FitError(
+            f"{where}: {name} has {int(bad.sum())} NaN/infinite value(s), first at index {int(np.argmax(bad))}; "
+            "expected finite numbers"
+        )
     return arr
 
 
@@ -236,7 +242,9 @@ class CreepModel:
         taus = tuple(_positive(where, f"taus_s[{i}]", t) for i, t in enumerate(np.atleast_1d(self.taus_s).tolist()))
         gains = tuple(_finite(where, f"gains[{i}]", g) for i, g in enumerate(np.atleast_1d(self.gains).tolist()))
         if len(taus) != len(gains):
-            raise FitError(f"{where}: {len(taus)} time constant(s) but {len(gains)} gain(s); expected one gain per time constant")
+            raise FitError(
+                f"{where}: {len(taus)} time constant(s) but {len(gains)} gain(s); expected one gain per time constant"
+            )
         object.__setattr__(self, "taus_s", taus)
         object.__setattr__(self, "gains", gains)
         object.__setattr__(self, "params", {str(k): float(v) for k, v in dict(self.params).items()})
@@ -244,7 +252,7 @@ class CreepModel:
     # ----------------------------------------------------------------- constructors
 
     @classmethod
-    def poles(cls, static_gain: float, K: float, T_z_s: float, T1_s: float, T2_s: float, T3_s: float) -> "CreepModel":
+    def poles(cls, static_gain: float, K: float, T_z_s: float, T1_s: float, T2_s: float, T3_s: float) -> CreepModel:
         """``K_c + K (1 + T_z s) / ((1 + T1 s)(1 + T2 s)(1 + T3 s))``, the thesis's form.
 
         The partial-fraction gains are ``g_k = K (1 - T_z/T_k) / prod_{j != k} (1 - T_j/T_k)``;
@@ -256,7 +264,10 @@ class CreepModel:
         taus = [_positive(where, name, v) for name, v in (("T1_s", T1_s), ("T2_s", T2_s), ("T3_s", T3_s))]
         for (i, ti), (j, tj) in itertools.combinations(enumerate(taus, 1), 2):
             if abs(ti - tj) <= 1e-9 * max(ti, tj):
-                raise FitError(f"{where}: T{i}_s = T{j}_s = {ti!r}; expected distinct time constants (a repeated pole has no partial fractions)")
+                raise FitError(
+                    f"{where}: T{i}_s = T{j}_s = {ti!r}; expected distinct time constants (a repeated pole has no "
+                    "partial fractions)"
+                )
         gains = []
         for k, tk in enumerate(taus):
             den = np.prod([1.0 - tj / tk for j, tj in enumerate(taus) if j != k])
@@ -265,7 +276,9 @@ class CreepModel:
         return cls("poles", static_gain, tuple(taus), tuple(gains), params)
 
     @classmethod
-    def log(cls, static_gain: float, per_decade: float, tau_min_s: float = LOG_TAU_MIN_S, tau_max_s: float = LOG_TAU_MAX_S) -> "CreepModel":
+    def log(
+        cls, static_gain: float, per_decade: float, tau_min_s: float = LOG_TAU_MIN_S, tau_max_s: float = LOG_TAU_MAX_S
+    ) -> CreepModel:
         """``K_c + per_decade * sum_k 0.5 / (1 + tau_k s)``, taus from :func:`log_taus`.
 
         A held step then creeps by about ``per_decade`` of the step per decade of time
@@ -283,7 +296,7 @@ class CreepModel:
         return cls("log", static_gain, tuple(taus), tuple(np.full(taus.size, 0.5 * gamma)), params)
 
     @classmethod
-    def thesis(cls) -> "CreepModel":
+    def thesis(cls) -> CreepModel:
         """The thesis's identified model (Eq. 6.1) with ``K_c = 1`` (Section 6.3.1)."""
         return cls.poles(1.0, **_THESIS)
 
@@ -314,7 +327,9 @@ class CreepModel:
             return np.zeros(n)
         x0 = np.asarray(state, dtype=np.float64)
         if x0.shape != (n,):
-            raise FitError(f"{where}: state has shape {x0.shape}; expected ({n},), one value per creep term (or None: at rest)")
+            raise FitError(
+                f"{where}: state has shape {x0.shape}; expected ({n},), one value per creep term (or None: at rest)"
+            )
         if not np.all(np.isfinite(x0)):
             raise FitError(f"{where}: state has NaN/infinite values; expected finite numbers")
         return x0
@@ -374,7 +389,7 @@ class CreepModel:
         >>> CreepModel.log(-0.5, 0.011).check_stable(200.0)  # doctest: +ELLIPSIS
         Traceback (most recent call last):
         ...
-        piezopress.errors.CompensatorUnstableError: creep compensator 1/(K_c + C) is unstable at fs_hz=200: K_c = -0.5 <= 0, ...
+        piezopress.errors.CompensatorUnstableError: creep compensator 1/(K_c + C) is unstable at fs_hz=200: ...
         """
         fs = _positive("CreepModel.check_stable", "fs_hz", fs_hz)
         inv = _inverse(self.taus_s, self.gains, self.static_gain, fs)
@@ -382,13 +397,20 @@ class CreepModel:
         head = f"creep compensator 1/(K_c + C) is unstable at fs_hz={fs:g}"
         tail = f"(model: {self.describe()})"
         if not self.static_gain > 0:
-            z = f"largest closed-loop |z| at this rate = {zmax:.9g}" if math.isfinite(zmax) else "no closed loop at this rate: D = 0"
-            raise CompensatorUnstableError(f"{head}: K_c = {self.static_gain:.6g} <= 0, so 1/(K_c + C(s)) is improper or has a "
-                                           f"right-half-plane pole ({z}); expected K_c > 0 {tail}")
+            z = (
+                f"largest closed-loop |z| at this rate = {zmax:.9g}"
+                if math.isfinite(zmax)
+                else "no closed loop at this rate: D = 0"
+            )
+            raise CompensatorUnstableError(
+                f"{head}: K_c = {self.static_gain:.6g} <= 0, so 1/(K_c + C(s)) is improper or has a "
+                f"right-half-plane pole ({z}); expected K_c > 0 {tail}"
+            )
         if not math.isfinite(zmax) or zmax >= 1.0:
             raise CompensatorUnstableError(
                 f"{head}: largest closed-loop |z| = {zmax:.9g} >= 1 (K_c + C(s) is not minimum-phase); "
-                f"expected every |z| < 1 {tail}")
+                f"expected every |z| < 1 {tail}"
+            )
 
     def compensate(self, f_c, fs_hz: float, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The creep compensator ``F_h = F_c / (K_c + C(s))`` (thesis Fig. 3.9, Eq. 3.38).
@@ -458,17 +480,22 @@ class CreepModel:
         }
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "CreepModel":
+    def from_dict(cls, d: Mapping[str, Any]) -> CreepModel:
         """The inverse of :meth:`to_dict`; unknown or missing keys are errors naming the key."""
         where = "CreepModel.from_dict"
         if not isinstance(d, Mapping):
-            raise FitError(f"{where}: got {type(d).__name__}; expected a mapping with keys form, static_gain, taus_s, gains, params")
+            raise FitError(
+                f"{where}: got {type(d).__name__}; expected a mapping with keys form, static_gain, taus_s, gains, "
+                "params"
+            )
         need = {"form", "static_gain", "taus_s", "gains"}
         known = need | {"params"}
         if missing := sorted(need - d.keys()):
             raise FitError(f"{where}: missing key(s) {', '.join(missing)}; expected {', '.join(sorted(known))}")
         if unknown := sorted(set(d.keys()) - known):
-            raise FitError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}; expected {', '.join(sorted(known))}")
+            raise FitError(
+                f"{where}: unknown key(s) {', '.join(map(str, unknown))}; expected {', '.join(sorted(known))}"
+            )
         params = d.get("params") or {}
         if not isinstance(params, Mapping):
             raise FitError(f"{where}: params is {type(params).__name__}; expected a mapping of names to numbers")
@@ -551,17 +578,24 @@ def _fit_data(where: str, t_s, u, y) -> tuple[np.ndarray, np.ndarray, np.ndarray
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        raise FitError(f"{where}: t_s is not strictly increasing at index {i + 1} ({t[i]!r} then {t[i + 1]!r}); expected increasing time")
+        raise FitError(
+            f"{where}: t_s is not strictly increasing at index {i + 1} ({t[i]!r} then {t[i + 1]!r}); expected "
+            "increasing time"
+        )
     step = float(dt.mean())
     dev = np.abs(dt - step)
     if dev.max() > TIME_JITTER * step:
         i = int(np.argmax(dev))
-        raise FitError(f"{where}: t_s is not uniform: step {dt[i]:.6g} s at index {i + 1} against a mean of {step:.6g} s; "
-                       f"expected steps within {TIME_JITTER:g} of the mean")
+        raise FitError(
+            f"{where}: t_s is not uniform: step {dt[i]:.6g} s at index {i + 1} against a mean of {step:.6g} s; "
+            f"expected steps within {TIME_JITTER:g} of the mean"
+        )
     span, noise = float(np.ptp(u)), _noise_std(u)
     if span <= max(STEP_NOISE_FACTOR * noise, 1e-12 * max(1.0, float(np.max(np.abs(u))))):
-        raise FitError(f"{where}: u has no step: it spans {span:.3g} against a noise of {noise:.3g} "
-                       f"(expected a span above {STEP_NOISE_FACTOR:g} x the noise, e.g. the creep test's held step)")
+        raise FitError(
+            f"{where}: u has no step: it spans {span:.3g} against a noise of {noise:.3g} "
+            f"(expected a span above {STEP_NOISE_FACTOR:g} x the noise, e.g. the creep test's held step)"
+        )
     return t, u, y, 1.0 / step
 
 
@@ -778,10 +812,15 @@ def fit_poles(t_s, u, y, *, tau_bounds_s: tuple[float, float] | None = None) -> 
         try:
             lo_s, hi_s = tau_bounds_s
         except (TypeError, ValueError):
-            raise FitError(f"{where}: tau_bounds_s is {tau_bounds_s!r}; expected (lowest, highest) in seconds") from None
+            raise FitError(
+                f"{where}: tau_bounds_s is {tau_bounds_s!r}; expected (lowest, highest) in seconds"
+            ) from None
         lo, hi = _positive(where, "tau_bounds_s[0]", lo_s), _positive(where, "tau_bounds_s[1]", hi_s)
         if hi <= lo * 8:
-            raise FitError(f"{where}: tau_bounds_s = ({lo!r}, {hi!r}) is too narrow; expected highest > 8 x lowest (room for three poles)")
+            raise FitError(
+                f"{where}: tau_bounds_s = ({lo!r}, {hi!r}) is too narrow; expected highest > 8 x lowest (room for "
+                "three poles)"
+            )
     problem = _PolesProblem(u, y, fs)
     # starts: from a sample period to three record lengths (within the bounds), strictly inside
     g_lo, g_hi = min(max(lo, 1.0 / fs), hi), max(min(hi, 3.0 * duration), lo)
@@ -803,8 +842,16 @@ def fit_poles(t_s, u, y, *, tau_bounds_s: tuple[float, float] | None = None) -> 
 
     best = None
     for p0 in scored[:2]:
-        res = least_squares(residual, np.arcsin((p0 - mid) / half), jac=jacobian, method="lm",
-                            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
+        res = least_squares(
+            residual,
+            np.arcsin((p0 - mid) / half),
+            jac=jacobian,
+            method="lm",
+            ftol=1e-10,
+            xtol=1e-10,
+            gtol=1e-10,
+            max_nfev=200,
+        )
         if best is None or res.cost < best.cost:
             best = res
     taus, k_c, gains, _ = problem.solve(mid + half * np.sin(best.x))
@@ -937,7 +984,9 @@ def fit_spectrum(t_s, u, y) -> CreepModel:
         raise FitError(f"{where}: the quadratic program ended {prob.status!r}; expected an optimum")
     gains = np.maximum(np.asarray(g.value, float), 0.0)
     params = {"tau_min_s": float(taus[0]), "tau_max_s": float(taus[-1]), "n_elements": float(taus.size)}
-    return CreepModel("spectrum", float(k_c.value), tuple(float(x) for x in taus), tuple(float(x) for x in gains), params)
+    return CreepModel(
+        "spectrum", float(k_c.value), tuple(float(x) for x in taus), tuple(float(x) for x in gains), params
+    )
 
 
 FITTERS["spectrum"] = fit_spectrum
@@ -991,15 +1040,24 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
     t, u, y, fs = _fit_data(where, t_s, u, y)
     h = _finite(where, "holdout_fraction", holdout_fraction)
     if not 0.0 < h < 1.0:
-        raise FitError(f"{where}: holdout_fraction is {holdout_fraction!r}; expected a fraction strictly between 0 and 1")
+        raise FitError(
+            f"{where}: holdout_fraction is {holdout_fraction!r}; expected a fraction strictly between 0 and 1"
+        )
     n_train = int(round(t.size * (1.0 - h)))
     if n_train < MIN_FIT_SAMPLES or t.size - n_train < MIN_FIT_SAMPLES:
-        raise FitError(f"{where}: holdout_fraction {h:g} of {t.size} samples leaves {n_train} to fit and {t.size - n_train} to hold out; "
-                       f"expected at least {MIN_FIT_SAMPLES} in each")
+        raise FitError(
+            f"{where}: holdout_fraction {h:g} of {t.size} samples leaves {n_train} to fit and {t.size - n_train} to "
+            "hold out; "
+            f"expected at least {MIN_FIT_SAMPLES} in each"
+        )
     unknown = [f for f in forms if f not in FITTERS]
     if unknown or not forms:
         raise FitError(f"{where}: forms {forms!r}; expected some of {', '.join(FITTERS)}")
-    options = {"poles": {"tau_bounds_s": (POLES_TAU_MIN_SAMPLES / fs, 10.0 * (t[-1] - t[0]))}, "log": {}, "spectrum": {}}
+    options = {
+        "poles": {"tau_bounds_s": (POLES_TAU_MIN_SAMPLES / fs, 10.0 * (t[-1] - t[0]))},
+        "log": {},
+        "spectrum": {},
+    }
     candidates = []
     for form in forms:
         try:
@@ -1007,20 +1065,34 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
         except FitError as e:
             raise FitError(f"{where}: the training part (first {1 - h:.0%}): {e}") from None
         e_all = y - model.response(u, fs)[0]
-        candidates.append(CreepCandidate(form, _rms(e_all[:n_train]), _rms(e_all[n_train:]),
-                                         {"K_c": model.static_gain, **model.params}, model))
+        candidates.append(
+            CreepCandidate(
+                form, _rms(e_all[:n_train]), _rms(e_all[n_train:]), {"K_c": model.static_gain, **model.params}, model
+            )
+        )
     # a model whose compensator 1/(K_c + C) is unstable cannot be used, however well it fits
     usable = [c for c in candidates if _stable(c.model, fs)]
     if not usable:
-        raise FitError(f"{where}: no creep form gives a stable compensator ({'; '.join(c.model.describe() for c in candidates)})")
+        raise FitError(
+            f"{where}: no creep form gives a stable compensator ({'; '.join(c.model.describe() for c in candidates)})"
+        )
     chosen = min(usable, key=lambda c: c.holdout_rms)
-    others = "; ".join(f"{c.form} {c.holdout_rms:.4g}" + ("" if c in usable else " (unstable compensator)") for c in candidates if c is not chosen)
+    others = "; ".join(
+        f"{c.form} {c.holdout_rms:.4g}" + ("" if c in usable else " (unstable compensator)")
+        for c in candidates
+        if c is not chosen
+    )
     split_s = float(t[n_train])
-    reason = (f"{chosen.form}: lowest held-out RMS {chosen.holdout_rms:.4g} against {others} "
-              f"(fitted on {t[0]:.4g}-{split_s:.4g} s, judged on {split_s:.4g}-{t[-1]:.4g} s)")
+    reason = (
+        f"{chosen.form}: lowest held-out RMS {chosen.holdout_rms:.4g} against {others} "
+        f"(fitted on {t[0]:.4g}-{split_s:.4g} s, judged on {split_s:.4g}-{t[-1]:.4g} s)"
+    )
     model = FITTERS[chosen.form](t, u, y, **options[chosen.form])
     if not _stable(model, fs):  # refitted on everything: check again
-        raise FitError(f"{where}: the {chosen.form} form refitted on the whole record gives an unstable compensator ({model.describe()})")
+        raise FitError(
+            f"{where}: the {chosen.form} form refitted on the whole record gives an unstable compensator "
+            f"({model.describe()})"
+        )
     rms = _rms(y - model.response(u, fs)[0])
     return CreepFit(model, chosen.form, rms, tuple(candidates), reason, split_s, fs)
 
@@ -1056,7 +1128,9 @@ def fit_sweep_creep(u, y, fs_hz: float, mask, taus_s=KV_TAUS_S) -> tuple[CreepMo
     y = _signal("fit_sweep_creep", "y", y, u.size)
     mask = np.asarray(mask, bool)
     if mask.shape != u.shape or mask.sum() < MIN_FIT_SAMPLES:
-        raise FitError(f"fit_sweep_creep: {int(mask.sum())} samples selected of {u.size}; expected at least {MIN_FIT_SAMPLES}")
+        raise FitError(
+            f"fit_sweep_creep: {int(mask.sum())} samples selected of {u.size}; expected at least {MIN_FIT_SAMPLES}"
+        )
     X = kv_columns(u, fs_hz, taus_s)
     A = np.column_stack([X, np.ones_like(u), -np.ones_like(u)])
     scale = np.maximum(np.sqrt(np.mean(A[mask] ** 2, axis=0)), 1e-300)
@@ -1064,6 +1138,8 @@ def fit_sweep_creep(u, y, fs_hz: float, mask, taus_s=KV_TAUS_S) -> tuple[CreepMo
     coef = coef / scale
     k_c, gains = float(coef[0]), tuple(float(g) for g in coef[1:-2])
     if k_c <= 0:
-        raise FitError("fit_sweep_creep: the gain the instant after a change came out 0; expected a press that follows its drive")
+        raise FitError(
+            "fit_sweep_creep: the gain the instant after a change came out 0; expected a press that follows its drive"
+        )
     model = CreepModel("kv", k_c, tuple(float(t) for t in taus_s), gains)
     return model, float(coef[-2] - coef[-1])

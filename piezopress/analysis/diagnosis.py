@@ -35,16 +35,17 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import optimize, signal
 
 from piezopress import operators, signals, units
 from piezopress.analysis import creep as creep_mod
-from piezopress.analysis import profile
 from piezopress.analysis import hysteresis as H
+from piezopress.analysis import profile
 from piezopress.analysis.mode import mode_response
 
 #: A finding needs at least this held-out improvement of the RMS residual (percent) ...
@@ -165,8 +166,15 @@ class Model:
         """``H(x) - y0`` with the slew limit and the rate dependence, if any."""
         key = None
         if x is None:  # the search evaluates one static map on one run many times (only later stages change)
-            key = (id(run), self.hysteresis, self.slew_v_per_s, self.rate_v_per_kv_s, self.rate_loss_per_kv_s,
-                   self.rate_saturation_v_per_s, self.rate_tau_s)
+            key = (
+                id(run),
+                self.hysteresis,
+                self.slew_v_per_s,
+                self.rate_v_per_kv_s,
+                self.rate_loss_per_kv_s,
+                self.rate_saturation_v_per_s,
+                self.rate_tau_s,
+            )
             hit = _STATIC_MEMO.get(key)
             if hit is not None and hit[0] is run:
                 return hit[1]
@@ -308,9 +316,16 @@ def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> Residual
     f, p = signal.periodogram(r, run.fs_hz, window="hann")
     k = int(np.argmax(p[1:])) + 1 if p.size > 1 else 0
     return ResidualStats(
-        run.name, rms(residual), floor,
-        _corr(r[:-1], r[1:]), _corr(r, x), _corr(r, rate), _corr(r, np.abs(rate)), _corr(r, np.log1p(since * 1e3)),
-        float(f[k]) if p.size > 1 else 0.0, float(run.t_s[int(np.argmax(np.abs(r)))]),
+        run.name,
+        rms(residual),
+        floor,
+        _corr(r[:-1], r[1:]),
+        _corr(r, x),
+        _corr(r, rate),
+        _corr(r, np.abs(rate)),
+        _corr(r, np.log1p(since * 1e3)),
+        float(f[k]) if p.size > 1 else 0.0,
+        float(run.t_s[int(np.argmax(np.abs(r)))]),
     )
 
 
@@ -356,11 +371,17 @@ class Context:
     def sweeps(self, lo_hz: float = 0.0, hi_hz: float = np.inf) -> list[RunData]:
         """Swept runs between two measured drive frequencies; a moving drive that is no
         regular sweep counts as a slow sweep."""
+
         def freq(r):
             return r.freq_hz if r.freq_hz is not None else 0.0
 
-        return [r for r in self.runs if r.kind in ("triangle", "sine", "custom") and np.ptp(r.x) > 0
-                and profile.freq_within(freq(r), lo_hz, hi_hz)]
+        return [
+            r
+            for r in self.runs
+            if r.kind in ("triangle", "sine", "custom")
+            and np.ptp(r.x) > 0
+            and profile.freq_within(freq(r), lo_hz, hi_hz)
+        ]
 
     def rests(self) -> list[RunData]:
         return [r for r in self.runs if np.ptp(r.x) == 0]
@@ -389,18 +410,26 @@ class Finding:
 
     @property
     def accepted(self) -> bool:
-        return (self.gain_pct >= MIN_GAIN_PCT and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
-                and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor)
+        return (
+            self.gain_pct >= MIN_GAIN_PCT
+            and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
+            and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor
+        )
 
     def as_dict(self) -> dict[str, Any]:
         k = units.key(self.unit)
         return {
-            "cause": self.cause, "evidence": self.evidence,
-            f"baseline_rms_{k}": self.baseline_rms, f"extended_rms_{k}": self.extended_rms,
+            "cause": self.cause,
+            "evidence": self.evidence,
+            f"baseline_rms_{k}": self.baseline_rms,
+            f"extended_rms_{k}": self.extended_rms,
             "baseline_pct_of_range": 100 * self.baseline_rms / self.output_range,
             "extended_pct_of_range": 100 * self.extended_rms / self.output_range,
-            "gain_pct": self.gain_pct, "parameters": {k_: float(v) for k_, v in self.parameters.items()},
-            "runs": self.runs, "heldout": self.heldout, f"noise_floor_{k}": self.floor,
+            "gain_pct": self.gain_pct,
+            "parameters": {k_: float(v) for k_, v in self.parameters.items()},
+            "runs": self.runs,
+            "heldout": self.heldout,
+            f"noise_floor_{k}": self.floor,
         }
 
 
@@ -440,9 +469,14 @@ def _search(objective: Callable[[float], float], lo: float, hi: float, n: int = 
     return float(res.x) if res.fun <= vals[i] else float(grid[i])
 
 
-def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.ndarray], Model] | None = None,
-                extra_x0: Sequence[float] = (), extra_bounds: tuple[Sequence[float], Sequence[float]] = ((), ()),
-                wide: bool = False) -> Model:
+def _refit_mode(
+    model: Model,
+    fit: list[Segment],
+    extra: Callable[[Model, np.ndarray], Model] | None = None,
+    extra_x0: Sequence[float] = (),
+    extra_bounds: tuple[Sequence[float], Sequence[float]] = ((), ()),
+    wide: bool = False,
+) -> Model:
     """The main mode refitted on the fitting segments, within a factor 1.3 in frequency and 3
     in damping of the identified one (so that a mode distorted by the very effect under test
     does not decide between causes, and no cause turns the mode into something else), jointly
@@ -456,7 +490,9 @@ def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.nda
         lo_e, hi_e = list(extra_bounds[0]), list(extra_bounds[1])
         x0_e = np.clip(list(extra_x0), lo_e, hi_e)
         try:
-            sol = optimize.least_squares(lambda p: _err(fit, extra(model, p).predict), x0_e, bounds=(lo_e, hi_e), max_nfev=40)
+            sol = optimize.least_squares(
+                lambda p: _err(fit, extra(model, p).predict), x0_e, bounds=(lo_e, hi_e), max_nfev=40
+            )
             return extra(model, sol.x)
         except ValueError:
             return extra(model, x0_e)
@@ -470,16 +506,29 @@ def _refit_mode(model: Model, fit: list[Segment], extra: Callable[[Model, np.nda
     hi = [(4.0 if wide else 1.3) * wn, 0.9 if wide else min(3.0 * z, 0.9), *extra_bounds[1]]
     x0 = np.clip([wn, z, *extra_x0], lo, hi)
     try:
-        sol = optimize.least_squares(lambda p: _err(fit, build(p).predict), x0, bounds=(lo, hi), max_nfev=40,
-                                     x_scale=[0.01 * wn, 0.01 * z] + [abs(v) * 0.05 + 1e-9 for v in extra_x0])
+        sol = optimize.least_squares(
+            lambda p: _err(fit, build(p).predict),
+            x0,
+            bounds=(lo, hi),
+            max_nfev=40,
+            x_scale=[0.01 * wn, 0.01 * z] + [abs(v) * 0.05 + 1e-9 for v in extra_x0],
+        )
     except ValueError:
         return build(x0)
     return build(sol.x)
 
 
-def _judge(ctx: Context, cause: str, evidence: str, fit: list[Segment], held: list[Segment], extended: Model,
-           params: dict[str, float], baseline: Model | None = None,
-           cost: Callable[[list[Segment], Model], float] | None = None) -> Finding:
+def _judge(
+    ctx: Context,
+    cause: str,
+    evidence: str,
+    fit: list[Segment],
+    held: list[Segment],
+    extended: Model,
+    params: dict[str, float],
+    baseline: Model | None = None,
+    cost: Callable[[list[Segment], Model], float] | None = None,
+) -> Finding:
     """The finding of ``cause``: ``extended`` against ``baseline`` (the current model) by
     ``cost`` (default :func:`_cost`, the held-out RMS) on the held-out segments."""
     cost = cost or _cost
@@ -487,9 +536,19 @@ def _judge(ctx: Context, cause: str, evidence: str, fit: list[Segment], held: li
     b = cost(held, base)
     e = cost(held, extended)
     runs = [r for r, _ in fit + held]
-    return Finding(cause, evidence, b, e, 100.0 * (b - e) / b if b > 0 else 0.0, params,
-                   sorted({r.name for r in runs}), sorted({r.name for r, _ in held}),
-                   max(float(np.ptp(r.y)) for r in runs), float(np.median([ctx.floor[r.name] for r, _ in held])), extended)
+    return Finding(
+        cause,
+        evidence,
+        b,
+        e,
+        100.0 * (b - e) / b if b > 0 else 0.0,
+        params,
+        sorted({r.name for r in runs}),
+        sorted({r.name for r, _ in held}),
+        max(float(np.ptp(r.y)) for r in runs),
+        float(np.median([ctx.floor[r.name] for r, _ in held])),
+        extended,
+    )
 
 
 # --------------------------------------------------------------------------- causes
@@ -561,13 +620,17 @@ def _delay_on_sweeps(ctx: Context) -> Finding | None:
 
     def prep(delay: float) -> H.HysteresisData:
         xs = [np.interp(r.t_s - delay, r.t_s, r.x, left=r.x[0]) for r in runs]
-        return H.prepare([(r.name, x, y) for r, x, y in zip(runs, xs, outs)], holdout_fraction=0.4, x0=m.x0, y0=m.y0, skip=skip)
+        return H.prepare(
+            [(r.name, x, y) for r, x, y in zip(runs, xs, outs)], holdout_fraction=0.4, x0=m.x0, y0=m.y0, skip=skip
+        )
 
     def refit(k: float) -> tuple[float, H.PIModel]:
         data = prep(k / fs)
         data = H.decimate(data, step) if step > 1 else data
         plays = [operators.play(u, thresholds) for u in data.u]
-        model = replace(H.fit_structure(data, thresholds, d_inv, plays), input_unit=m.input_unit, output_unit=m.output_unit)
+        model = replace(
+            H.fit_structure(data, thresholds, d_inv, plays), input_unit=m.input_unit, output_unit=m.output_unit
+        )
         return H.rms_error(model, data, plays, "train"), model
 
     fs = min(r.fs_hz for r in runs)
@@ -582,10 +645,23 @@ def _delay_on_sweeps(ctx: Context) -> Finding | None:
     fit = [(r, slice(a, b)) for r, a, b in zip(runs, firsts, cuts)]
     held = [(r, slice(b, None)) for r, b in zip(runs, cuts)]
     ext = replace(ctx.model, hysteresis=ext_h, delay_s=float(d))
-    ev = (f"the output lags the drive by {d * 1e3:.3g} ms ({d * fs:.2g} samples) beyond what the hysteresis takes up: the operators "
-          f"refitted on the delayed drive predict the held-out end of {', '.join(r.name for r in runs)} better than refitted on the "
-          f"drive as recorded (both fitted on the first 60 %)")
-    return _judge(ctx, "input_delay", ev, fit, held, ext, {"delay_s": float(d), "operators_refitted": 1.0}, replace(ctx.model, hysteresis=base_h))
+    ev = (
+        f"the output lags the drive by {d * 1e3:.3g} ms ({d * fs:.2g} samples) beyond what the hysteresis takes up: "
+        "the operators "
+        f"refitted on the delayed drive predict the held-out end of {', '.join(r.name for r in runs)} better than "
+        "refitted on the "
+        f"drive as recorded (both fitted on the first 60 %)"
+    )
+    return _judge(
+        ctx,
+        "input_delay",
+        ev,
+        fit,
+        held,
+        ext,
+        {"delay_s": float(d), "operators_refitted": 1.0},
+        replace(ctx.model, hysteresis=base_h),
+    )
 
 
 def _fast_split(ctx: Context) -> tuple[list[Segment], list[Segment]]:
@@ -609,7 +685,9 @@ def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
 def cause_input_delay(ctx: Context) -> Finding | None:
     runs = ctx.independent(ctx.steps() + ctx.sweeps(5.0))
     if len(runs) < 2:
-        return _delay_on_sweeps(ctx)  # no fast runs the base was not fitted on: swept runs where a lag of a few samples shows
+        return _delay_on_sweeps(
+            ctx
+        )  # no fast runs the base was not fitted on: swept runs where a lag of a few samples shows
     fit, held = _fast_split(ctx)
     steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
     # the baseline: the mode refitted within its bounds, and the chain's own lag (CHAIN_LAG_S)
@@ -621,7 +699,14 @@ def cause_input_delay(ctx: Context) -> Finding | None:
         # freely, and give the baseline the same freedom of the mode with the chain's lag
         ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [5e-3]), wide=True)
         d = float(ext.delay_s)
-        wide = _refit_mode(ctx.model, fit, lambda m, p: replace(m, delay_s=float(p[0])), [base.delay_s], ([0.0], [CHAIN_LAG_S]), wide=True)
+        wide = _refit_mode(
+            ctx.model,
+            fit,
+            lambda m, p: replace(m, delay_s=float(p[0])),
+            [base.delay_s],
+            ([0.0], [CHAIN_LAG_S]),
+            wide=True,
+        )
         base = min((base, wide), key=lambda m: _cost(fit, m))
     if d <= CHAIN_LAG_S:
         return None  # no longer than the chain's own lag: nothing to test beyond it
@@ -681,8 +766,14 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     for tau in INTERFERENCE_TAUS_S:
         envs = [signals.rate_envelope(r.drive, r.fs_hz, tau)[sl] for r, sl in fit]
         # a coupling that follows the current's sign is as fast as the sensor's amplifier
-        signed = np.concatenate([signals.first_order(np.diff(r.drive, prepend=r.drive[0]) * r.fs_hz, min(tau, SIGNED_TAU_MAX_S), r.fs_hz)[sl]
-                                 for r, sl in fit])
+        signed = np.concatenate(
+            [
+                signals.first_order(
+                    np.diff(r.drive, prepend=r.drive[0]) * r.fs_hz, min(tau, SIGNED_TAU_MAX_S), r.fs_hz
+                )[sl]
+                for r, sl in fit
+            ]
+        )
         peak = max(float(e.max()) for e in envs)
         for frac in (0.0, 0.1, 0.2, 0.35, 0.5, 0.7):
             A = -np.column_stack([np.concatenate([np.maximum(e - frac * peak, 0.0) for e in envs]), signed])
@@ -699,14 +790,31 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     u = ctx.model.unit
     parts = []
     if g:
-        parts.append(f"dips {g * 1e3:.3g} {units.label(u)} per kV/s of drive rate above {e0 / 1e3:.3g} kV/s (envelope {tau * 1e3:.3g} ms)")
+        parts.append(
+            f"dips {g * 1e3:.3g} {units.label(u)} per kV/s of drive rate above {e0 / 1e3:.3g} kV/s (envelope "
+            f"{tau * 1e3:.3g} ms)"
+        )
     if gs:
         parts.append(f"moves {-gs * 1e3:+.3g} {units.label(u)} per kV/s of the signed drive rate (the current's sign)")
-    ev = (f"while the drive current flows the reading {' and '.join(parts)}, at the sensor: "
-          f"it does not ring with the mode, an artefact of the reading, not {units.quantity(u)}")
-    return _judge_dynamics(ctx, "drive_coupled_interference", ev, fit, held, ext,
-                  {f"gain_{units.key(u)}_per_v_per_s": g, "threshold_v_per_s": e0, "tau_s": tau,
-                   f"signed_gain_{units.key(u)}_per_v_per_s": gs}, base)
+    ev = (
+        f"while the drive current flows the reading {' and '.join(parts)}, at the sensor: "
+        f"it does not ring with the mode, an artefact of the reading, not {units.quantity(u)}"
+    )
+    return _judge_dynamics(
+        ctx,
+        "drive_coupled_interference",
+        ev,
+        fit,
+        held,
+        ext,
+        {
+            f"gain_{units.key(u)}_per_v_per_s": g,
+            "threshold_v_per_s": e0,
+            "tau_s": tau,
+            f"signed_gain_{units.key(u)}_per_v_per_s": gs,
+        },
+        base,
+    )
 
 
 #: A rate dependence must predict the fast sweeps' held-out ends this much better (percent)
@@ -757,8 +865,10 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
     cands.sort(key=lambda c: c[0])
     out = []
     for _, key, b, tau, sat in cands[:3]:  # refined on the model itself
+
         def model_of(v, key=key, tau=tau, sat=sat):
             return replace(model, **{key: v}, rate_tau_s=tau, rate_saturation_v_per_s=sat)
+
         if b <= 0:
             continue
         v = _search(lambda v: _cost(fit, model_of(v)), 0.3 * b, 2.0 * b, 9)
@@ -781,14 +891,21 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     # slowest fast sweep's rate takes up: the widening must beat that one on held-out data
     # (by RATE_GATE_PCT: a check of the signature, not the finding's gain) before its gain is
     # judged against the baseline the other fast causes have.
-    slowest = min((float(np.percentile(signals.rate_envelope(r.x, r.fs_hz, 2e-3), 50)) for r, _ in fit if r.kind != "step"), default=0.0)
+    slowest = min(
+        (float(np.percentile(signals.rate_envelope(r.x, r.fs_hz, 2e-3), 50)) for r, _ in fit if r.kind != "step"),
+        default=0.0,
+    )
     if slowest > 0:
+
         def constant(k):
             return replace(base, rate_loss_per_kv_s=k, rate_saturation_v_per_s=0.1 * slowest, rate_tau_s=2e-3)
 
         k = _search(lambda k: _cost(fit, constant(k)), 0.0, 2.0 / (0.1 * slowest / 1000.0), 21)
         gate = _judge_dynamics(ctx, "rate_dependent_hysteresis", "", fit, held, ext, {}, constant(k))
-        if gate.gain_pct < RATE_GATE_PCT or gate.baseline_rms - gate.extended_rms < MIN_IMPROVEMENT_TO_FLOOR * gate.floor:
+        if (
+            gate.gain_pct < RATE_GATE_PCT
+            or gate.baseline_rms - gate.extended_rms < MIN_IMPROVEMENT_TO_FLOOR * gate.floor
+        ):
             return None
     sat = ext.rate_saturation_v_per_s
     form = f"saturating above {sat / 1e3:.3g} kV/s" if sat else "in proportion to it"
@@ -796,10 +913,25 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
         how = f"every threshold grows {ext.rate_v_per_kv_s:.3g} V per kV/s"
     else:
         how = f"the loop's width grows {100 * ext.rate_loss_per_kv_s:.3g} % per kV/s"
-    ev = f"the loops widen with the drive rate beyond the model's dynamics, {form}: {how} (rate smoothed over {ext.rate_tau_s * 1e3:.3g} ms)"
-    return _judge_dynamics(ctx, "rate_dependent_hysteresis", ev, fit, held, ext,
-                  {"rate_v_per_kv_s": ext.rate_v_per_kv_s, "rate_loss_per_kv_s": ext.rate_loss_per_kv_s,
-                   "rate_saturation_v_per_s": sat or math.inf, "rate_tau_s": ext.rate_tau_s}, base)
+    ev = (
+        f"the loops widen with the drive rate beyond the model's dynamics, {form}: {how} "
+        f"(rate smoothed over {ext.rate_tau_s * 1e3:.3g} ms)"
+    )
+    return _judge_dynamics(
+        ctx,
+        "rate_dependent_hysteresis",
+        ev,
+        fit,
+        held,
+        ext,
+        {
+            "rate_v_per_kv_s": ext.rate_v_per_kv_s,
+            "rate_loss_per_kv_s": ext.rate_loss_per_kv_s,
+            "rate_saturation_v_per_s": sat or math.inf,
+            "rate_tau_s": ext.rate_tau_s,
+        },
+        base,
+    )
 
 
 def _slow(run: RunData, v: np.ndarray, rate_hz: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
@@ -810,7 +942,15 @@ def _slow(run: RunData, v: np.ndarray, rate_hz: float = 50.0) -> tuple[np.ndarra
     return run.t_s[::step], signal.sosfilt(sos, v, zi=signal.sosfilt_zi(sos) * v[0])[0][::step]
 
 
-def _creep_fit(t: np.ndarray, u: np.ndarray, y: np.ndarray, k: int, taus: Sequence[float], tail: np.ndarray | None, ramp: bool = False):
+def _creep_fit(
+    t: np.ndarray,
+    u: np.ndarray,
+    y: np.ndarray,
+    k: int,
+    taus: Sequence[float],
+    tail: np.ndarray | None,
+    ramp: bool = False,
+):
     """Kelvin-Voigt creep on the slow part of a held step, fitted on its first ``k`` samples:
     ``y ~ c + K_c u + sum g_i / (1 + tau_i s) u (+ gamma * log tail) (+ d t + w tau_w (1 - exp(-t / tau_w)))``,
     every gain >= 0 (an element only adds compliance), the offset ``c`` and the drift (linear
@@ -827,9 +967,16 @@ def _creep_fit(t: np.ndarray, u: np.ndarray, y: np.ndarray, k: int, taus: Sequen
     coef = coef / scale
     e = rms(y[:k] - A[:k] @ coef)
     n, m = len(taus), len(free)
-    c = coef[-2 * m:-m] - coef[-m:]
-    return (e, float(coef[0]), [float(g) for g in coef[1:n + 1]], float(coef[n + 1]) if tail is not None else 0.0, float(c[0]),
-            float(c[1]) if ramp else 0.0, float(c[2]) if ramp else 0.0)
+    c = coef[-2 * m : -m] - coef[-m:]
+    return (
+        e,
+        float(coef[0]),
+        [float(g) for g in coef[1 : n + 1]],
+        float(coef[n + 1]) if tail is not None else 0.0,
+        float(c[0]),
+        float(c[1]) if ramp else 0.0,
+        float(c[2]) if ramp else 0.0,
+    )
 
 
 def cause_logarithmic_creep(ctx: Context) -> Finding | None:
@@ -865,9 +1012,13 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     tail = 0.5 * creep_mod.kv_columns(u, fs, tail_taus)[:, 1:].sum(axis=1)
     combos = [c for n in (1, 2, 3) for c in itertools.combinations(range(grid.size), n)]
     try:
-        (_, kc1, g1, gamma, c1, d1, e1), i1 = min((_creep_fit(t, u, y, k, [grid[i] for i in c], tail, ramp), c) for c in combos)
+        (_, kc1, g1, gamma, c1, d1, e1), i1 = min(
+            (_creep_fit(t, u, y, k, [grid[i] for i in c], tail, ramp), c) for c in combos
+        )
         if ramp:
-            (_, kc0, g0, _, c0, d0, e0), i0 = min((_creep_fit(t, u, y, k, [grid[i] for i in c], None, ramp), c) for c in combos)
+            (_, kc0, g0, _, c0, d0, e0), i0 = min(
+                (_creep_fit(t, u, y, k, [grid[i] for i in c], None, ramp), c) for c in combos
+            )
             base_creep = creep_mod.CreepModel("kv", kc0, tuple(float(grid[i]) for i in i0), tuple(g0))
         else:
             c0, d0, e0 = c1, 0.0, 0.0
@@ -877,26 +1028,52 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     if gamma <= 0 or kc1 <= 0:
         return None
     m = ctx.model.hysteresis
-    base = replace(ctx.model, hysteresis=replace(m, y0=m.y0 + c0), creep=base_creep, drift_per_s=drift + d0,
-                   drift_warmup=(e0, DRIFT_WARMUP_TAU_S) if e0 else ctx.model.drift_warmup)
-    log = creep_mod.CreepModel("kv", kc1, tuple(float(grid[i]) for i in i1) + tuple(float(x) for x in tail_taus),
-                               tuple(g1) + (0.5 * gamma,) * tail_taus.size, {"per_decade": gamma})
-    ext = replace(ctx.model, hysteresis=replace(m, y0=m.y0 + c1), creep=log, drift_per_s=drift + d1,
-                  drift_warmup=(e1, DRIFT_WARMUP_TAU_S) if e1 else ctx.model.drift_warmup)
-    kk = int(run.t_s.size * 0.6)
-    fit, held = [(run, slice(0, kk))], [(run, slice(kk, None))]
-    ev = (f"after the step the {units.quantity(ctx.model.unit)} keeps rising {100 * gamma:.3g} % of the step per decade of time where "
-          f"the poles saturate (the poles, against Kelvin-Voigt elements and a log tail, fitted on the first 60 % of "
-          f"the hold, judged on the rest of every long run, averaged over its drive cycles)")
+    base = replace(
+        ctx.model,
+        hysteresis=replace(m, y0=m.y0 + c0),
+        creep=base_creep,
+        drift_per_s=drift + d0,
+        drift_warmup=(e0, DRIFT_WARMUP_TAU_S) if e0 else ctx.model.drift_warmup,
+    )
+    log = creep_mod.CreepModel(
+        "kv",
+        kc1,
+        tuple(float(grid[i]) for i in i1) + tuple(float(x) for x in tail_taus),
+        tuple(g1) + (0.5 * gamma,) * tail_taus.size,
+        {"per_decade": gamma},
+    )
+    ext = replace(
+        ctx.model,
+        hysteresis=replace(m, y0=m.y0 + c1),
+        creep=log,
+        drift_per_s=drift + d1,
+        drift_warmup=(e1, DRIFT_WARMUP_TAU_S) if e1 else ctx.model.drift_warmup,
+    )
+    ev = (
+        f"after the step the {units.quantity(ctx.model.unit)} keeps rising {100 * gamma:.3g} % of the step per decade "
+        "of time where "
+        f"the poles saturate (the poles, against Kelvin-Voigt elements and a log tail, fitted on the first 60 % of "
+        f"the hold, judged on the rest of every long run, averaged over its drive cycles)"
+    )
     # judged like a drift (:func:`cause_sensor_offset_drift`), on the cycle-averaged residuals of
     # every long run: a creep grows with the drive, in the sweeps as in the hold, where a drift does not
     b, floor = _slow_judge(ctx, base)
     e, _ = _slow_judge(ctx, ext)
     names = sorted(r.name for r, _ in _long_runs(ctx, steady=True))
     # a drift judged against is not part of the finding
-    return Finding("logarithmic_creep", ev, b, e, 100.0 * (b - e) / b if b > 0 else 0.0, {"per_decade": gamma, "static_gain": kc1},
-                   names, names, float(np.ptp(run.y)), floor,
-                   replace(ext, drift_per_s=ctx.model.drift_per_s, drift_warmup=ctx.model.drift_warmup))
+    return Finding(
+        "logarithmic_creep",
+        ev,
+        b,
+        e,
+        100.0 * (b - e) / b if b > 0 else 0.0,
+        {"per_decade": gamma, "static_gain": kc1},
+        names,
+        names,
+        float(np.ptp(run.y)),
+        floor,
+        replace(ext, drift_per_s=ctx.model.drift_per_s, drift_warmup=ctx.model.drift_warmup),
+    )
 
 
 def _level_free(segments: list[Segment], model: Model) -> float:
@@ -918,15 +1095,23 @@ def _level_free(segments: list[Segment], model: Model) -> float:
         peak = int(np.argmax(np.abs(x)))
         fall = np.flatnonzero(np.abs(x[peak:]) < 0.5 * top)
         if fall.size:
-            after[peak + fall[0]:] = 1.0
+            after[peak + fall[0] :] = 1.0
         A = np.column_stack([np.ones_like(x), x / top, after])
         coef, *_ = np.linalg.lstsq(A, e, rcond=None)
         out.append(e - A @ coef)
     return rms(np.concatenate(out)) if out else float("nan")
 
 
-def _judge_dynamics(ctx: Context, cause: str, evidence: str, fit: list[Segment], held: list[Segment], extended: Model,
-                    params: dict[str, float], baseline: Model) -> Finding:
+def _judge_dynamics(
+    ctx: Context,
+    cause: str,
+    evidence: str,
+    fit: list[Segment],
+    held: list[Segment],
+    extended: Model,
+    params: dict[str, float],
+    baseline: Model,
+) -> Finding:
     """:func:`_judge` with each held-out segment's static levels taken out of both models'
     residuals (:func:`_level_free`): for the causes of the fast dynamics."""
     return _judge(ctx, cause, evidence, fit, held, extended, params, baseline, cost=_level_free)
@@ -972,8 +1157,13 @@ def cause_second_resonance(ctx: Context) -> Finding | None:
     for f0 in starts:
         w0 = 2 * np.pi * float(f0)
         try:
-            sol = optimize.least_squares(res, x0=np.clip([0.1, w0, 0.03, base.wn, base.zeta], lo_b, hi_b), bounds=(lo_b, hi_b),
-                                         max_nfev=60, x_scale=[0.05, 0.01 * w0, 0.01, 0.01 * base.wn, 0.01])
+            sol = optimize.least_squares(
+                res,
+                x0=np.clip([0.1, w0, 0.03, base.wn, base.zeta], lo_b, hi_b),
+                bounds=(lo_b, hi_b),
+                max_nfev=60,
+                x_scale=[0.05, 0.01 * w0, 0.01, 0.01 * base.wn, 0.01],
+            )
         except ValueError:
             continue
         if best is None or sol.cost < best.cost:
@@ -981,15 +1171,28 @@ def cause_second_resonance(ctx: Context) -> Finding | None:
     if best is None:
         return None
     sol = best
-    if any(np.isclose(sol.x[i], lo_b[i], rtol=1e-3) for i in (1, 2)) or any(np.isclose(sol.x[i], hi_b[i], rtol=1e-3) for i in (0, 1, 2)):
+    if any(np.isclose(sol.x[i], lo_b[i], rtol=1e-3) for i in (1, 2)) or any(
+        np.isclose(sol.x[i], hi_b[i], rtol=1e-3) for i in (0, 1, 2)
+    ):
         return None  # a fit that leans on its bounds is bending a mode to fit something else
     if sol.x[0] < MIN_MODE2_SHARE:
         return None  # no second mode: whatever the fit gained, it gained on the first
     ext = model_for(sol.x)
-    ev = (f"the step residuals ring at {sol.x[1] / (2 * np.pi):.4g} Hz, away from the {f1:.4g} Hz mode: a second mode carrying "
-          f"{100 * sol.x[0]:.3g} % of the response")
-    return _judge_dynamics(ctx, "second_resonance", ev, fit, held, ext,
-                           {"share": float(sol.x[0]), "natural_freq_rad_s": float(sol.x[1]), "damping": float(sol.x[2])}, base)
+    ev = (
+        f"the step residuals ring at {sol.x[1] / (2 * np.pi):.4g} Hz, away from the {f1:.4g} Hz mode: a second mode "
+        "carrying "
+        f"{100 * sol.x[0]:.3g} % of the response"
+    )
+    return _judge_dynamics(
+        ctx,
+        "second_resonance",
+        ev,
+        fit,
+        held,
+        ext,
+        {"share": float(sol.x[0]), "natural_freq_rad_s": float(sol.x[1]), "damping": float(sol.x[2])},
+        base,
+    )
 
 
 def _slow_residual(run: RunData, v: np.ndarray, window_s: float, step_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -1081,7 +1284,7 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
     onehot = np.zeros((fit_m.size, n_runs))
     k = 0
     for j, (_, t, _, _, _) in enumerate(rows):
-        onehot[k:k + t.size, j] = 1.0
+        onehot[k : k + t.size, j] = 1.0
         k += t.size
     T = np.concatenate([t for _, t, _, _, _ in rows])
     R = np.concatenate([res for _, _, res, _, _ in rows])
@@ -1103,8 +1306,16 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
 
     _, _, _, b, _ = solve([None])
     _, tau1, coef1, e, w = solve([math.inf, 1000.0, DRIFT_WARMUP_TAU_S])
-    return _DriftFit([r for r, _, _, _, _ in rows], b, e, float(coef1[-1]), w, tau1, float(coef1[n_runs]),
-                     float(np.median([fl for _, _, _, _, fl in rows])))
+    return _DriftFit(
+        [r for r, _, _, _, _ in rows],
+        b,
+        e,
+        float(coef1[-1]),
+        w,
+        tau1,
+        float(coef1[n_runs]),
+        float(np.median([fl for _, _, _, _, fl in rows])),
+    )
 
 
 def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
@@ -1123,22 +1334,45 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     if abs(d.drift_per_s) * longest > DRIFT_MAX_OF_RANGE * span:
         return None  # a trend of that size is the model's misfit (collinear terms), not a sensor's slow drift
     creep = ctx.model.creep or creep_mod.CreepModel("kv", 1.0, (), ())
-    creep = creep_mod.CreepModel("kv", creep.static_gain, tuple(creep.taus_s) + (d.creep_tau_s,), tuple(creep.gains) + (d.creep_gain,))
+    creep = creep_mod.CreepModel(
+        "kv", creep.static_gain, tuple(creep.taus_s) + (d.creep_tau_s,), tuple(creep.gains) + (d.creep_gain,)
+    )
     steady = math.isinf(d.drift_tau_s)
-    ext = replace(ctx.model, drift_per_s=d.drift_per_s if steady else 0.0, drift_warmup=None if steady else (d.drift_per_s, d.drift_tau_s),
-                  creep=creep)
+    ext = replace(
+        ctx.model,
+        drift_per_s=d.drift_per_s if steady else 0.0,
+        drift_warmup=None if steady else (d.drift_per_s, d.drift_tau_s),
+        creep=creep,
+    )
     u = ctx.model.unit
     names = sorted(r.name for r in d.runs)
     rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
     if not steady:
         rate += f" at the start of a run, settling over {d.drift_tau_s:.3g} s (a warm-up)"
-    ev = (f"the reading drifts {rate} whatever the drive does: the residual averaged over "
-          f"each drive cycle trends at one rate in {', '.join(names)} (fitted on their first 60 % with an offset each and a slow "
-          f"creep element, judged on the rest against the creep element alone)")
-    return Finding("sensor_offset_drift", ev, d.baseline, d.extended, d.gain_pct,
-                   {f"drift_{units.key(u)}_per_s": d.drift_per_s, "drift_settling_s": d.drift_tau_s,
-                    "creep_tau_s": d.creep_tau_s, "creep_gain": d.creep_gain},
-                   names, names, max(float(np.ptp(r.y)) for r in d.runs), d.floor, ext)
+    ev = (
+        f"the reading drifts {rate} whatever the drive does: the residual averaged over "
+        f"each drive cycle trends at one rate in {', '.join(names)} (fitted on their first 60 % with an offset each "
+        "and a slow "
+        f"creep element, judged on the rest against the creep element alone)"
+    )
+    return Finding(
+        "sensor_offset_drift",
+        ev,
+        d.baseline,
+        d.extended,
+        d.gain_pct,
+        {
+            f"drift_{units.key(u)}_per_s": d.drift_per_s,
+            "drift_settling_s": d.drift_tau_s,
+            "creep_tau_s": d.creep_tau_s,
+            "creep_gain": d.creep_gain,
+        },
+        names,
+        names,
+        max(float(np.ptp(r.y)) for r in d.runs),
+        d.floor,
+        ext,
+    )
 
 
 #: The last operator fits of :func:`cause_hysteresis_order` (the greedy search asks again after
@@ -1177,10 +1411,21 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     # be taken for a force and clipped at 0 N)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
     base_model = replace(base_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
-    ev = (f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} dead zones (chosen on "
-          f"held-out data) capture asymmetry and saturation that {len(m.r)} plays and {len(m.d)} dead zones miss")
-    return _judge(ctx, "hysteresis_order", ev, fit, held, replace(ctx.model, hysteresis=rich),
-                  {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone}, replace(ctx.model, hysteresis=base_model))
+    ev = (
+        f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} dead "
+        "zones (chosen on "
+        f"held-out data) capture asymmetry and saturation that {len(m.r)} plays and {len(m.d)} dead zones miss"
+    )
+    return _judge(
+        ctx,
+        "hysteresis_order",
+        ev,
+        fit,
+        held,
+        replace(ctx.model, hysteresis=rich),
+        {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone},
+        replace(ctx.model, hysteresis=base_model),
+    )
 
 
 # --------------------------------------------------------------------------- what each cause needs
@@ -1196,9 +1441,13 @@ LAG_VISIBLE_FLOORS = 2.0
 #: The base fit is called poor when the residual on the runs it was fitted on is this many noise floors.
 POOR_FIT_RATIO = 5.0
 
-_KIND_WORDS = {"sweep": ("a sweep (triangle/sine)", "sweeps (triangle/sine)"), "step": ("a step run", "step runs"),
-               "creep": ("a creep run (a step held long)", "creep runs"), "rest": ("a rest run (zero drive)", "rest runs"),
-               "any": ("a run", "runs")}
+_KIND_WORDS = {
+    "sweep": ("a sweep (triangle/sine)", "sweeps (triangle/sine)"),
+    "step": ("a step run", "step runs"),
+    "creep": ("a creep run (a step held long)", "creep runs"),
+    "rest": ("a rest run (zero drive)", "rest runs"),
+    "any": ("a run", "runs"),
+}
 
 
 def _hz(f: float) -> str:
@@ -1224,12 +1473,14 @@ class RunSpec:
     channels: tuple[str, ...] = ()  # columns besides command and output ("monitor_v")
     lag_visible: bool = False  # a lag of LAG_SAMPLES samples moves the prediction by LAG_VISIBLE_FLOORS noise floors
 
-    def matches(self, run: RunData, ctx: "Context") -> bool:
+    def matches(self, run: RunData, ctx: Context) -> bool:
         moving = bool(np.ptp(run.x) > 0)
         if self.kind == "sweep":
             ok = run.kind in SWEEP_KINDS and moving
             f = run.freq_hz if run.freq_hz is not None else 0.0
-            hi = ctx.slow_hz if self.max_freq_hz == profile.QUASI_STATIC_MAX_HZ else self.max_freq_hz  # "slow", as fit takes it
+            hi = (
+                ctx.slow_hz if self.max_freq_hz == profile.QUASI_STATIC_MAX_HZ else self.max_freq_hz
+            )  # "slow", as fit takes it
             ok = ok and profile.freq_within(f, self.min_freq_hz, hi)
         elif self.kind == "rest":
             ok = not moving
@@ -1261,9 +1512,11 @@ class RunSpec:
 
 
 #: Parts of the base model a need may ask of the bundle: what they are, and whether a model has them.
-MODEL_PARTS: dict[str, tuple[str, Callable[["Model"], bool]]] = {
-    "creep": ("a creep model of poles in the bundle (fitted with a creep run)",
-              lambda m: m.creep is not None and m.creep.form != "log"),
+MODEL_PARTS: dict[str, tuple[str, Callable[[Model], bool]]] = {
+    "creep": (
+        "a creep model of poles in the bundle (fitted with a creep run)",
+        lambda m: m.creep is not None and m.creep.form != "log",
+    ),
     "mode": ("a mode in the bundle (fitted with a low-amplitude step)", lambda m: bool(m.wn)),
 }
 
@@ -1278,15 +1531,15 @@ class Need:
     independent: bool = False
     model: tuple[str, ...] = ()
 
-    def select(self, ctx: "Context") -> list[RunData]:
+    def select(self, ctx: Context) -> list[RunData]:
         """The runs that serve this need (possibly fewer than ``count``)."""
         runs = [r for r in ctx.runs if any(s.matches(r, ctx) for s in self.runs)]
         return ctx.independent(runs) if self.independent else runs
 
-    def missing_model(self, model: "Model") -> list[str]:
+    def missing_model(self, model: Model) -> list[str]:
         return [MODEL_PARTS[p][0] for p in self.model if not MODEL_PARTS[p][1](model)]
 
-    def met(self, ctx: "Context") -> bool:
+    def met(self, ctx: Context) -> bool:
         return len(self.select(ctx)) >= self.count and not self.missing_model(ctx.model)
 
     def text(self) -> str:
@@ -1303,7 +1556,7 @@ class Need:
         return what
 
 
-def lag_visible(run: RunData, ctx: "Context") -> bool:
+def lag_visible(run: RunData, ctx: Context) -> bool:
     """Whether a lag of :data:`LAG_SAMPLES` samples moves ``run``'s prediction by
     :data:`LAG_VISIBLE_FLOORS` noise floors (90th percentile over the run): a delay of a few
     samples then shows in its residual."""
@@ -1314,7 +1567,7 @@ def lag_visible(run: RunData, ctx: "Context") -> bool:
     return move >= LAG_VISIBLE_FLOORS * ctx.floor.get(run.name, np.inf)
 
 
-def describe_runs(runs: Sequence[RunData], ctx: "Context | None" = None, limit: int = 6) -> str:
+def describe_runs(runs: Sequence[RunData], ctx: Context | None = None, limit: int = 6) -> str:
     """The runs in a few words: kind, drive frequency, sampling, length, and whether the base
     model was fitted on them ("one sine at ~1 Hz (not recorded), 200 Hz sampling, 40.1 s, used by the base fit")."""
     if not runs:
@@ -1368,7 +1621,7 @@ class Testability:
         return {"cause": self.cause, "needs": self.needs, "have": self.have}
 
 
-def testability(cause: "Cause", ctx: "Context") -> Testability:
+def testability(cause: Cause, ctx: Context) -> Testability:
     """Whether ``cause`` can be tested on ``ctx``'s runs and model: any of its needs met.
 
     ``needs`` says every way to test it ("or"), ``have`` what the runs and the bundle offer
@@ -1386,7 +1639,9 @@ def testability(cause: "Cause", ctx: "Context") -> Testability:
     if len(ok) < first.count:
         if kinds and first.independent and len(ok) < len(kinds):
             used = [r.name for r in kinds if ctx.is_fitted(r)]
-            have.append(f"{', '.join(used)} {'is' if len(used) == 1 else 'are'} of the right kind but used by the base fit")
+            have.append(
+                f"{', '.join(used)} {'is' if len(used) == 1 else 'are'} of the right kind but used by the base fit"
+            )
         elif kinds:
             have.append(f"{len(kinds)} of the {first.count} runs needed")
     have += [f"no {m.split(' (')[0].removeprefix('a ')}" for m in first.missing_model(ctx.model)]
@@ -1414,34 +1669,77 @@ class Cause:
 
 _FAST_STEPS = RunSpec("step", min_fs_hz=5000.0)  # what Context.steps() takes
 
-CAUSES: dict[str, Cause] = {c.id: c for c in (
-    Cause("rate_dependent_hysteresis", "the stack's loop widens with the drive rate (domain walls lag a fast field)",
-          "play thresholds r_i + beta |dV/dt|, or the loop's width scaled by 1 + k |dV/dt| (the rate smoothed, linear or saturating)",
-          cause_rate_dependent_hysteresis, True,
-          needs=(Need((RunSpec("sweep", min_freq_hz=5.0),), 1, independent=True),)),
-    Cause("amplifier_slew_limit", "the amplifier's current limit into the stack's capacitance caps dV/dt at I/C",
-          "the drive passed through a rate limiter before the model", cause_amplifier_slew_limit, True,
-          needs=(Need((_FAST_STEPS,), 2),)),
-    Cause("drive_coupled_interference", "the drive current couples into the load-cell amplifier (the thesis's notch, Section 5.3)",
-          "an additive artefact of the reading: the signed drive current, and its envelope above a threshold",
-          cause_drive_coupled_interference,
-          needs=(Need((_FAST_STEPS, RunSpec("sweep", min_freq_hz=50.0)), 2, independent=True),)),
-    Cause("logarithmic_creep", "creep grows with log time (a spectrum of relaxation times) where a poles model saturates",
-          "the creep model with a log-time tail (equal gains per half decade to 10^4 s)", cause_logarithmic_creep, True,
-          needs=(Need((RunSpec("creep"),), 1, model=("creep",)),)),
-    Cause("second_resonance", "a second, weaker mechanical mode of the press", "a second mode in parallel", cause_second_resonance,
-          True, needs=(Need((_FAST_STEPS,), 2, model=("mode",)),)),
-    Cause("sensor_offset_drift", "the load-cell offset drifts slowly (temperature, supply), independent of the drive",
-          "a drift term of the reading (steady, or settling: a warm-up)", cause_sensor_offset_drift,
-          needs=(Need((RunSpec("rest"),), 1), Need((RunSpec("any", min_duration_s=25.0),), 1))),
-    Cause("input_delay", "a pure delay between command and response (board latency, filters)", "the prediction delayed",
-          cause_input_delay, True,
-          needs=(Need((_FAST_STEPS, RunSpec("sweep", min_freq_hz=5.0)), 2, independent=True),
-                 Need((RunSpec("sweep", lag_visible=True),), 1))),
-    Cause("hysteresis_order", "asymmetry or saturation the fitted operator set cannot represent",
-          "more play and dead-zone operators, chosen on held-out data", cause_hysteresis_order, True,
-          needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1),)),
-)}
+CAUSES: dict[str, Cause] = {
+    c.id: c
+    for c in (
+        Cause(
+            "rate_dependent_hysteresis",
+            "the stack's loop widens with the drive rate (domain walls lag a fast field)",
+            "play thresholds r_i + beta |dV/dt|, or the loop's width scaled by 1 + k |dV/dt| (the rate smoothed, "
+            "linear or saturating)",
+            cause_rate_dependent_hysteresis,
+            True,
+            needs=(Need((RunSpec("sweep", min_freq_hz=5.0),), 1, independent=True),),
+        ),
+        Cause(
+            "amplifier_slew_limit",
+            "the amplifier's current limit into the stack's capacitance caps dV/dt at I/C",
+            "the drive passed through a rate limiter before the model",
+            cause_amplifier_slew_limit,
+            True,
+            needs=(Need((_FAST_STEPS,), 2),),
+        ),
+        Cause(
+            "drive_coupled_interference",
+            "the drive current couples into the load-cell amplifier (the thesis's notch, Section 5.3)",
+            "an additive artefact of the reading: the signed drive current, and its envelope above a threshold",
+            cause_drive_coupled_interference,
+            needs=(Need((_FAST_STEPS, RunSpec("sweep", min_freq_hz=50.0)), 2, independent=True),),
+        ),
+        Cause(
+            "logarithmic_creep",
+            "creep grows with log time (a spectrum of relaxation times) where a poles model saturates",
+            "the creep model with a log-time tail (equal gains per half decade to 10^4 s)",
+            cause_logarithmic_creep,
+            True,
+            needs=(Need((RunSpec("creep"),), 1, model=("creep",)),),
+        ),
+        Cause(
+            "second_resonance",
+            "a second, weaker mechanical mode of the press",
+            "a second mode in parallel",
+            cause_second_resonance,
+            True,
+            needs=(Need((_FAST_STEPS,), 2, model=("mode",)),),
+        ),
+        Cause(
+            "sensor_offset_drift",
+            "the load-cell offset drifts slowly (temperature, supply), independent of the drive",
+            "a drift term of the reading (steady, or settling: a warm-up)",
+            cause_sensor_offset_drift,
+            needs=(Need((RunSpec("rest"),), 1), Need((RunSpec("any", min_duration_s=25.0),), 1)),
+        ),
+        Cause(
+            "input_delay",
+            "a pure delay between command and response (board latency, filters)",
+            "the prediction delayed",
+            cause_input_delay,
+            True,
+            needs=(
+                Need((_FAST_STEPS, RunSpec("sweep", min_freq_hz=5.0)), 2, independent=True),
+                Need((RunSpec("sweep", lag_visible=True),), 1),
+            ),
+        ),
+        Cause(
+            "hysteresis_order",
+            "asymmetry or saturation the fitted operator set cannot represent",
+            "more play and dead-zone operators, chosen on held-out data",
+            cause_hysteresis_order,
+            True,
+            needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1),),
+        ),
+    )
+}
 
 
 # --------------------------------------------------------------------------- the diagnosis
@@ -1517,9 +1815,15 @@ def _base_fit(ctx: Context, floor: float) -> dict[str, Any]:
     total = rms(np.concatenate(list(res.values())))
     worst = max(runs, key=lambda r: rms(res[r.name]))
     k = units.key(ctx.model.unit)
-    return {"runs": [r.name for r in runs], f"rms_{k}": total, f"noise_floor_{k}": floor, "ratio": total / floor,
-            "poor": bool(total > POOR_FIT_RATIO * floor), "worst_run": worst.name,
-            "worst_at_s": float(worst.t_s[int(np.argmax(np.abs(res[worst.name])))])}
+    return {
+        "runs": [r.name for r in runs],
+        f"rms_{k}": total,
+        f"noise_floor_{k}": floor,
+        "ratio": total / floor,
+        "poor": bool(total > POOR_FIT_RATIO * floor),
+        "worst_run": worst.name,
+        "worst_at_s": float(worst.t_s[int(np.argmax(np.abs(res[worst.name])))]),
+    }
 
 
 @dataclass(frozen=True)
@@ -1538,8 +1842,13 @@ class CauseProgress:
     accepted: bool = False
 
 
-def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = (), causes: Sequence[str] | None = None,
-             on_progress: Callable[[CauseProgress], None] | None = None) -> Diagnosis:
+def diagnose(
+    base: Model,
+    runs: Sequence[RunData],
+    fitted_runs: Sequence[str] = (),
+    causes: Sequence[str] | None = None,
+    on_progress: Callable[[CauseProgress], None] | None = None,
+) -> Diagnosis:
     """Simulate every run with ``base``, analyse the residuals, extend the model cause by cause.
 
     ``fitted_runs`` names the runs the base model was fitted on (their keys or names);
@@ -1550,7 +1859,9 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
     """
     unknown = [c for c in (causes or ()) if c not in CAUSES]
     if unknown:
-        raise ValueError(f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(CAUSES)}")
+        raise ValueError(
+            f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(CAUSES)}"
+        )
     runs = _unique_names(list(runs))
     floor = {r.name: noise_floor(r.y) for r in runs}
     ctx = Context(runs, base, frozenset(fitted_runs), floor)
@@ -1584,7 +1895,11 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
             else:
                 f = None
             if on_progress:
-                on_progress(CauseProgress(rnd, i, len(todo), cid, True, None if f is None else f.gain_pct, f is not None and f.accepted))
+                on_progress(
+                    CauseProgress(
+                        rnd, i, len(todo), cid, True, None if f is None else f.gain_pct, f is not None and f.accepted
+                    )
+                )
         ok = [f for f in tried if f.accepted]
         if not ok:
             break
@@ -1597,8 +1912,16 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
     after = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
     k, u = units.key(base.unit), units.label(base.unit)
     unexplained = [
-        {"run": s.run, f"rms_{k}": s.rms, f"noise_floor_{k}": s.floor, "ratio": s.ratio, "where_s": s.t_max_s, "dominant_freq_hz": s.dominant_freq_hz}
-        for s in after if s.ratio > UNEXPLAINED_RATIO
+        {
+            "run": s.run,
+            f"rms_{k}": s.rms,
+            f"noise_floor_{k}": s.floor,
+            "ratio": s.ratio,
+            "where_s": s.t_max_s,
+            "dominant_freq_hz": s.dominant_freq_hz,
+        }
+        for s in after
+        if s.ratio > UNEXPLAINED_RATIO
     ]
     found = {f.cause: f for f in findings}
     tested: list[dict[str, Any]] = []
@@ -1606,22 +1929,38 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
         if not checks[cid].testable:
             continue
         f = found.get(cid) or last_try.get(cid)
-        entry: dict[str, Any] = {"cause": cid, "runs": checks[cid].runs,
-                                 "result": "found" if cid in found else "not found" if f is not None
-                                 else f"not fitted ({failed[cid]})" if cid in failed else "not found (no sign of it to fit)"}
+        entry: dict[str, Any] = {
+            "cause": cid,
+            "runs": checks[cid].runs,
+            "result": "found"
+            if cid in found
+            else "not found"
+            if f is not None
+            else f"not fitted ({failed[cid]})"
+            if cid in failed
+            else "not found (no sign of it to fit)",
+        }
         if f is not None:
-            entry.update(gain_pct=f.gain_pct, parameters={k_: float(v) for k_, v in f.parameters.items()}, heldout=f.heldout)
+            entry.update(
+                gain_pct=f.gain_pct, parameters={k_: float(v) for k_, v in f.parameters.items()}, heldout=f.heldout
+            )
         tested.append(entry)
     not_tested = [checks[cid] for cid in asked if not checks[cid].testable]
     names = [t["cause"] for t in tested]
     numbers = f"{total_rms:.3g} {u} RMS against a noise floor of {total_floor:.3g} {u}"
     if findings:
-        head = "; ".join(f"{f.cause} (held-out gain {f.gain_pct:.0f} %)" for f in findings) + f"; the base model's residual was {numbers}"
+        head = (
+            "; ".join(f"{f.cause} (held-out gain {f.gain_pct:.0f} %)" for f in findings)
+            + f"; the base model's residual was {numbers}"
+        )
     elif not tested:
         head = f"No cause could be tried on these runs (the residual is {numbers})"
     elif total_rms <= MIN_RESIDUAL_TO_FLOOR * total_floor or not unexplained:
         among = f" among the {len(names)} causes tried" if not_tested else ""
-        head = f"No findings{among}: the residual ({total_rms:.3g} {u} RMS) is near the noise floor ({total_floor:.3g} {u})"
+        head = (
+            f"No findings{among}: the residual ({total_rms:.3g} {u} RMS) is near the noise floor "
+            f"({total_floor:.3g} {u})"
+        )
     elif not not_tested:
         head = f"No cause in the catalogue explains the residual ({numbers}; all {len(names)} tried)"
     elif len(names) == 1:
@@ -1633,7 +1972,21 @@ def diagnose(base: Model, runs: Sequence[RunData], fitted_runs: Sequence[str] = 
     if not_tested:
         head += f"; not tested ({len(not_tested)}, the runs do not allow it): " + ", ".join(t.cause for t in not_tested)
     if base_fit.get("poor"):
-        head += (f"; the base fit is poor: {base_fit[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on, "
-                 f"{base_fit['ratio']:.0f} x the noise floor (every cause the runs allow was still tried)")
-    return Diagnosis(findings, list(last_try.values()), unexplained, before, after, total_rms, total_floor, head, ctx.model,
-                     tested, not_tested, base_fit)
+        head += (
+            f"; the base fit is poor: {base_fit[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on, "
+            f"{base_fit['ratio']:.0f} x the noise floor (every cause the runs allow was still tried)"
+        )
+    return Diagnosis(
+        findings,
+        list(last_try.values()),
+        unexplained,
+        before,
+        after,
+        total_rms,
+        total_floor,
+        head,
+        ctx.model,
+        tested,
+        not_tested,
+        base_fit,
+    )

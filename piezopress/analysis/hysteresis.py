@@ -33,9 +33,9 @@ chosen on held-out data from a grid, operators that contribute nothing are prune
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-from typing import Any, Sequence
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -108,7 +108,7 @@ def invert_dead_zone_weights(d: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, 
     s0 = s[i0]
     if s0 <= 0:
         raise HysteresisFitError(f"dead-zone weight s_0 = {s0} must be positive")
-    pos_d, pos_s = d[i0 + 1:], s[i0 + 1:]
+    pos_d, pos_s = d[i0 + 1 :], s[i0 + 1 :]
     neg_d, neg_s = d[:i0][::-1], s[:i0][::-1]  # outward: -small to -large
     pd, ps = _side_inverse(pos_d, s0, pos_s) if pos_d.size else (pos_d, pos_s)
     nd, ns = _side_inverse(neg_d, s0, neg_s) if neg_d.size else (neg_d, neg_s)
@@ -208,7 +208,7 @@ class PIModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "PIModel":
+    def from_dict(cls, d: dict[str, Any]) -> PIModel:
         iu, ou = d["input_unit"], d["output_unit"]
         return cls(
             r=tuple(d["play_thresholds"]),
@@ -304,8 +304,15 @@ def settled_start(x: np.ndarray, rel_tol: float = 0.02) -> int:
     return first
 
 
-def prepare(runs: Sequence[tuple[str, np.ndarray, np.ndarray]], *, holdout_fraction: float = 0.3, burn_in_fraction: float = 0.0,
-            x0: float | None = None, y0: float | None = None, skip: Sequence[int] | int | None = None) -> HysteresisData:
+def prepare(
+    runs: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    *,
+    holdout_fraction: float = 0.3,
+    burn_in_fraction: float = 0.0,
+    x0: float | None = None,
+    y0: float | None = None,
+    skip: Sequence[int] | int | None = None,
+) -> HysteresisData:
     """Prepare ``(name, input, output)`` runs: the last ``holdout_fraction`` of each run's
     fitted samples is held out (the end of the record, never a random subset).
 
@@ -339,11 +346,15 @@ def prepare(runs: Sequence[tuple[str, np.ndarray, np.ndarray]], *, holdout_fract
         x = np.asarray(x, float)
         y = np.asarray(y, float)
         if x.shape != y.shape or x.ndim != 1:
-            raise HysteresisFitError(f"{name}: input and output have shapes {x.shape} and {y.shape}; expected equal 1-D arrays")
+            raise HysteresisFitError(
+                f"{name}: input and output have shapes {x.shape} and {y.shape}; expected equal 1-D arrays"
+            )
         if x.size < 20:
             raise HysteresisFitError(f"{name}: {x.size} samples; expected at least 20")
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-            raise HysteresisFitError(f"{name}: the input or output holds NaN or infinite values; expected finite samples")
+            raise HysteresisFitError(
+                f"{name}: the input or output holds NaN or infinite values; expected finite samples"
+            )
         if np.ptp(x) <= 0:
             raise HysteresisFitError(f"{name}: the input does not move; expected a sweep")
         n = x.size
@@ -365,7 +376,9 @@ def prepare(runs: Sequence[tuple[str, np.ndarray, np.ndarray]], *, holdout_fract
         tr.append(t)
         ho.append(h)
     if sum(int(t.sum()) for t in tr) < 10:
-        raise HysteresisFitError("fewer than 10 samples left to fit after the skipped start; expected a longer record or a shorter skip")
+        raise HysteresisFitError(
+            "fewer than 10 samples left to fit after the skipped start; expected a longer record or a shorter skip"
+        )
     return HysteresisData(tuple(names), tuple(us), tuple(zs), tuple(tr), tuple(ho), float(x0), float(y0))
 
 
@@ -395,16 +408,16 @@ def _gram(rows: Sequence[Sequence[np.ndarray]]) -> np.ndarray:
         for i, a in enumerate(blocks):
             for j in range(i, len(blocks)):
                 g = a.T @ blocks[j]
-                G[edges[i]:edges[i + 1], edges[j]:edges[j + 1]] += g
+                G[edges[i] : edges[i + 1], edges[j] : edges[j + 1]] += g
                 if j != i:
-                    G[edges[j]:edges[j + 1], edges[i]:edges[i + 1]] += g.T
+                    G[edges[j] : edges[j + 1], edges[i] : edges[i + 1]] += g.T
     return G
 
 
 def _solve(problem, what: str) -> None:
-    import cvxpy as cp
-
     import warnings
+
+    import cvxpy as cp
 
     try:
         with warnings.catch_warnings():
@@ -413,7 +426,9 @@ def _solve(problem, what: str) -> None:
     except cp.error.SolverError as exc:
         raise HysteresisFitError(f"{what}: the quadratic program failed ({exc})") from None
     if problem.status not in ("optimal", "optimal_inaccurate"):
-        raise HysteresisFitError(f"{what}: the quadratic program ended {problem.status}; the data may not suit the model")
+        raise HysteresisFitError(
+            f"{what}: the quadratic program ended {problem.status}; the data may not suit the model"
+        )
 
 
 def _factor(G: np.ndarray) -> np.ndarray:
@@ -449,7 +464,7 @@ PLAY_SLOPE_MAX = 4.0
 DEAD_ZONE_SLOPE_RATIO = 4.0
 
 
-def slope_bounds(data: "HysteresisData") -> tuple[float, float]:
+def slope_bounds(data: HysteresisData) -> tuple[float, float]:
     """The fitted loading curve's slope bounds (output per input) for ``data``:
     ``(PLAY_SLOPE_MIN * g / DEAD_ZONE_SLOPE_RATIO, PLAY_SLOPE_MAX * g * DEAD_ZONE_SLOPE_RATIO)``
     with ``g`` the mean gain; the inverse's drive moves at least ``1 / upper`` per unit of
@@ -458,7 +473,7 @@ def slope_bounds(data: "HysteresisData") -> tuple[float, float]:
     return PLAY_SLOPE_MIN * g / DEAD_ZONE_SLOPE_RATIO, PLAY_SLOPE_MAX * g * DEAD_ZONE_SLOPE_RATIO
 
 
-def _mean_gain(data: "HysteresisData") -> float:
+def _mean_gain(data: HysteresisData) -> float:
     z_lo, z_hi = data.z_range
     return (z_hi - z_lo) / (data.u_span or 1.0)
 
@@ -470,21 +485,25 @@ def _partial_sums(idx0: int, n_neg: int, n_pos: int) -> np.ndarray:
     M = np.zeros((size, size))
     M[0, idx0] = 1.0
     for j in range(1, n_pos + 1):
-        M[j, idx0: idx0 + j + 1] = 1.0
+        M[j, idx0 : idx0 + j + 1] = 1.0
     for j in range(1, n_neg + 1):
-        M[n_pos + j, idx0 - j: idx0 + 1] = 1.0
+        M[n_pos + j, idx0 - j : idx0 + 1] = 1.0
     return M
 
 
-def _check_rising(data: "HysteresisData") -> None:
+def _check_rising(data: HysteresisData) -> None:
     u = np.concatenate([u[m] for u, m in zip(data.u, data.train)])
     z = np.concatenate([z[m] for z, m in zip(data.z, data.train)])
     if u.size > 2 and np.ptp(u) > 0 and np.ptp(z) > 0 and np.corrcoef(u, z)[0, 1] < 0:
-        raise HysteresisFitError("the output falls as the input rises; the model expects a rising output: "
-                                 "import the output with --scale COLUMN=-1 (and say so in --units-note)")
+        raise HysteresisFitError(
+            "the output falls as the input rises; the model expects a rising output: "
+            "import the output with --scale COLUMN=-1 (and say so in --units-note)"
+        )
 
 
-def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays: Sequence[np.ndarray], rows: str = "train") -> PIModel:
+def fit_structure(
+    data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays: Sequence[np.ndarray], rows: str = "train"
+) -> PIModel:
     """Fit weights for fixed play thresholds ``r`` and inverse dead-zone thresholds ``d_inv``.
 
     ``plays`` are the play outputs of each run for thresholds ``r`` (whole runs); ``rows``
@@ -511,10 +530,19 @@ def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays:
     # dead-zone weights v and an offset c (the rest level is an estimate, not a given)
     L = _factor(_gram([(a, np.ones((a.shape[0], 1)), -b) for a, b in zip(A, B)]))
     theta = cp.Variable(nr + 1 + d_inv.size)
-    w, v = theta[:nr], theta[nr + 1:]
-    cons = [w[0] >= PLAY_SLOPE_MIN, w[1:] >= 0, cp.sum(w) <= PLAY_SLOPE_MAX, np.maximum(u_max - r, 0.0) @ w == u_max,
-            M @ v >= 1.0 / (k * g), M @ v <= k / g]
-    _solve(cp.Problem(cp.Minimize(cp.sum_squares(L @ theta)), cons), f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)")
+    w, v = theta[:nr], theta[nr + 1 :]
+    cons = [
+        w[0] >= PLAY_SLOPE_MIN,
+        w[1:] >= 0,
+        cp.sum(w) <= PLAY_SLOPE_MAX,
+        np.maximum(u_max - r, 0.0) @ w == u_max,
+        M @ v >= 1.0 / (k * g),
+        M @ v <= k / g,
+    ]
+    _solve(
+        cp.Problem(cp.Minimize(cp.sum_squares(L @ theta)), cons),
+        f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)",
+    )
     w_val = np.maximum(np.asarray(w.value, float), 0.0)
     w_val[0] = max(w_val[0], PLAY_SLOPE_MIN)
     c1 = float(theta.value[nr])
@@ -538,17 +566,29 @@ def fit_structure(data: HysteresisData, r: np.ndarray, d_inv: np.ndarray, plays:
     _solve(cp.Problem(cp.Minimize(obj), [M @ s >= g / k, M @ s <= g * k]), "forward dead-zone refit")
     s_val = np.asarray(s.value, float)
     if not np.all(np.isfinite(s_val)) or not np.isfinite(offset.value[0]):
-        raise HysteresisFitError(f"forward dead-zone refit ({d_fwd.size} dead zones): the solver returned non-finite weights")
-    return PIModel(tuple(map(float, r)), tuple(map(float, w_val)), tuple(map(float, d_fwd)), tuple(map(float, s_val)),
-                   x0=data.x0, y0=data.y0 + float(offset.value[0]))
+        raise HysteresisFitError(
+            f"forward dead-zone refit ({d_fwd.size} dead zones): the solver returned non-finite weights"
+        )
+    return PIModel(
+        tuple(map(float, r)),
+        tuple(map(float, w_val)),
+        tuple(map(float, d_fwd)),
+        tuple(map(float, s_val)),
+        x0=data.x0,
+        y0=data.y0 + float(offset.value[0]),
+    )
 
 
-def predict_rows(model: PIModel, plays: Sequence[np.ndarray], masks: Sequence[np.ndarray], y0: float = 0.0) -> list[np.ndarray]:
+def predict_rows(
+    model: PIModel, plays: Sequence[np.ndarray], masks: Sequence[np.ndarray], y0: float = 0.0
+) -> list[np.ndarray]:
     """Model output relative to ``y0`` (the data's rest level) on the masked rows of each run,
     from precomputed plays."""
     w = np.array(model.w)
     shift = model.y0 - y0
-    return [shift + dead_zone_superposition(Y[m] @ w, np.array(model.d), np.array(model.s)) for Y, m in zip(plays, masks)]
+    return [
+        shift + dead_zone_superposition(Y[m] @ w, np.array(model.d), np.array(model.s)) for Y, m in zip(plays, masks)
+    ]
 
 
 def rms_error(model: PIModel, data: HysteresisData, plays: Sequence[np.ndarray], which: str) -> float:
@@ -593,24 +633,38 @@ def _plays_for(data: HysteresisData, r: np.ndarray, cache: dict) -> list[np.ndar
 def decimate(data: HysteresisData, step: int) -> HysteresisData:
     """Every ``step``-th sample of each run (for choosing the model on large data)."""
     sl = slice(None, None, step)
-    return HysteresisData(data.names, tuple(u[sl] for u in data.u), tuple(z[sl] for z in data.z),
-                          tuple(m[sl] for m in data.train), tuple(m[sl] for m in data.holdout), data.x0, data.y0)
+    return HysteresisData(
+        data.names,
+        tuple(u[sl] for u in data.u),
+        tuple(z[sl] for z in data.z),
+        tuple(m[sl] for m in data.train),
+        tuple(m[sl] for m in data.holdout),
+        data.x0,
+        data.y0,
+    )
 
 
 #: Above this many samples the model is chosen on a decimated copy, then fitted on all.
 SELECT_MAX_SAMPLES = 20_000
 
 
-def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] | None = None, *, tolerance: float = 0.01,
-                   prune_below: float = 1e-3, refit_all: bool = True) -> HysteresisFit:
+def fit_hysteresis(
+    data: HysteresisData,
+    grid: Sequence[Candidate] | None = None,
+    *,
+    tolerance: float = 0.01,
+    prune_below: float = 1e-3,
+    refit_all: bool = True,
+) -> HysteresisFit:
     """Choose operator numbers and thresholds on held-out data, prune, refit.
 
     Each candidate is fitted on the training rows and scored by its RMS output error on
     the held-out rows. The chosen one is the smallest (fewest operators) whose held-out
     error is within ``tolerance`` (relative) of the best. Without ``grid`` the search has
     three stages: the play operators (:data:`PLAY_GRID`), the number of dead zones for
-    them (:data:`DEAD_ZONE_COUNTS`), and the play operators again for that number. Operators whose weight is below ``prune_below`` of the
-    largest are dropped if that does not worsen the held-out error beyond the tolerance.
+    them (:data:`DEAD_ZONE_COUNTS`), and the play operators again for that number. Operators
+    whose weight is below ``prune_below`` of the largest are dropped if that does not worsen
+    the held-out error beyond the tolerance.
     With ``refit_all`` the final model is refitted on all rows (``final_model``);
     ``model`` is the one scored on held-out data.
     """
@@ -636,13 +690,30 @@ def fit_hysteresis(data: HysteresisData, grid: Sequence[Candidate] | None = None
     if grid is None:
         _score(data, PLAY_GRID, cache, rows, fits)
         if not fits:
-            raise HysteresisFitError("no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400])
+            raise HysteresisFitError(
+                "no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400]
+            )
         _, (_, _, c1, _) = choose(fits)
-        _score(data, [Candidate(c1.n_play, c1.gamma, m) for m in DEAD_ZONE_COUNTS if m != c1.m_dead_zone], cache, rows, fits)
+        _score(
+            data,
+            [Candidate(c1.n_play, c1.gamma, m) for m in DEAD_ZONE_COUNTS if m != c1.m_dead_zone],
+            cache,
+            rows,
+            fits,
+        )
         _, (_, _, c2, _) = choose(fits)
         if c2.m_dead_zone != PLAY_GRID[0].m_dead_zone:  # the plays again, for the chosen dead zones
-            _score(data, [Candidate(c.n_play, c.gamma, c2.m_dead_zone) for c in PLAY_GRID if (c.n_play, c.gamma) != (c2.n_play, c2.gamma)],
-                   cache, rows, fits)
+            _score(
+                data,
+                [
+                    Candidate(c.n_play, c.gamma, c2.m_dead_zone)
+                    for c in PLAY_GRID
+                    if (c.n_play, c.gamma) != (c2.n_play, c2.gamma)
+                ],
+                cache,
+                rows,
+                fits,
+            )
     else:
         _score(data, grid, cache, rows, fits)
     if not fits:
@@ -667,14 +738,32 @@ def _score(data: HysteresisData, grid: Sequence[Candidate], cache: dict, rows: l
         try:
             model = fit_structure(data, r, d_inv, plays)
         except HysteresisFitError as exc:
-            rows.append({"candidate": c.label, "n_operators": r.size + d_inv.size, "train_rms": float("nan"), "holdout_rms": float("nan"), "note": str(exc)})
+            rows.append(
+                {
+                    "candidate": c.label,
+                    "n_operators": r.size + d_inv.size,
+                    "train_rms": float("nan"),
+                    "holdout_rms": float("nan"),
+                    "note": str(exc),
+                }
+            )
             continue
         tr, ho = rms_error(model, data, plays, "train"), rms_error(model, data, plays, "holdout")
-        rows.append({"candidate": c.label, "n_operators": model.n_play + model.n_dead_zone, "train_rms": tr, "holdout_rms": ho, "note": ""})
+        rows.append(
+            {
+                "candidate": c.label,
+                "n_operators": model.n_play + model.n_dead_zone,
+                "train_rms": tr,
+                "holdout_rms": ho,
+                "note": "",
+            }
+        )
         fits.append((ho, model.n_play + model.n_dead_zone, c, model))
 
 
-def _finish(data, model, ho, cand, best, n_fits, rows, cache, out_range, tolerance, prune_below, refit_all) -> HysteresisFit:
+def _finish(
+    data, model, ho, cand, best, n_fits, rows, cache, out_range, tolerance, prune_below, refit_all
+) -> HysteresisFit:
     """Prune the chosen model, score it, and refit it on all rows."""
     # prune operators that contribute nothing
     w = np.array(model.w)
@@ -699,9 +788,12 @@ def _finish(data, model, ho, cand, best, n_fits, rows, cache, out_range, toleran
             pruned, r_final = 0, np.array(model.r)
     plays = _plays_for(data, np.array(model.r), cache)
     tr = rms_error(model, data, plays, "train")
-    reason = (f"{cand.label} ({model.n_play} plays, {model.n_dead_zone} dead zones after pruning {pruned}): held-out RMS "
-              f"{ho:.4g} ({100 * ho / out_range:.2f} % of range), within {100 * tolerance:g} % of the best of {n_fits} candidates "
-              f"({best:.4g}) with the fewest operators")
+    reason = (
+        f"{cand.label} ({model.n_play} plays, {model.n_dead_zone} dead zones after pruning {pruned}): held-out RMS "
+        f"{ho:.4g} ({100 * ho / out_range:.2f} % of range), within {100 * tolerance:g} % of the best of {n_fits} "
+        "candidates "
+        f"({best:.4g}) with the fewest operators"
+    )
     final = None
     if refit_all:
         d_inv_m, _ = invert_dead_zone_weights(np.array(model.d), np.array(model.s))

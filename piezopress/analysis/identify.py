@@ -16,14 +16,14 @@ models returned (``final``) are refitted on every fitted sample.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Sequence
 
 import numpy as np
 
+from piezopress import operators
 from piezopress.analysis import creep as C
 from piezopress.analysis import hysteresis as H
-from piezopress import operators
 from piezopress.errors import FitError
 
 #: Creep is kept when it lowers the held-out RMS by at least this fraction (the bar
@@ -114,9 +114,14 @@ def _decreep(model: H.PIModel, creep: C.CreepModel, runs) -> list[tuple[str, np.
     return [(name, x, model.y0 + creep.compensate(y - model.y0, fs)[0]) for name, x, y, fs in runs]
 
 
-def fit_sweeps(runs: Sequence[tuple[str, np.ndarray, np.ndarray, float]], *, holdout_fraction: float = 0.3,
-               grid: Sequence[H.Candidate] | None = None, skip: Sequence[int] | int | None = None,
-               creep: bool = True) -> SweepFit:
+def fit_sweeps(
+    runs: Sequence[tuple[str, np.ndarray, np.ndarray, float]],
+    *,
+    holdout_fraction: float = 0.3,
+    grid: Sequence[H.Candidate] | None = None,
+    skip: Sequence[int] | int | None = None,
+    creep: bool = True,
+) -> SweepFit:
     """Fit ``(name, input, output, sample_rate_hz)`` sweeps: hysteresis, and creep if it helps.
 
     ``holdout_fraction``, ``skip`` and ``grid`` are as in :func:`hysteresis.prepare` and
@@ -126,15 +131,27 @@ def fit_sweeps(runs: Sequence[tuple[str, np.ndarray, np.ndarray, float]], *, hol
     data = H.prepare(hruns, holdout_fraction=holdout_fraction, skip=skip)
     hfit = H.fit_hysteresis(data, grid)
     static_ho = _rms(_errors(hfit.model, None, runs, data.holdout))
-    out = SweepFit(hfit, hfit.final_model or hfit.model, None, hfit.train_rms, static_ho, static_ho, hfit.output_range,
-                   hfit.reason, "creep not tried")
+    out = SweepFit(
+        hfit,
+        hfit.final_model or hfit.model,
+        None,
+        hfit.train_rms,
+        static_ho,
+        static_ho,
+        hfit.output_range,
+        hfit.reason,
+        "creep not tried",
+    )
     if not creep:
         return out
     period = max(sweep_period_s(x[m], fs) for (_, x, _, fs), m in zip(runs, data.train))
     taus = tuple(t for t in CREEP_TAUS_S if t >= CREEP_PERIODS * period)
     if not taus:
-        return replace(out, creep_reason=f"creep not tried: the sweeps' period ({period:.3g} s) leaves no time "
-                                   f"constant of at least {CREEP_PERIODS:g} periods up to {CREEP_TAUS_S[-1]:g} s")
+        return replace(
+            out,
+            creep_reason=f"creep not tried: the sweeps' period ({period:.3g} s) leaves no time "
+            f"constant of at least {CREEP_PERIODS:g} periods up to {CREEP_TAUS_S[-1]:g} s",
+        )
     try:
         cm, hm = _fit_creep(hfit.model, runs, data.train, taus)
         # alternate once: hysteresis on the creep-free output, creep again on that model
@@ -145,18 +162,27 @@ def fit_sweeps(runs: Sequence[tuple[str, np.ndarray, np.ndarray, float]], *, hol
         return replace(out, creep_reason=f"creep not fitted ({exc})")
     creep_ho = _rms(_errors(hm2, cm2, runs, data.holdout))
     if not creep_ho <= (1 - CREEP_MIN_GAIN) * static_ho:
-        return replace(out, creep_reason=f"creep not kept: held-out RMS {creep_ho:.4g} against {static_ho:.4g} "
-                                   f"without (needs {100 * CREEP_MIN_GAIN:g} % less)")
+        return replace(
+            out,
+            creep_reason=f"creep not kept: held-out RMS {creep_ho:.4g} against {static_ho:.4g} "
+            f"without (needs {100 * CREEP_MIN_GAIN:g} % less)",
+        )
     # final: the same alternation on every fitted sample
     all_rows = [t | h for t, h in zip(data.train, data.holdout)]
     cmf, hmf = _fit_creep(hfit.final_model or hfit.model, runs, all_rows, taus)
-    hf = H.fit_structure(H.prepare(_decreep(hmf, cmf, runs), holdout_fraction=holdout_fraction, skip=skip, x0=data.x0, y0=hmf.y0),
-                         np.array(hfit2.model.r), H.invert_dead_zone_weights(np.array(hfit2.model.d), np.array(hfit2.model.s))[0],
-                         [operators.play(x - data.x0, np.array(hfit2.model.r)) for _, x, _, _ in runs], rows="all")
+    hf = H.fit_structure(
+        H.prepare(_decreep(hmf, cmf, runs), holdout_fraction=holdout_fraction, skip=skip, x0=data.x0, y0=hmf.y0),
+        np.array(hfit2.model.r),
+        H.invert_dead_zone_weights(np.array(hfit2.model.d), np.array(hfit2.model.s))[0],
+        [operators.play(x - data.x0, np.array(hfit2.model.r)) for _, x, _, _ in runs],
+        rows="all",
+    )
     cmf, hmf = _fit_creep(hf, runs, all_rows, taus)
     train = _rms(_errors(hm2, cm2, runs, data.train))
-    why = (f"Kelvin-Voigt creep from the sweeps ({cmf.describe()}): held-out RMS {creep_ho:.4g} with it against "
-           f"{static_ho:.4g} without")
+    why = (
+        f"Kelvin-Voigt creep from the sweeps ({cmf.describe()}): held-out RMS {creep_ho:.4g} with it against "
+        f"{static_ho:.4g} without"
+    )
     return SweepFit(hfit2, hmf, cmf, train, creep_ho, static_ho, hfit.output_range, hfit.reason, why)
 
 

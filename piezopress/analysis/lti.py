@@ -29,8 +29,16 @@ from piezopress.analysis.mode import check_mode
 from piezopress.analysis.shaper import Shaper
 from piezopress.errors import FitError
 
-__all__ = ["mode_system", "creep_system", "creep_compensator_system", "bode", "Bode", "measured_response",
-           "MeasuredResponse", "shaper_sensitivity"]
+__all__ = [
+    "mode_system",
+    "creep_system",
+    "creep_compensator_system",
+    "bode",
+    "Bode",
+    "measured_response",
+    "MeasuredResponse",
+    "shaper_sensitivity",
+]
 
 
 @dataclass(frozen=True)
@@ -76,8 +84,10 @@ def creep_compensator_system(model: CreepModel) -> control.StateSpace:
     inv = control.ss(a - b @ c / d, b / d, -c / d, [[1.0 / d]])
     poles = np.linalg.eigvals(inv.A) if inv.nstates else np.array([])
     if np.any(poles.real > 0):
-        raise FitError(f"creep model {model.describe()}: its compensator has an unstable pole at "
-                       f"{poles.real.max():.3g} 1/s; expected a minimum-phase model")
+        raise FitError(
+            f"creep model {model.describe()}: its compensator has an unstable pole at "
+            f"{poles.real.max():.3g} 1/s; expected a minimum-phase model"
+        )
     return inv
 
 
@@ -107,8 +117,9 @@ MIN_DRIVE_SHARE = 1e-3
 BAND_REL_WIDTH = 0.02
 
 
-def measured_response(drive, output, fs_hz: float, freq_hz, *, gain: float | None = None,
-                      rel_width: float = BAND_REL_WIDTH) -> MeasuredResponse:
+def measured_response(
+    drive, output, fs_hz: float, freq_hz, *, gain: float | None = None, rel_width: float = BAND_REL_WIDTH
+) -> MeasuredResponse:
     """The frequency response from a drive record to an output record, at ``freq_hz``.
 
     The records' differences (a step becomes an impulse, so a record that starts and ends
@@ -123,7 +134,10 @@ def measured_response(drive, output, fs_hz: float, freq_hz, *, gain: float | Non
     u = np.asarray(drive, dtype=float)
     y = np.asarray(output, dtype=float)
     if u.ndim != 1 or u.shape != y.shape or u.size < 16:
-        raise FitError(f"drive and output: expected two 1-D records of the same length (>= 16 samples), got {u.shape} and {y.shape}")
+        raise FitError(
+            f"drive and output: expected two 1-D records of the same length (>= 16 samples), got {u.shape} and "
+            f"{y.shape}"
+        )
     fs = float(fs_hz)
     if not (math.isfinite(fs) and fs > 0):
         raise FitError(f"fs_hz={fs_hz!r}: expected a finite sample rate > 0 Hz")

@@ -302,7 +302,9 @@ def _signal(fn: str, name: str, values, *, min_len: int = MIN_SAMPLES) -> np.nda
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
-        raise MetricError(f"{fn}: {name} is not numeric ({type(values).__name__}); expected a 1-D array of numbers") from None
+        raise MetricError(
+            f"{fn}: {name} is not numeric ({type(values).__name__}); expected a 1-D array of numbers"
+        ) from None
     if arr.ndim != 1:
         raise MetricError(f"{fn}: {name} has shape {arr.shape}; expected a 1-D array")
     if arr.size < min_len:
@@ -310,7 +312,9 @@ def _signal(fn: str, name: str, values, *, min_len: int = MIN_SAMPLES) -> np.nda
     bad = ~np.isfinite(arr)
     if bad.any():
         i = int(np.argmax(bad))
-        raise MetricError(f"{fn}: {name} has {int(bad.sum())} NaN/infinite value(s), first at index {i}; expected finite numbers")
+        raise MetricError(
+            f"{fn}: {name} has {int(bad.sum())} NaN/infinite value(s), first at index {i}; expected finite numbers"
+        )
     return arr
 
 
@@ -326,7 +330,10 @@ def _time(fn: str, t_s) -> np.ndarray:
     dt = np.diff(t)
     if np.any(dt <= 0):
         i = int(np.argmax(dt <= 0))
-        raise MetricError(f"{fn}: t_s is not strictly increasing at index {i + 1} ({t[i]!r} then {t[i + 1]!r}); expected increasing time")
+        raise MetricError(
+            f"{fn}: t_s is not strictly increasing at index {i + 1} ({t[i]!r} then {t[i + 1]!r}); expected increasing "
+            "time"
+        )
     return t
 
 
@@ -344,7 +351,9 @@ def _positive(fn: str, name: str, value, *, allow_none: bool = False) -> float |
 
 def _not_flat(fn: str, name: str, y: np.ndarray) -> None:
     if np.ptp(y) <= 1e-12 * max(1.0, float(np.max(np.abs(y)))):
-        raise MetricError(f"{fn}: {name} is flat (every sample {y[0]!r}); expected an output that responds to the input")
+        raise MetricError(
+            f"{fn}: {name} is flat (every sample {y[0]!r}); expected an output that responds to the input"
+        )
 
 
 def _noise_std(x: np.ndarray) -> float:
@@ -442,7 +451,9 @@ def _reversals(x: np.ndarray, swing: float) -> tuple[np.ndarray, int]:
     return np.asarray(kept_i, dtype=np.intp), int(kept_k[0]) if kept_k else 0
 
 
-def max_hysteresis(x, y, *, n_bins: int = 50, skip_first_half_cycle: bool = True, min_swing: float | None = None) -> HysteresisResult:
+def max_hysteresis(
+    x, y, *, n_bins: int = 50, skip_first_half_cycle: bool = True, min_swing: float | None = None
+) -> HysteresisResult:
     """Maximum hysteresis of an output against its input, in percent (thesis Eq. 5.1).
 
     ``100 * Δh / ΔH``, with Δh the largest difference between the output on the
@@ -541,7 +552,8 @@ def max_hysteresis(x, y, *, n_bins: int = 50, skip_first_half_cycle: bool = True
         have = "descending" if n_down else "ascending" if n_up else "no"
         raise MetricError(
             f"{fn}: after dropping the virgin curve only {have} branch data remain ({rev.size} reversal(s)); "
-            "expected at least one ascending and one descending branch (record more cycles or pass skip_first_half_cycle=False)"
+            "expected at least one ascending and one descending branch (record more cycles or pass "
+            "skip_first_half_cycle=False)"
         )
     label = np.repeat(np.where(keep, dirs, 0), np.diff(bounds))
     used = label != 0
@@ -695,12 +707,17 @@ def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_
     if step_time_s is not None:
         ts = float(step_time_s)
         if not math.isfinite(ts) or not t[0] < ts <= t[-1]:
-            raise MetricError(f"{fn}: step_time_s is {step_time_s!r}; expected a time within the run ({t[0]:.6g} s, {t[-1]:.6g} s]")
+            raise MetricError(
+                f"{fn}: step_time_s is {step_time_s!r}; expected a time within the run ({t[0]:.6g} s, {t[-1]:.6g} s]"
+            )
         k = int(np.searchsorted(t, ts - 1e-6 * float(np.min(np.diff(t)))))
         if drive is not None:
             after = [p for p in holds if p.stop > k and p.stop - max(p.start, k) >= 0.5 * len(p)]
             if not after:
-                raise MetricError(f"{fn}: drive has no hold of at least min_hold_s={min_hold_s:g} s after step_time_s={ts:g}; expected the drive to hold after the step")
+                raise MetricError(
+                    f"{fn}: drive has no hold of at least min_hold_s={min_hold_s:g} s after step_time_s={ts:g}; "
+                    "expected the drive to hold after the step"
+                )
             post = after[0]
             pre = [p for p in holds if p.stop <= post.start]
             return _Step(k, ts, post.stop, pre[-1].start if pre else 0, "step_time_s")
@@ -716,7 +733,9 @@ def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_
         jumps = [abs(b.level - a.level) for a, b in zip(holds[:-1], holds[1:])]
         j = int(np.argmax(jumps))
         if jumps[j] == 0:
-            raise MetricError(f"{fn}: drive has no step (its holds are all at {holds[0].level:g}); expected a change of level")
+            raise MetricError(
+                f"{fn}: drive has no step (its holds are all at {holds[0].level:g}); expected a change of level"
+            )
         pre, post = holds[j], holds[j + 1]
         return _Step(pre.stop, float(t[pre.stop]), post.stop, pre.start, "drive")
 
@@ -731,7 +750,8 @@ def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_
     noise = max(_noise_std(y), _resolution(y) / math.sqrt(12.0))
     if abs(size) <= STEP_NOISE_FACTOR * noise or abs(size) <= 1e-9 * float(np.max(np.abs(y))):
         raise MetricError(
-            f"{fn}: no step found in y: the largest jump is {abs(size):.4g}, within {STEP_NOISE_FACTOR:g} noise floors ({noise:.4g}); "
+            f"{fn}: no step found in y: the largest jump is {abs(size):.4g}, within {STEP_NOISE_FACTOR:g} noise "
+            f"floors ({noise:.4g}); "
             "expected a step response (pass drive or step_time_s to locate it)"
         )
     direction = math.copysign(1.0, size)
@@ -745,7 +765,9 @@ def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_
     return _Step(k, float(t[k]), _step_back(d, min(n, i + w), direction, size), 0, "output")
 
 
-def _step_levels(fn: str, t: np.ndarray, y: np.ndarray, s: _Step, baseline_s: float | None) -> tuple[np.ndarray, float, float]:
+def _step_levels(
+    fn: str, t: np.ndarray, y: np.ndarray, s: _Step, baseline_s: float | None
+) -> tuple[np.ndarray, float, float]:
     """Baseline samples before the step, their mean and standard deviation."""
     b0 = s.k_base_start
     if baseline_s is not None:
@@ -758,7 +780,8 @@ def _step_levels(fn: str, t: np.ndarray, y: np.ndarray, s: _Step, baseline_s: fl
         )
     if s.k_hold_end - s.k_step < 3:
         raise MetricError(
-            f"{fn}: only {max(0, s.k_hold_end - s.k_step)} sample(s) of hold after the step at t={s.t_step:.6g} s; expected at least 3"
+            f"{fn}: only {max(0, s.k_hold_end - s.k_step)} sample(s) of hold after the step at t={s.t_step:.6g} s; "
+            "expected at least 3"
         )
     return base, float(np.mean(base)), float(np.std(base, ddof=1))
 
@@ -855,7 +878,10 @@ def creep(
     base_s = _positive(fn, "baseline_s", baseline_s, allow_none=True)
     hold_min = _positive(fn, "min_hold_s", min_hold_s)
     if ss_w > 2 * after:
-        raise MetricError(f"{fn}: ss_window_s={ss_w:g} reaches back before the step; expected at most 2 * steady_state_after_s = {2 * after:g}")
+        raise MetricError(
+            f"{fn}: ss_window_s={ss_w:g} reaches back before the step; expected at most 2 * steady_state_after_s = "
+            f"{2 * after:g}"
+        )
     s = _locate_step(fn, t, y, drive, step_time_s, hold_min)
     _, f0, noise = _step_levels(fn, t, y, s, base_s)
 
@@ -870,7 +896,10 @@ def creep(
         )
     in_ss = np.abs(th - after) <= ss_w / 2
     if not in_ss.any():
-        raise MetricError(f"{fn}: ss_window_s={ss_w:g} holds no sample around {after:g} s after the step; expected a window longer than the sampling interval")
+        raise MetricError(
+            f"{fn}: ss_window_s={ss_w:g} holds no sample around {after:g} s after the step; expected a window longer "
+            "than the sampling interval"
+        )
     f_ss = float(np.mean(yh[in_ss]))
     f_f = float(np.mean(yh[th >= hold_s - fin_w]))
     size = f_ss - f0
@@ -987,7 +1016,9 @@ def overshoot(
     _not_flat(fn, "y", y)
     frac = _positive(fn, "settle_fraction", settle_fraction)
     if frac >= 1:
-        raise MetricError(f"{fn}: settle_fraction is {settle_fraction!r}; expected a fraction of the step below 1 (thesis: 0.02)")
+        raise MetricError(
+            f"{fn}: settle_fraction is {settle_fraction!r}; expected a fraction of the step below 1 (thesis: 0.02)"
+        )
     ss_w = _positive(fn, "ss_window_s", ss_window_s, allow_none=True)
     base_s = _positive(fn, "baseline_s", baseline_s, allow_none=True)
     hold_min = _positive(fn, "min_hold_s", min_hold_s)
@@ -998,14 +1029,16 @@ def overshoot(
     if end_margin_s > 0:
         # a compensator that knows the reference ahead starts the step back early:
         # leave that out of the hold
-        k_end = max(s.k_step + 2, k_end - int(np.searchsorted(t[s.k_step:], t[s.k_step] + end_margin_s)))
+        k_end = max(s.k_step + 2, k_end - int(np.searchsorted(t[s.k_step :], t[s.k_step] + end_margin_s)))
     th = t[s.k_step : k_end] - s.t_step
     yh = y[s.k_step : k_end]
     hold_s = float(th[-1])
     if ss_w is None:
         ss_w = 0.2 * hold_s
     elif ss_w > hold_s:
-        raise MetricError(f"{fn}: ss_window_s={ss_w:g} is longer than the hold ({hold_s:.4g} s); expected a window within the hold")
+        raise MetricError(
+            f"{fn}: ss_window_s={ss_w:g} is longer than the hold ({hold_s:.4g} s); expected a window within the hold"
+        )
     f_ss = float(np.mean(yh[th >= hold_s - ss_w]))
     size = f_ss - f0
     resolution = _resolution(y[s.k_base_start : s.k_hold_end])
@@ -1139,7 +1172,9 @@ def tracking_error(
     if exclude_ramps:
         plateaus = staircase_plateaus(ref, tol=tol)
         if not plateaus:
-            raise MetricError(f"{fn}: reference has no constant segment; expected a staircase (or pass exclude_ramps=False)")
+            raise MetricError(
+                f"{fn}: reference has no constant segment; expected a staircase (or pass exclude_ramps=False)"
+            )
         on = np.zeros(ref.size, dtype=bool)
         for p in plateaus:
             start = p.start if p.start == 0 else int(np.searchsorted(t, t[p.start] + settle))

@@ -41,7 +41,6 @@ def damped(wn: float, zeta: float) -> tuple[float, float]:
     return zeta * wn, wn * math.sqrt(1.0 - zeta * zeta)
 
 
-
 def mode_zoh(wn: float, zeta: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact zero-order-hold discretisation ``(b, a)`` of ``wn^2 / (s^2 + 2 zeta wn s + wn^2)``.
 

@@ -84,7 +84,9 @@ def _prepare_run(i: int, t_s, drive, y, step_time_s) -> _Run:
     d = np.asarray(drive, dtype=float)
     yy = np.asarray(y, dtype=float)
     if not (t.ndim == d.ndim == yy.ndim == 1) or not (t.size == d.size == yy.size):
-        raise FitError(f"{where}: t_s, drive and y must be 1-D of equal length, got shapes {t.shape}, {d.shape}, {yy.shape}")
+        raise FitError(
+            f"{where}: t_s, drive and y must be 1-D of equal length, got shapes {t.shape}, {d.shape}, {yy.shape}"
+        )
     if t.size < 32:
         raise FitError(f"{where}: {t.size} samples; expected at least 32")
     for label, v in (("t_s", t), ("drive", d), ("y", yy)):
@@ -106,17 +108,22 @@ def _prepare_run(i: int, t_s, drive, y, step_time_s) -> _Run:
     d_end = float(np.mean(d[-tail:]))
     step = d_end - d_start
     if not (abs(step) > 5.0 * float(np.std(d[-tail:])) and abs(step) > 1e-12 * max(1.0, abs(d_end))):
-        raise FitError(f"{where}: no step in drive (change {step:g} against tail noise {float(np.std(d[-tail:])):g}); expected one step")
+        raise FitError(
+            f"{where}: no step in drive (change {step:g} against tail noise {float(np.std(d[-tail:])):g}); expected "
+            "one step"
+        )
     away = np.flatnonzero(np.abs(d[i0:] - d_end) > 0.05 * abs(step))
     settle = i0 + (int(away[-1]) + 1 if away.size else 0)
     if n - settle < 16:
-        raise FitError(f"{where}: the drive settles {n - settle} samples before the end; expected a recorded ringing after it")
+        raise FitError(
+            f"{where}: the drive settles {n - settle} samples before the end; expected a recorded ringing after it"
+        )
     return _Run(fs, d, yy, step, settle)
 
 
 def _ringing_guess(run: _Run) -> tuple[float, float] | None:
     """(wn, zeta) from the extrema of the ringing after the drive has settled, or None."""
-    y = run.y[run.settle:]
+    y = run.y[run.settle :]
     tail = max(8, y.size // 5)
     e = y - float(np.mean(y[-tail:]))
     noise = float(np.std(np.diff(y[-tail:]))) / math.sqrt(2.0)
@@ -186,7 +193,9 @@ def identify_mode(t_s, drive, y, *, step_time_s: float | None = None, hold: str 
     >>> round(fit.wn), round(fit.zeta, 3), round(fit.gain[0], 3)
     (6440, 0.115, 2.0)
     """
-    return identify_mode_runs([t_s], [drive], [y], step_times_s=None if step_time_s is None else [step_time_s], hold=hold)
+    return identify_mode_runs(
+        [t_s], [drive], [y], step_times_s=None if step_time_s is None else [step_time_s], hold=hold
+    )
 
 
 def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold: str = "foh") -> ModeFit:
@@ -201,7 +210,8 @@ def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold:
     t_s_list, drive_list, y_list = list(t_s_list), list(drive_list), list(y_list)
     if not t_s_list or not (len(t_s_list) == len(drive_list) == len(y_list)):
         raise FitError(
-            f"t_s_list, drive_list, y_list: expected the same number (>= 1) of runs, got {len(t_s_list)}, {len(drive_list)}, {len(y_list)}"
+            f"t_s_list, drive_list, y_list: expected the same number (>= 1) of runs, got {len(t_s_list)}, "
+            f"{len(drive_list)}, {len(y_list)}"
         )
     steps = [None] * len(t_s_list) if step_times_s is None else list(step_times_s)
     if len(steps) != len(t_s_list):
@@ -210,7 +220,9 @@ def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold:
 
     guesses = [g for g in (_ringing_guess(r) for r in runs) if g is not None]
     if not guesses:
-        raise FitError("no ringing found after the step in any run (fewer than two alternating extrema above the noise)")
+        raise FitError(
+            "no ringing found after the step in any run (fewer than two alternating extrema above the noise)"
+        )
     wn0 = float(np.median([g[0] for g in guesses]))
     zeta0 = float(np.median([g[1] for g in guesses]))
     wn_max = 0.99 * math.pi * min(r.fs_hz for r in runs)  # below Nyquist
@@ -237,12 +249,12 @@ def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold:
     x0 = np.clip(x0, np.array(lower) + 1e-12, np.array(upper) - 1e-12)
     sol = least_squares(residuals, x0, bounds=(lower, upper), x_scale="jac", method="trf", xtol=1e-12, ftol=1e-12)
     wn, zeta = float(sol.x[0]), float(sol.x[1])
-    gains = tuple(float(v) for v in sol.x[2:2 + n_runs])
-    offsets = tuple(float(v) for v in sol.x[2 + n_runs:])
+    gains = tuple(float(v) for v in sol.x[2 : 2 + n_runs])
+    offsets = tuple(float(v) for v in sol.x[2 + n_runs :])
     res = residuals(sol.x)
     rms, pct, start = [], [], 0
     for r, g in zip(runs, gains):
-        part = res[start:start + r.y.size]
+        part = res[start : start + r.y.size]
         start += r.y.size
         rms.append(float(np.sqrt(np.mean(part**2))))
         size = abs(g * r.step)
@@ -337,7 +349,10 @@ def identify_mode_chain(t_s_list, command_list, y_list) -> ChainFit:
         except FitError:
             return math.inf
 
-    for name, func, lo, hi in (("slew", slew_cost, lo_slew, hi_slew), ("first_order", tau_cost, 0.05 / max(fs), 2.0 * period)):
+    for name, func, lo, hi in (
+        ("slew", slew_cost, lo_slew, hi_slew),
+        ("first_order", tau_cost, 0.05 / max(fs), 2.0 * period),
+    ):
         grid = np.linspace(math.log(lo), math.log(hi), 9)
         costs = [func(g) for g in grid]
         i = int(np.argmin(costs))
@@ -352,5 +367,10 @@ def identify_mode_chain(t_s_list, command_list, y_list) -> ChainFit:
     if results[best_name][0] > 0.9 * results["none"][0]:
         best_name = "none"
     c, m, p = results[best_name]
-    return ChainFit(m, best_name, p if best_name == "slew" else None, p if best_name == "first_order" else None,
-                    {k: v[0] for k, v in results.items()})
+    return ChainFit(
+        m,
+        best_name,
+        p if best_name == "slew" else None,
+        p if best_name == "first_order" else None,
+        {k: v[0] for k, v in results.items()},
+    )

@@ -27,8 +27,9 @@ What is measured, and how:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +89,9 @@ class RunProfile:
     @property
     def quasi_static(self) -> bool:
         """A sweep at a measured frequency of at most :data:`QUASI_STATIC_MAX_HZ`."""
-        return self.shape == "sweep" and self.freq_hz is not None and freq_within(self.freq_hz, 0.0, QUASI_STATIC_MAX_HZ)
+        return (
+            self.shape == "sweep" and self.freq_hz is not None and freq_within(self.freq_hz, 0.0, QUASI_STATIC_MAX_HZ)
+        )
 
     @property
     def is_sweep(self) -> bool:
@@ -106,8 +109,10 @@ class RunProfile:
             vary = " (varying amplitude)" if self.varying_amplitude else ""
             return f"{self.kind} sweep at {self.freq_hz:.4g} Hz{amp}{vary}"
         if self.shape in ("step", "hold"):
-            return (f"{'creep hold' if self.shape == 'hold' else 'step'} from {self.base:.4g} to {self.level:.4g} "
-                    f"at {self.step_time_s:.4g} s, held {self.hold_s:.4g} s")
+            return (
+                f"{'creep hold' if self.shape == 'hold' else 'step'} from {self.base:.4g} to {self.level:.4g} "
+                f"at {self.step_time_s:.4g} s, held {self.hold_s:.4g} s"
+            )
         if self.shape == "staircase":
             return f"staircase of {len(self.levels)} levels, {self.low:.4g} to {self.high:.4g}"
         if self.shape == "rest":
@@ -173,7 +178,7 @@ def plateaus(x: np.ndarray, tol: float, min_len: int) -> list[tuple[int, int, fl
     out = []
     for a, b in zip(starts, stops):  # steps a..b-1 are flat: samples a..b
         if b + 1 - a >= min_len:
-            out.append((int(a), int(b + 1), float(np.median(x[a:b + 1]))))
+            out.append((int(a), int(b + 1), float(np.median(x[a : b + 1]))))
     return out
 
 
@@ -260,7 +265,11 @@ def find_glitches(y: np.ndarray) -> np.ndarray:
     mid = y[1:-1]
     d1, d2 = mid - y[:-2], mid - y[2:]
     neighbours = np.abs(y[2:] - y[:-2])
-    hit = (np.sign(d1) == np.sign(d2)) & (np.minimum(np.abs(d1), np.abs(d2)) > thr) & (neighbours < 0.5 * np.minimum(np.abs(d1), np.abs(d2)))
+    hit = (
+        (np.sign(d1) == np.sign(d2))
+        & (np.minimum(np.abs(d1), np.abs(d2)) > thr)
+        & (neighbours < 0.5 * np.minimum(np.abs(d1), np.abs(d2)))
+    )
     return np.flatnonzero(hit) + 1
 
 
@@ -282,14 +291,16 @@ def _sweep_shape(x: np.ndarray, tp: np.ndarray) -> str:
     quantized drive, whose sample-to-sample slope jumps between codes."""
     dev = []
     for a, b in zip(tp[:-1], tp[1:]):
-        seg = x[a:b + 1]
+        seg = x[a : b + 1]
         if seg.size >= 8:
             line = np.linspace(seg[0], seg[-1], seg.size)
             dev.append(float(np.sqrt(np.mean((seg - line) ** 2))) / max(abs(seg[-1] - seg[0]), 1e-300))
     return "triangle" if not dev or float(np.median(dev)) < 0.03 else "sine"
 
 
-def profile_signals(t_s: np.ndarray, x: np.ndarray, output: np.ndarray | None = None, *, signal: str = "command_v") -> RunProfile:
+def profile_signals(
+    t_s: np.ndarray, x: np.ndarray, output: np.ndarray | None = None, *, signal: str = "command_v"
+) -> RunProfile:
     """The profile of a run from its time axis, its drive (or reference) ``x`` and its output."""
     t = np.asarray(t_s, float)
     x = np.asarray(x, float)
@@ -323,14 +334,23 @@ def profile_signals(t_s: np.ndarray, x: np.ndarray, output: np.ndarray | None = 
             ups = x[tp][x[tp] > 0.5 * (lo + hi)]
             peaks = tuple(float(v) for v in ups)
             vary = bool(ups.size > 1 and np.ptp(ups) > 0.05 * span)
-            return RunProfile("sweep", _sweep_shape(x, tp), freq_hz=freq, amplitude=float(np.median(swings)) / 2.0,
-                              peaks=peaks, varying_amplitude=vary, **common)
+            return RunProfile(
+                "sweep",
+                _sweep_shape(x, tp),
+                freq_hz=freq,
+                amplitude=float(np.median(swings)) / 2.0,
+                peaks=peaks,
+                varying_amplitude=vary,
+                **common,
+            )
     if plats and on >= 0.3 * x.size and tp.size < 3:
         return _piecewise(t, x, plats, span, common)
     return RunProfile("random", "custom", **common)
 
 
-def _piecewise(t: np.ndarray, x: np.ndarray, plats: list[tuple[int, int, float]], span: float, common: dict) -> RunProfile:
+def _piecewise(
+    t: np.ndarray, x: np.ndarray, plats: list[tuple[int, int, float]], span: float, common: dict
+) -> RunProfile:
     """A drive mostly on plateaus: a step, a creep hold or a staircase."""
     # merge plateaus at the same level (within 2 % of the span)
     levels: list[float] = []
@@ -348,8 +368,16 @@ def _piecewise(t: np.ndarray, x: np.ndarray, plats: list[tuple[int, int, float]]
         step_time = float(t[first[0]] - t[0]) if first[0] > 0 else 0.0
         hold = float(t[held[1] - 1] - t[held[0]])
         shape = "hold" if hold >= HOLD_MIN_S else "step"
-        return RunProfile(shape, "creep" if shape == "hold" else "step", base=base, level=level, step_time_s=step_time, hold_s=hold,
-                          levels=tuple(sorted(levels)), **common)
+        return RunProfile(
+            shape,
+            "creep" if shape == "hold" else "step",
+            base=base,
+            level=level,
+            step_time_s=step_time,
+            hold_s=hold,
+            levels=tuple(sorted(levels)),
+            **common,
+        )
     return RunProfile("staircase", "staircase", base=base, levels=tuple(levels), **common)
 
 
@@ -396,10 +424,20 @@ def crosscheck(meta: Mapping[str, Any], prof: RunProfile, label: str) -> list[st
     p = meta.get("protocol")
     p = p if isinstance(p, Mapping) else {}
     f = _number(p.get("freq_hz"))
-    if f is not None and prof.shape == "sweep" and prof.freq_hz is not None and abs(prof.freq_hz - f) > METADATA_RTOL * f:
+    if (
+        f is not None
+        and prof.shape == "sweep"
+        and prof.freq_hz is not None
+        and abs(prof.freq_hz - f) > METADATA_RTOL * f
+    ):
         out.append(f"{label}: recorded sweep frequency {f:g} Hz, measured {prof.freq_hz:.4g} Hz")
     lv = _number(p.get("level_v"))
-    if lv is not None and prof.signal == "command_v" and prof.level is not None and abs(prof.level - lv) > METADATA_RTOL * max(abs(lv), 1e-9):
+    if (
+        lv is not None
+        and prof.signal == "command_v"
+        and prof.level is not None
+        and abs(prof.level - lv) > METADATA_RTOL * max(abs(lv), 1e-9)
+    ):
         out.append(f"{label}: recorded step level {lv:g} V, measured {prof.level:.4g} V")
     fs = _number(meta.get("sample_rate_hz"))
     if fs is not None and np.isfinite(prof.sample_rate_hz) and abs(prof.sample_rate_hz - fs) > 1e-3 * fs:

@@ -45,7 +45,9 @@ class RigCheck:
     min_correlation: float
 
 
-def rig_check(command_v: np.ndarray, force_n: np.ndarray, rest_samples: int, *, min_correlation: float = 0.9) -> RigCheck:
+def rig_check(
+    command_v: np.ndarray, force_n: np.ndarray, rest_samples: int, *, min_correlation: float = 0.9
+) -> RigCheck:
     """Analyse a rig-check run: ``rest_samples`` at rest, then the drive.
 
     Parameters
@@ -67,9 +69,13 @@ def rig_check(command_v: np.ndarray, force_n: np.ndarray, rest_samples: int, *, 
     v = np.asarray(command_v, dtype=np.float64)
     f = np.asarray(force_n, dtype=np.float64)
     if v.shape != f.shape or v.ndim != 1:
-        raise MetricError(f"rig check: drive of shape {v.shape} and force of shape {f.shape}; expected two 1-D arrays of one length")
+        raise MetricError(
+            f"rig check: drive of shape {v.shape} and force of shape {f.shape}; expected two 1-D arrays of one length"
+        )
     if not 10 <= rest_samples <= len(v) - 10:
-        raise MetricError(f"rig check: rest_samples = {rest_samples} of {len(v)}; expected at least 10 at rest and 10 driven")
+        raise MetricError(
+            f"rig check: rest_samples = {rest_samples} of {len(v)}; expected at least 10 at rest and 10 driven"
+        )
     if not (np.all(np.isfinite(v)) and np.all(np.isfinite(f))):
         raise MetricError("rig check: drive or force holds NaN or infinite values; expected finite numbers")
     rest, drive, force = f[:rest_samples], v[rest_samples:], f[rest_samples:]

@@ -132,7 +132,8 @@ def residual_vibration(times_s, amplitudes, wn: float, zeta: float) -> float:
     a = np.asarray(amplitudes, dtype=float)
     if t.ndim != 1 or a.ndim != 1 or t.size != a.size or t.size == 0:
         raise FitError(
-            f"times_s and amplitudes: expected two 1-D arrays of the same nonzero length, got shapes {t.shape} and {a.shape}"
+            f"times_s and amplitudes: expected two 1-D arrays of the same nonzero length, got shapes {t.shape} and "
+            f"{a.shape}"
         )
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(a))):
         raise FitError("times_s and amplitudes: expected finite values (found NaN or inf)")
@@ -195,7 +196,9 @@ class Shaper:
         object.__setattr__(self, "wn", wn)
         object.__setattr__(self, "zeta", zeta)
         if len(t) == 0 or len(t) != len(a):
-            raise FitError(f"Shaper {self.name!r}: expected as many times as amplitudes (>= 1), got {len(t)} and {len(a)}")
+            raise FitError(
+                f"Shaper {self.name!r}: expected as many times as amplitudes (>= 1), got {len(t)} and {len(a)}"
+            )
         if not all(math.isfinite(v) for v in t + a):
             raise FitError(f"Shaper {self.name!r}: times_s and amplitudes must be finite")
         if t[0] < 0 or any(t1 < t0 for t0, t1 in zip(t, t[1:])):
@@ -217,7 +220,9 @@ class Shaper:
 
     def residual(self, wn: float | None = None, zeta: float | None = None) -> float:
         """Continuous residual vibration on a mode (the design mode by default)."""
-        return residual_vibration(self.times_s, self.amplitudes, self.wn if wn is None else wn, self.zeta if zeta is None else zeta)
+        return residual_vibration(
+            self.times_s, self.amplitudes, self.wn if wn is None else wn, self.zeta if zeta is None else zeta
+        )
 
     def discretize(self, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
         """Impulses on the sample grid: ``(sample_offsets, amplitudes)``.
@@ -361,8 +366,10 @@ def _ei_dimensionless(zeta: float, vtol: float) -> np.ndarray:
         s_lo, s_hi, s1 = s(a, tau, r_lo), s(a, tau, r_hi), s(a, tau, 1.0)
         ds1 = np.sum(a * c * tau * np.exp(c * tau))
         return [
-            s_lo.real, s_lo.imag,  # V = 0 at r_lo wn
-            s_hi.real, s_hi.imag,  # V = 0 at r_hi wn
+            s_lo.real,
+            s_lo.imag,  # V = 0 at r_lo wn
+            s_hi.real,
+            s_hi.imag,  # V = 0 at r_hi wn
             math.exp(-zeta * t3) * abs(s1) - vtol,  # V = Vtol at wn
             (ds1 * np.conj(s1)).real - zeta * t3 * abs(s1) ** 2,  # dV/dwn = 0 at wn (hump's top)
         ]
@@ -378,7 +385,9 @@ def _ei_dimensionless(zeta: float, vtol: float) -> np.ndarray:
     a1, a2, t2, t3, r_lo, r_hi = sol.x
     a = np.array([a1, a2, 1.0 - a1 - a2])
     if np.max(np.abs(eqs(sol.x))) > 1e-10 or np.any(a <= 0) or not (0 < t2 < t3) or not (r_lo < 1 < r_hi):
-        raise FitError(f"EI shaper: no valid design for zeta={zeta:g}, vtol={vtol:g}; expected zeta in [0, 0.5], vtol in (0, 0.2]")
+        raise FitError(
+            f"EI shaper: no valid design for zeta={zeta:g}, vtol={vtol:g}; expected zeta in [0, 0.5], vtol in (0, 0.2]"
+        )
     return np.array([a[0], a[1], a[2], t2, t3])
 
 
@@ -443,30 +452,56 @@ SHAPERS: dict[str, ShaperSpec] = {
     spec.name: spec
     for spec in (
         ShaperSpec(
-            "zv", 2, lambda wn, zeta: zv_family(wn, zeta, 2), 0.5, True, (0.0, 1.0),
+            "zv",
+            2,
+            lambda wn, zeta: zv_family(wn, zeta, 2),
+            0.5,
+            True,
+            (0.0, 1.0),
             "Zero vibration: two impulses half a damped period apart (thesis Eq. 3.45, p = 2).",
             "Zero residual at the design mode only; V <= 5 % within +/-3.2 % of wn.",
         ),
         ShaperSpec(
-            "zvd", 3, lambda wn, zeta: zv_family(wn, zeta, 3), 1.0, True, (0.0, 1.0),
+            "zvd",
+            3,
+            lambda wn, zeta: zv_family(wn, zeta, 3),
+            1.0,
+            True,
+            (0.0, 1.0),
             "ZV convolved with itself: a double zero on the mode (zero vibration and derivative).",
             "Flat zero: V <= 5 % within +/-14 % of wn for one damped period of delay.",
         ),
         ShaperSpec(
-            "zvdd", 4, lambda wn, zeta: zv_family(wn, zeta, 4), 1.5, True, (0.0, 1.0),
+            "zvdd",
+            4,
+            lambda wn, zeta: zv_family(wn, zeta, 4),
+            1.5,
+            True,
+            (0.0, 1.0),
             "ZV^3: a triple zero on the mode.",
             "V <= 5 % within +/-24 % of wn; 1.5 damped periods of delay.",
         ),
         ShaperSpec(
-            "zvddd", 5, lambda wn, zeta: zv_family(wn, zeta, 5), 2.0, True, (0.0, 1.0),
+            "zvddd",
+            5,
+            lambda wn, zeta: zv_family(wn, zeta, 5),
+            2.0,
+            True,
+            (0.0, 1.0),
             "ZV^4: the thesis's 5-impulse shaper (Table 6.8 as it should have been).",
             "V <= 5 % within +/-31 % of wn; two damped periods of delay.",
         ),
         ShaperSpec(
-            "ei", 3, lambda wn, zeta: ei_shaper(wn, zeta), 1.0, False, (0.0, 0.5),
+            "ei",
+            3,
+            lambda wn, zeta: ei_shaper(wn, zeta),
+            1.0,
+            False,
+            (0.0, 0.5),
             "Extra-insensitive: three impulses over one damped period, V = 5 % at the mode, "
             "0 at two frequencies either side.",
-            "V <= 5 % within +/-20 % of wn for the delay of ZVD (never below 5 % near wn); split linearly when sampled.",
+            "V <= 5 % within +/-20 % of wn for the delay of ZVD (never below 5 % near wn); split linearly when "
+            "sampled.",
         ),
     )
 }
@@ -545,7 +580,9 @@ def choose_shaper(
     if not (0.0 <= freq_error < 1.0):
         raise FitError(f"freq_error={freq_error!r}: expected a fraction in [0, 1)")
     if not (0.0 <= damping_error and zeta * (1.0 + damping_error) < 1.0):
-        raise FitError(f"damping_error={damping_error!r}: expected >= 0 with zeta * (1 + damping_error) < 1 (zeta={zeta:g})")
+        raise FitError(
+            f"damping_error={damping_error!r}: expected >= 0 with zeta * (1 + damping_error) < 1 (zeta={zeta:g})"
+        )
     if not (0.0 < max_residual < 1.0):
         raise FitError(f"max_residual={max_residual!r}: expected a fraction in (0, 1)")
     if not (delay_weight >= 0.0):
@@ -565,13 +602,15 @@ def choose_shaper(
         t = offsets / fs_hz
         worst = max(residual_vibration(t, amps, w, z) for w in wns for z in zetas)
         shapers[name] = shaper
-        rows.append({
-            "name": name,
-            "impulses": int(offsets.size),
-            "delay_ms": float(t[-1] * 1e3),
-            "nominal_residual_pct": 100.0 * residual_vibration(t, amps, wn, zeta),
-            "worst_residual_pct": 100.0 * worst,
-        })
+        rows.append(
+            {
+                "name": name,
+                "impulses": int(offsets.size),
+                "delay_ms": float(t[-1] * 1e3),
+                "nominal_residual_pct": 100.0 * residual_vibration(t, amps, wn, zeta),
+                "worst_residual_pct": 100.0 * worst,
+            }
+        )
 
     band = f"wn +/-{100 * freq_error:g} %, zeta +/-{100 * damping_error:g} %"
     ok = [r for r in rows if r["worst_residual_pct"] <= 100.0 * max_residual]
@@ -585,7 +624,8 @@ def choose_shaper(
         best = min(rows, key=lambda r: (r["worst_residual_pct"] + delay_weight * r["delay_ms"], r["delay_ms"]))
         reason = (
             f"{best['name']}: no shaper keeps the residual <= {100 * max_residual:g} % over {band}; smallest "
-            f"worst residual + {delay_weight:g} %/ms x delay ({best['worst_residual_pct']:.2f} % at {best['delay_ms']:.3f} ms)"
+            f"worst residual + {delay_weight:g} %/ms x delay ({best['worst_residual_pct']:.2f} % at "
+            f"{best['delay_ms']:.3f} ms)"
         )
     return ShaperChoice(shapers[best["name"]], rows, reason)
 
