@@ -83,9 +83,8 @@ def _print_progress(ev: char.ProgressEvent) -> None:
 @click.option(
     "--backend",
     "backend_name",
-    type=click.Choice(char.BACKENDS),
     default=None,
-    help="Which rig runs the plan (default: the rig file's [rig] backend).",
+    help="Which rig runs the plan: a registered name or module:ClassName (default: the rig file's [rig] backend).",
 )
 @reports_errors
 def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_name: str) -> None:

@@ -7,7 +7,6 @@ from pathlib import Path
 import click
 
 from piezopress.piezocli.main import cli, reports_errors
-from piezopress.pipelines import characterize as char
 from piezopress.pipelines import check_rig
 
 
@@ -22,7 +21,6 @@ from piezopress.pipelines import check_rig
 @click.option(
     "--backend",
     "backend_name",
-    type=click.Choice(char.BACKENDS),
     default=None,
     help="Must match the rig file's [rig] backend (default: the file's).",
 )

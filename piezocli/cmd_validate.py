@@ -47,9 +47,8 @@ from piezopress.pipelines import validate as val
 @click.option(
     "--backend",
     "backend_name",
-    type=click.Choice(char.BACKENDS),
     default=None,
-    help="Which rig runs the plan (default: the rig file's [rig] backend).",
+    help="Which rig runs the plan: a registered name or module:ClassName (default: the rig file's [rig] backend).",
 )
 @click.option("--no-shaper", is_flag=True, help="Run without the input shaper (Table 6.12's comparison).")
 @click.option("--no-creep", is_flag=True, help="Run without the creep compensator.")

@@ -21,8 +21,16 @@ import numpy as np
 import piezopress
 from piezopress import runformat
 from piezopress.acquisition import drive_check
-from piezopress.acquisition.backend import Backend, Measurement, stop_signals_interrupt
-from piezopress.acquisition.daq_config import parse_daq_rig, read_rig_document, rig_backend
+from piezopress.acquisition.backend import (
+    BUILTIN_BACKENDS,
+    Backend,
+    Measurement,
+    backend_class,
+    backend_limits,
+    registered_backends,
+    stop_signals_interrupt,
+)
+from piezopress.acquisition.daq_config import read_rig_document, rig_backend
 from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.acquisition.rig_config import load_rig
 from piezopress.acquisition.virtual_rig import VirtualRig
@@ -39,7 +47,26 @@ from piezopress.resources import shipped
 
 DEFAULT_PLAN = shipped("protocols", "characterize.toml")
 DEFAULT_RIG = shipped("rigs", "thesis-press.toml")
-BACKENDS = ("virtual", "nidaq")
+#: The backends piezopress brings; others are found by name (entry points) or import path.
+BACKENDS = tuple(BUILTIN_BACKENDS)
+
+
+def _rig_class(rig_path: str | Path) -> tuple[dict[str, Any], str, type]:
+    """The rig document, the backend it names and that backend's class (registry or import path)."""
+    doc = read_rig_document(rig_path)
+    in_file = rig_backend(doc)
+    return doc, in_file, backend_class(in_file, str(rig_path), search=Path(rig_path).resolve().parent)
+
+
+def _in_file(rig_path: str | Path, make: Callable[[], Any]) -> Any:
+    """``make()``, with a rig configuration error naming the rig file (a backend class names
+    its document "rig file": it is given the document, not its path)."""
+    try:
+        return make()
+    except ConfigError as exc:
+        if exc.source == str(rig_path):
+            raise
+        raise ConfigError(str(rig_path), exc.problems) from None
 
 
 def rig_limits(rig_path: str | Path | None) -> DriveLimits:
@@ -47,43 +74,38 @@ def rig_limits(rig_path: str | Path | None) -> DriveLimits:
     names, checked completely and without loading a driver (no rig file: the virtual rig's)."""
     if rig_path is None:
         return load_rig(None).limits
-    doc = read_rig_document(rig_path)
-    in_file = rig_backend(doc)
-    if in_file not in BACKENDS:
-        raise ConfigError(str(rig_path), [f"[rig] backend = {in_file!r}: expected one of {', '.join(BACKENDS)}"])
-    return parse_daq_rig(doc, source=str(rig_path)).limits if in_file == "nidaq" else load_rig(rig_path).limits
+    doc, _, cls = _rig_class(rig_path)
+    return _in_file(rig_path, lambda: backend_limits(cls, doc))
 
 
 def make_backend(name: str | None, rig_path: str | Path | None) -> Backend:
-    """The backend the rig file names in ``[rig] backend``, configured from that file.
+    """The backend the rig file names in ``[rig] backend``, made from that file.
 
-    ``name`` (``--backend``), when given, must match the file's backend (``None``: take the
-    file's). No rig file means the virtual rig's built-in defaults. The file is checked
-    completely before a driver is loaded or any hardware touched; the ``nidaq`` backend
-    without the ``nidaqmx`` package is a one-line error saying how to install it.
+    The backend is a name registered under the entry-point group ``piezopress.backends``
+    (``virtual`` and ``nidaq`` are piezopress's own) or an import path ``module:ClassName``
+    (a module beside the rig file is found too); the class is called with the whole parsed
+    rig file (``ClassName(document)``) and checks its own sections. ``name`` (``--backend``),
+    when given, must match the file's backend (``None``: take the file's). No rig file means
+    the virtual rig's built-in defaults. The ``nidaq`` backend without the ``nidaqmx``
+    package is a one-line error saying how to install it.
     """
-    if name is not None and name not in BACKENDS:
-        raise BackendError(f"backend {name!r} is unknown; expected one of {', '.join(BACKENDS)}")
+    if name is not None and ":" not in name and name not in registered_backends():
+        raise BackendError(f"backend {name!r} is unknown; expected one of {', '.join(sorted(registered_backends()))}")
     if rig_path is None:
         if name not in (None, "virtual"):
             raise BackendError(
                 f"backend {name!r} needs a rig file (--rig) describing the hardware; see rigs/nidaq-example.toml"
             )
         return VirtualRig(load_rig(None))
-    doc = read_rig_document(rig_path)
-    in_file = rig_backend(doc)
-    if in_file not in BACKENDS:
-        raise ConfigError(str(rig_path), [f"[rig] backend = {in_file!r}: expected one of {', '.join(BACKENDS)}"])
+    doc, in_file, cls = _rig_class(rig_path)
     if name is not None and name != in_file:
         raise BackendError(
             f"{rig_path}: the rig file is for backend {in_file!r} ([rig] backend) but backend {name!r} was asked for; "
             f"pass --backend {in_file} or a rig file for {name!r}"
         )
-    if in_file == "nidaq":
-        from piezopress.acquisition.nidaq import NidaqBackend  # noqa: PLC0415 (imports nidaqmx lazily itself)
-
-        return NidaqBackend(parse_daq_rig(doc, source=str(rig_path)))
-    return VirtualRig(load_rig(rig_path))
+    if cls is VirtualRig:
+        return VirtualRig(load_rig(rig_path))  # its messages name the file
+    return _in_file(rig_path, lambda: cls(doc))
 
 
 @dataclass(frozen=True)

@@ -249,9 +249,14 @@ class IndependentPress:
             channels = self.simulate(u, float(sample_rate_hz), float(preload_n), rng)
         finally:
             self.zero_output()
+        measured = Measurement(channels=channels, info={"seed": self.seed, "label": label})
         if progress is not None:
-            progress(1.0)
-        return Measurement(channels=channels, info={"seed": self.seed, "label": label})
+            try:
+                progress(1.0)
+            except KeyboardInterrupt as exc:  # Ctrl-C once everything is measured: kept whole (the backend kit's rule)
+                exc.measurement = measured
+                raise
+        return measured
 
     # ------------------------------------------------------------------ physics
 

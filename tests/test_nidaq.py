@@ -734,7 +734,8 @@ def test_make_backend_follows_the_rig_file_and_refuses_a_mismatch(tmp_path):
         char.make_backend("nidaq", char.DEFAULT_RIG)
     odd = tmp_path / "odd.toml"
     odd.write_text('[rig]\nbackend = "labjack"\n')
-    with pytest.raises(ConfigError, match="backend = 'labjack': expected one of virtual, nidaq"):
+    unknown = "backend = 'labjack': no backend of that name; expected one of nidaq, virtual"
+    with pytest.raises(ConfigError, match=unknown):
         char.make_backend(None, odd)
 
 

@@ -13,6 +13,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -42,10 +43,22 @@ class Backend(Protocol):
 
     Implementations must bring the drive back to zero however :meth:`run` ends, and
     :meth:`zero_output` must be safe to call at any time, more than once.
+
+    A backend is found by the name a rig file gives in ``[rig] backend``: a name registered
+    under the entry-point group ``piezopress.backends``, or an import path
+    ``package.module:ClassName``. The class is called with the whole parsed rig file as one
+    dict (``ClassName(document)``), validates its own sections and raises
+    :class:`~piezopress.errors.ConfigError` for a bad one; its constructor must not touch
+    hardware (``check-rig`` and ``fit --rig`` read its :attr:`limits` from it). A class may
+    offer ``limits_of(document)`` (a classmethod) to state the limits without loading a driver.
+    ``output_v`` is the drive the backend holds now (V): 0 at rest, and 0 again however a run
+    ends. :func:`piezopress.testing.check_backend` checks all of this.
     """
 
     #: short identifier recorded in run metadata (``virtual``, ``nidaq``, ...)
     name: str
+    #: the drive the backend holds now (V): 0 at rest, 0 again however a run ends
+    output_v: float
 
     @property
     def limits(self) -> DriveLimits:
@@ -110,3 +123,84 @@ def stop_signals_interrupt() -> Iterator[None]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+
+
+# --------------------------------------------------------------------------- the registry
+
+#: The entry-point group a package registers its backends under (``pyproject.toml``:
+#: ``[project.entry-points."piezopress.backends"] mypress = "mypkg.press:MyPress"``).
+ENTRY_POINT_GROUP = "piezopress.backends"
+#: piezopress's own backends, registered under the same group; found here too when the
+#: package's metadata is not installed (a checkout on ``sys.path``).
+BUILTIN_BACKENDS = {
+    "virtual": "piezopress.acquisition.virtual_rig:VirtualRig",
+    "nidaq": "piezopress.acquisition.nidaq:NidaqBackend",
+}
+
+
+def registered_backends() -> dict[str, str]:
+    """Backend name -> ``module:Class``: the entry points of :data:`ENTRY_POINT_GROUP` (and
+    piezopress's own)."""
+    from importlib.metadata import entry_points
+
+    found = dict(BUILTIN_BACKENDS)
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        found[ep.name] = ep.value
+    return found
+
+
+def backend_class(spec: str, source: str, search: Path | None = None) -> type:
+    """The backend class a rig file names in ``[rig] backend``: a registered name, or an
+    import path ``package.module:ClassName`` (looked up beside the rig file, ``search``, too).
+
+    Raises :class:`~piezopress.errors.ConfigError` naming ``source`` and what is registered.
+    """
+    import importlib
+    import sys
+
+    from piezopress.errors import ConfigError
+
+    names = registered_backends()
+    target = names.get(spec, spec)
+    if ":" not in target:
+        raise ConfigError(
+            source,
+            [
+                f"[rig] backend = {spec!r}: no backend of that name; expected one of {', '.join(sorted(names))} "
+                "(registered under the entry-point group 'piezopress.backends') "
+                "or an import path 'package.module:ClassName'"
+            ],
+        )
+    module_name, _, attr = target.partition(":")
+    added = search is not None and str(search) not in sys.path
+    if added:
+        sys.path.insert(0, str(search))
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:  # noqa: BLE001 - any failure to import is the rig file's problem, said in one line
+        raise ConfigError(
+            source,
+            [
+                f"[rig] backend = {spec!r}: cannot import module {module_name!r} ({type(exc).__name__}: {exc}); "
+                "expected an installed package or a module beside the rig file"
+            ],
+        ) from None
+    finally:
+        if added:
+            sys.path.remove(str(search))
+    obj: Any = module
+    for part in attr.split("."):
+        obj = getattr(obj, part, None)
+        if obj is None:
+            raise ConfigError(source, [f"[rig] backend = {spec!r}: module {module_name!r} has no {attr!r}"])
+    if not callable(obj):
+        raise ConfigError(source, [f"[rig] backend = {spec!r}: {attr!r} is not a class; expected a Backend class"])
+    return obj
+
+
+def backend_limits(cls: Any, document: dict[str, Any]) -> DriveLimits:
+    """The limits a rig document states for a backend class, without touching hardware:
+    ``cls.limits_of(document)`` when the class offers it (a driver is then not even loaded),
+    else ``cls(document).limits`` (a backend's constructor must not touch hardware)."""
+    limits_of = getattr(cls, "limits_of", None)
+    return limits_of(document) if callable(limits_of) else cls(document).limits

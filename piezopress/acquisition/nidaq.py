@@ -51,13 +51,13 @@ from __future__ import annotations
 
 import math
 import signal
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import numpy as np
 
 from piezopress.acquisition.backend import Measurement
-from piezopress.acquisition.daq_config import TERMINALS, DaqRigConfig, SafetySection
+from piezopress.acquisition.daq_config import TERMINALS, DaqRigConfig, SafetySection, parse_daq_rig
 from piezopress.acquisition.drive_check import drive_problems as shared_drive_problems
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import BackendError, PiezopressError
@@ -350,13 +350,24 @@ class NidaqBackend:
 
     name = "nidaq"
 
-    def __init__(self, config: DaqRigConfig, driver: DaqDriver | None = None):
-        self.config = config
+    def __init__(self, config: DaqRigConfig | Mapping[str, Any], driver: DaqDriver | None = None):
+        # a parsed rig file (``NidaqBackend(document)``, as every plug-in backend is made) or a DaqRigConfig
+        self.config = parse_daq_rig(config, source="rig file") if isinstance(config, Mapping) else config
         self.driver = driver if driver is not None else NidaqmxDriver()
         #: last value written to the analog output, DAQ volts (0 at rest)
         self.output_daq_v = 0.0
         self._output_confirmed = True
         self._deferred_interrupt = False
+
+    @classmethod
+    def limits_of(cls, document: Mapping[str, Any]) -> DriveLimits:
+        """The limits a rig document states, checked completely, without loading the driver."""
+        return parse_daq_rig(document, source="rig file").limits
+
+    @property
+    def output_v(self) -> float:
+        """The drive held now, actuator volts (the analog output times the amplifier's gain)."""
+        return self.output_daq_v * self.config.amplifier.gain
 
     # -- Backend protocol ----------------------------------------------------------------
 

@@ -9,7 +9,7 @@ the same data, whatever the order of the protocols. It never sleeps.
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -18,7 +18,7 @@ from piezopress.acquisition import rig_physics as phys
 from piezopress.acquisition.backend import Measurement
 from piezopress.acquisition.drive_check import check_drive
 from piezopress.acquisition.plan import DriveLimits
-from piezopress.acquisition.rig_config import RigConfig
+from piezopress.acquisition.rig_config import RigConfig, parse_rig
 
 
 def _label_seed(label: str) -> int:
@@ -38,9 +38,15 @@ class VirtualRig:
 
     name = "virtual"
 
-    def __init__(self, config: RigConfig | None = None):
-        self.config = config or RigConfig()
+    def __init__(self, config: RigConfig | Mapping[str, Any] | None = None):
+        # a parsed rig file (``VirtualRig(document)``, as every plug-in backend is made) or a RigConfig
+        self.config = parse_rig(config, source="rig file") if isinstance(config, Mapping) else (config or RigConfig())
         self.output_v = 0.0
+
+    @classmethod
+    def limits_of(cls, document: Mapping[str, Any]) -> DriveLimits:
+        """The limits a rig document states (checked completely)."""
+        return parse_rig(document, source="rig file").limits
 
     @property
     def limits(self) -> DriveLimits:
@@ -73,11 +79,16 @@ class VirtualRig:
             channels = self.simulate(command_v, sample_rate_hz, preload_n, rng)
         finally:
             self.zero_output()
-        if progress is not None:
-            progress(1.0)
         factor, segments = phys.fine_windows(command_v, sample_rate_hz, self.config)
         info = {"seed": seed, "fine_factor": factor, "fine_segments": sum(1 for s in segments if s[2] > 1)}
-        return Measurement(channels=channels, info=info)
+        measured = Measurement(channels=channels, info=info)
+        if progress is not None:
+            try:
+                progress(1.0)
+            except KeyboardInterrupt as exc:  # Ctrl-C once everything is measured: the run is kept whole
+                exc.measurement = measured  # type: ignore[attr-defined]
+                raise
+        return measured
 
     def check_drive(self, command_v: np.ndarray, sample_rate_hz: float, label: str = "drive") -> None:
         """Refuse a drive the rig may not play (the shared check of :mod:`piezopress.acquisition.drive_check`)."""

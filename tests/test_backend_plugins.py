@@ -1,0 +1,240 @@
+"""Backends as plug-ins (issue 21): found by entry-point name or ``module:Class`` in a rig
+file, made from the whole rig document, checked by the conformance kit
+(:func:`piezopress.testing.check_backend`) that a lab runs on its own backend."""
+
+from __future__ import annotations
+
+import re
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from piezopress.acquisition.backend import Measurement, registered_backends
+from piezopress.acquisition.plan import DriveLimits
+from piezopress.acquisition.virtual_rig import VirtualRig
+from piezopress.errors import BackendError, ConfigError
+from piezopress.piezocli.main import cli
+from piezopress.pipelines import characterize as char
+from piezopress.testing import RULES, BackendConformanceError, check_backend
+
+TESTS = Path(__file__).resolve().parent
+ROOT = TESTS.parent
+sys.path.insert(0, str(TESTS))
+
+import independent_press as ip  # noqa: E402
+from test_nidaq import EXAMPLE, backend_with  # noqa: E402
+
+
+def _readme_example() -> str:
+    """The minimal example backend of the README (the block after 'A minimal backend')."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.search(r"A minimal backend.*?```python\n(.*?)```", text, re.S)
+    assert block, "README.md has no 'A minimal backend' example"
+    return block.group(1)
+
+
+# --------------------------------------------------------------------------- the kit on our backends
+
+
+def test_the_virtual_rig_passes_the_kit():
+    assert check_backend(VirtualRig()) == list(RULES)
+
+
+def test_the_second_test_press_passes_the_kit():
+    assert check_backend(ip.clean_press(np.random.default_rng(0))) == list(RULES)
+
+
+def test_the_nidaq_backend_on_a_fake_board_passes_the_kit():
+    from piezopress.acquisition.daq_config import load_daq_rig
+
+    backend, _ = backend_with(load_daq_rig(EXAMPLE))
+    assert check_backend(backend, preload_n=60.0) == list(RULES)
+
+
+def test_the_readme_example_backend_passes_the_kit():
+    ns: dict = {}
+    exec(compile(_readme_example(), "README example", "exec"), ns)  # noqa: S102 - the documented example, run as written
+    assert check_backend(ns["LinearPress"]({"press": {"n_per_v": 2.0}})) == list(RULES)
+
+
+# --------------------------------------------------------------------------- broken backends fail, naming the rule
+
+
+class _Good:
+    """A correct backend to break one rule at a time."""
+
+    name = "good"
+
+    def __init__(self):
+        self.output_v = 0.0
+
+    @property
+    def limits(self):
+        return DriveLimits(drive_min_v=0.0, drive_max_v=100.0, max_sample_rate_hz=10_000.0)
+
+    def describe(self):
+        return {"backend": self.name}
+
+    def run(self, command_v, sample_rate_hz, *, preload_n, label, progress=None):
+        x = np.asarray(command_v, float)
+        if x.max() > self.limits.drive_max_v:
+            raise BackendError(f"drive {x.max():g} V above {self.limits.drive_max_v:g} V")
+        n = x.size
+        half = n // 2
+        self.output_v = float(x.max())  # playing: the drive is up
+        if progress is not None:
+            try:
+                progress(0.5)
+            except KeyboardInterrupt as exc:
+                self.zero_output()
+                exc.measurement = Measurement({"force_n": 2.0 * x[:half]}, complete=False, reason="interrupted")
+                raise
+        self.zero_output()
+        return Measurement({"force_n": 2.0 * x})
+
+    def zero_output(self):
+        self.output_v = 0.0
+
+
+class _NoLimits(_Good):
+    limits = None
+
+
+class _BadDescribe(_Good):
+    def describe(self):
+        return {"when": object()}
+
+
+class _ShortChannels(_Good):
+    def run(self, command_v, sample_rate_hz, **kw):
+        m = super().run(command_v, sample_rate_hz, **kw)
+        return Measurement({"force_n": m.channels["force_n"][:-1]})
+
+
+class _StaysUp(_Good):
+    def zero_output(self):
+        pass
+
+
+class _PlaysAnything(_Good):
+    def run(self, command_v, sample_rate_hz, **kw):
+        self.output_v = 0.0
+        return Measurement({"force_n": np.asarray(command_v, float)})
+
+
+class _LosesData(_Good):
+    def run(self, command_v, sample_rate_hz, *, preload_n, label, progress=None):
+        if progress is not None:
+            progress(0.5)  # Ctrl-C passes through: what was measured is lost
+        return super().run(command_v, sample_rate_hz, preload_n=preload_n, label=label)
+
+
+@pytest.mark.parametrize(
+    "broken, rule",
+    [
+        (_NoLimits, "limits"),
+        (_BadDescribe, "describe"),
+        (_ShortChannels, "channels"),
+        (_StaysUp, "ends-at-zero"),
+        (_PlaysAnything, "refused-drive"),
+        (_LosesData, "cut-short"),
+    ],
+)
+def test_a_broken_backend_fails_the_kit_naming_the_rule(broken, rule):
+    assert check_backend(_Good()) == list(RULES)
+    with pytest.raises(BackendConformanceError) as err:
+        check_backend(broken())
+    assert err.value.rule == rule and f"backend rule {rule!r} broken" in str(err.value)
+
+
+# --------------------------------------------------------------------------- the registry
+
+
+def test_our_backends_are_registered_under_the_entry_point_group():
+    names = registered_backends()
+    assert names["virtual"].endswith("virtual_rig:VirtualRig") and names["nidaq"].endswith("nidaq:NidaqBackend")
+
+
+def test_a_rig_file_naming_an_unknown_backend_or_a_missing_module_is_one_line(tmp_path):
+    rig = tmp_path / "rig.toml"
+    rig.write_text('[rig]\nbackend = "nosuchpkg.press:Press"\n')
+    with pytest.raises(ConfigError) as err:
+        char.make_backend(None, rig)
+    assert "cannot import module 'nosuchpkg.press'" in str(err.value) and str(rig) in str(err.value)
+    rig.write_text('[rig]\nbackend = "json:NoSuchClass"\n')
+    with pytest.raises(ConfigError, match="module 'json' has no 'NoSuchClass'"):
+        char.rig_limits(rig)
+
+
+def _plugin_press(tmp_path: Path) -> Path:
+    """A backend written outside the package: a module beside its rig file, wrapping the
+    second test press, configured from its own [press] section."""
+    (tmp_path / "labpress.py").write_text(
+        textwrap.dedent(
+            f"""
+            import sys
+            sys.path.insert(0, {str(TESTS)!r})
+            from independent_press import CLEAN, IndependentPress
+            from piezopress.errors import ConfigError
+
+            class LabPress(IndependentPress):
+                name = "labpress"
+
+                def __init__(self, document):
+                    press = document.get("press", {{}})
+                    unknown = sorted(set(press) - {{"seed", "mode_hz", "input_delay_s"}})
+                    if unknown:
+                        raise ConfigError("rig file", [f"[press] {{k}}: unknown key" for k in unknown])
+                    super().__init__(**{{**CLEAN, **press}})
+            """
+        )
+    )
+    rig = tmp_path / "labpress.toml"
+    rig.write_text('[rig]\nbackend = "labpress:LabPress"\n\n[press]\nseed = 11\nmode_hz = 1010.0\n')
+    return rig
+
+
+def test_a_plugin_in_a_folder_beside_its_rig_file_is_made_from_the_document(tmp_path):
+    rig = _plugin_press(tmp_path)
+    backend = char.make_backend(None, rig)
+    assert backend.name == "labpress" and backend.mode_hz == 1010.0
+    assert char.rig_limits(rig) == backend.limits
+    assert check_backend(backend) == list(RULES)
+    rig.write_text('[rig]\nbackend = "labpress:LabPress"\n\n[press]\ncolour = "red"\n')
+    with pytest.raises(ConfigError) as err:
+        char.make_backend(None, rig)
+    assert "[press] colour: unknown key" in str(err.value) and str(rig) in str(err.value)
+
+
+@pytest.mark.slow
+def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
+    """Issue 21's acceptance: check-rig, characterize, fit, validate and report through a
+    module in a temporary folder named in a rig file."""
+    rig = _plugin_press(tmp_path)
+    run = CliRunner()
+
+    def ok(*args):
+        res = run.invoke(cli, [str(a) for a in args])
+        assert res.exit_code == 0, res.output
+        return res.output
+
+    ok("check-rig", "--rig", rig)
+    ok("characterize", "--rig", rig, "--out", tmp_path / "char")
+    ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
+    ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
+    out = ok(
+        "report",
+        "--characterization",
+        tmp_path / "char",
+        "--validation",
+        tmp_path / "val",
+        "--bundle",
+        tmp_path / "b.json",
+        "--out",
+        tmp_path / "rep",
+    )
+    assert (tmp_path / "rep" / "report.html").is_file(), out
