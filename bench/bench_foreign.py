@@ -67,7 +67,7 @@ def _case(char_dir: Path, work: Path, diagnose: bool) -> dict:
         B.write_document(F.fit_bundle([char_dir], base=True).doc, work / "base.json")
         result, _ = D.diagnose([char_dir], work / "base.json", work / "diag")
         out["findings"] = [f.cause for f in result.findings] or ["none"]
-        out["base_ratio"] = getattr(result, "base_fit_ratio", None)
+        out["base_ratio"] = result.base_fit.get("ratio")
     return out
 
 
@@ -113,7 +113,8 @@ def main() -> None:
                 print(
                     f"  {name:9s} hysteresis held-out {r['hyst_pct']:.3f} % of range ({r['hyst_rms']:.4g})  mode {wn} "
                     f"rad/s, damping {zeta}  "
-                    f"sections {','.join(r['sections'])}  findings {','.join(r.get('findings', []))}"
+                    f"sections {','.join(r['sections'])}  base fit {r.get('base_ratio') or float('nan'):.2f}x noise  "
+                    f"findings {','.join(r.get('findings', []))}"
                 )
 
 

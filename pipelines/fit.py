@@ -514,10 +514,18 @@ def fit_shaper_section(
         fits = [mode_fit.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
         fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
     else:  # the applied drive is not recorded: the chain from command to stack is identified with the mode
+        # the chain is told apart on steps of every size (a slew lengthens only the large steps' rise)
+        steps = [r for r in collect_runs(paths) if r.kind == "step"] if not list(names) else runs
+        scuts = [_first_hold_end(r.command_v) for r in steps]
         chain = mode_fit.identify_mode_chain(
             [r.t_s[:n] for r, n in zip(runs, cuts)],
             [r.command_v[:n] for r, n in zip(runs, cuts)],
             [r.output[:n] for r, n in zip(runs, cuts)],
+            chain_from=(
+                [r.t_s[:n] for r, n in zip(steps, scuts)],
+                [r.command_v[:n] for r, n in zip(steps, scuts)],
+                [r.output[:n] for r, n in zip(steps, scuts)],
+            ),
         )
         fit = chain.mode
     fs = fs_hz or max(r.sample_rate_hz for r in runs)

@@ -46,3 +46,28 @@ from hypothesis import settings as _hyp_settings  # noqa: E402
 _hyp_settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI"):
     _hyp_settings.load_profile("ci")
+
+
+# The shared real data sets: PIEZOPRESS_DATASETS, else ../shared/datasets beside the checkout.
+# Outside CI a test that needs them is skipped (saying where they were looked for); under
+# CI=true their absence is a failure of every such test, never a silent skip.
+from pathlib import Path  # noqa: E402
+
+DATASETS = Path(
+    os.environ.get("PIEZOPRESS_DATASETS", Path(__file__).resolve().parents[1].parent / "shared" / "datasets")
+)
+
+
+def needs_datasets(*relative: str):
+    """Mark a test that reads the shared data sets (the files ``relative`` to DATASETS)."""
+    have = all((DATASETS / r).exists() for r in relative or ("smarthysteresis", "aye-ang-2018"))
+    if os.environ.get("CI") and not have:
+        return pytest.mark.usefixtures("_datasets_missing_in_ci")
+    return pytest.mark.skipif(
+        not have, reason=f"shared data sets not found in {DATASETS} (set PIEZOPRESS_DATASETS to where they are)"
+    )
+
+
+@pytest.fixture
+def _datasets_missing_in_ci():
+    pytest.fail(f"CI: the shared data sets are not in {DATASETS} (PIEZOPRESS_DATASETS); real-data tests must run in CI")

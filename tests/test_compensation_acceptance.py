@@ -17,7 +17,7 @@ from piezopress.piezocli.main import cli
 from piezopress.pipelines import summary
 
 ROOT = Path(__file__).resolve().parents[1]
-DATASETS = ROOT.parent / "shared" / "datasets"
+from conftest import DATASETS, needs_datasets  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +94,7 @@ def _import(tmp, args):
     assert res.exit_code == 0, res.output
 
 
-@pytest.mark.skipif(not (DATASETS / "smarthysteresis").is_dir(), reason="shared data sets not found")
+@needs_datasets("smarthysteresis")
 def test_smarthysteresis_fitted_on_first_5_s_predicts_last_5_s_within_1_percent(tmp_path):
     out = tmp_path / "smart.parquet"
     _import(
@@ -125,7 +125,7 @@ def test_smarthysteresis_fitted_on_first_5_s_predicts_last_5_s_within_1_percent(
     assert 100 * np.sqrt(np.mean(line**2)) / fit.output_range > 5.0  # the baseline really is that bad
 
 
-@pytest.mark.skipif(not (DATASETS / "aye-ang-2018").is_dir(), reason="shared data sets not found")
+@needs_datasets("aye-ang-2018")
 def test_aye_ang_data_fits_far_better_than_a_line(tmp_path):
     out = tmp_path / "aye.parquet"
     _import(

@@ -239,12 +239,11 @@ def test_the_progress_printer_draws_a_line_per_cause_on_a_terminal(monkeypatch):
     assert lines[1].endswith("nothing to fit") and "[pass 1, 2/2] second_resonance" in lines[1] and lines[2] == ""
 
 
-DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
-DATASETS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "datasets"
+from conftest import DATASETS, needs_datasets  # noqa: E402
 
 
 @pytest.mark.slow  # test_diagnose_coverage.py diagnoses both shared data sets in the fast suite
-@pytest.mark.skipif(not (DATASETS / "smarthysteresis").is_dir(), reason="shared data sets not found")
+@needs_datasets("smarthysteresis")
 def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
     runner = CliRunner()
     run = tmp_path / "smart.parquet"

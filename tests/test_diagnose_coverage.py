@@ -409,7 +409,8 @@ def test_residual_traces_have_one_row_per_run_kind_and_say_what_is_clipped():
 # --------------------------------------------------------------------------- honest on real data
 
 
-DATASETS = ROOT.parent / "shared" / "datasets"
+from conftest import DATASETS, needs_datasets  # noqa: E402
+
 SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
 AYE = DATASETS / "aye-ang-2018" / "Model_Vi_Do.dat"
 # the README's commands; SmartHysteresis cut to its first 6 s (the rest at 0 V and three cycles) to keep it fast
@@ -449,7 +450,7 @@ IMPORTS = {
 }
 
 
-@pytest.mark.skipif(not (SMART.is_file() and AYE.is_file()), reason=f"shared data sets not found in {DATASETS}")
+@needs_datasets()
 @pytest.mark.parametrize("name", list(IMPORTS))
 def test_on_the_shared_data_sets_diagnose_says_what_it_tested_what_not_why_and_the_next_plan(tmp_path, name):
     src, *opts = IMPORTS[name]

@@ -23,7 +23,8 @@ from piezopress.pipelines.importing import import_table
 from piezopress.runformat import read_run
 
 ROOT = Path(__file__).resolve().parents[1]
-DATASETS = ROOT.parent / "shared" / "datasets"
+from conftest import DATASETS  # noqa: E402
+
 DOCS = ROOT / "docs" / "import.md"
 DOC_PREFIX = "../shared/datasets/"  # how the documented commands name the data sets
 

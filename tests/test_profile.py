@@ -8,7 +8,6 @@ the stages give the same answers on runs carrying only the four required metadat
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -27,10 +26,9 @@ from foreign import foreign_dir, foreign_run  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_CHAR = ROOT / "sample_runs" / "characterization"
-DATASETS = Path(os.environ.get("PIEZOPRESS_DATASETS", ROOT.parent / "shared" / "datasets"))
+from conftest import DATASETS, needs_datasets  # noqa: E402
+
 SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
-if os.environ.get("CI") and not SMART.is_file():
-    raise RuntimeError(f"CI: shared data sets not found in {DATASETS}")
 
 N_DRAWS = 200
 
@@ -228,7 +226,7 @@ def test_quasi_static_sweeps_are_chosen_by_measured_frequency_not_by_label(tmp_p
     assert any("slowest" in n for n in profiles.profile_notes())
 
 
-@pytest.mark.skipif(not SMART.is_file() and not os.environ.get("CI"), reason=f"shared data sets not in {DATASETS}")
+@needs_datasets("smarthysteresis")
 def test_the_real_record_is_profiled_as_its_source_documents_it():
     """SmartHysteresis: a 1 Hz sine of +/-150 V after a rest (its README), found from the signals."""
     import pandas as pd
@@ -261,3 +259,89 @@ def test_fit_agrees_with_full_and_minimal_metadata_and_custom_kinds(tmp_path):
         h, h0 = res.sections["hysteresis"]["model"], ref.sections["hysteresis"]["model"]
         assert len(h["r"]) == len(h0["r"]) and len(h.get("dz_thresholds", [])) == len(h0.get("dz_thresholds", [])), name
         assert res.fits["hysteresis"].holdout_rms == pytest.approx(ref.fits["hysteresis"].holdout_rms, rel=0.02), name
+
+
+@pytest.mark.parametrize(
+    "which, table", [("characterization", "characterization_table"), ("validation", "validation_table")]
+)
+def test_the_report_tables_agree_with_full_and_minimal_metadata(tmp_path, which, table):
+    """Issue 18: the metrics and the thesis beside each row (chosen from measured levels and
+    frequencies) are the same whether the runs carry our metadata or only the four fields."""
+    import pandas as pd
+
+    from piezopress.pipelines import summary
+
+    src = ROOT / "sample_runs" / which
+    make = getattr(summary, table)
+
+    def ordered(t):  # a directory without a manifest lists its runs by file name
+        return t.sort_values(["run", "metric"], kind="stable").reset_index(drop=True)
+
+    full = ordered(make(src))
+    for custom in (False, True):
+        cut = ordered(make(foreign_dir(src, tmp_path / f"{which}-{custom}", custom=custom)))
+        pd.testing.assert_frame_equal(full, cut, check_exact=False, rtol=1e-9)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", ["rate_dependent_hysteresis", "input_delay"])
+def test_diagnose_names_the_same_causes_with_full_and_minimal_metadata_on_the_second_press(tmp_path, effect):
+    """Issue 18's agreement for diagnose, on a press written apart from the virtual rig: the
+    same base model, the same findings, whether the runs carry our metadata or only the four
+    fields with every kind ``custom``."""
+    import independent_press as ip
+
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    press = ip.hidden_press(effect, np.random.default_rng([1, 98]))
+    char.characterize(tmp_path / "full", backend=press)
+    named = {}
+    for variant, d in (
+        ("full", tmp_path / "full"),
+        ("custom", foreign_dir(tmp_path / "full", tmp_path / "cut", custom=True)),
+    ):
+        B.write_document(F.fit_bundle([d], base=True).doc, tmp_path / f"{variant}.json")
+        result, _ = D.diagnose([d], tmp_path / f"{variant}.json", tmp_path / f"diag-{variant}")
+        named[variant] = [f.cause for f in result.findings]
+    assert named["full"] == named["custom"] and effect in named["full"], named
+
+
+def test_without_the_monitor_column_the_mode_is_the_rigs(tmp_path):
+    """Issue 18: no channel beyond the required ones is needed. Without ``monitor_v`` the
+    drive chain is identified with the mode: the virtual rig's mode (6440 rad/s, damping
+    0.115, Eq. 6.2) within 5 % and its damping within 20 %, as with the monitor."""
+    from piezopress.pipelines.fit import fit_shaper_section
+
+    d = foreign_dir(SAMPLE_CHAR, tmp_path / "nomon", custom=True, drop_monitor=True)
+    sec, _ = fit_shaper_section([d])
+    mode = sec["mode"]
+    assert mode["drive_used"] == "command_v" and mode["drive_chain"]["form"] == "slew"  # the EPA-102's current limit
+    assert mode["natural_freq_rad_s"] == pytest.approx(6440.0, rel=0.05)
+    assert mode["damping"] == pytest.approx(0.115, rel=0.20)
+
+
+@pytest.mark.slow
+def test_without_the_monitor_column_the_second_press_mode_and_no_finding(tmp_path):
+    """The second press's mode within 5 %/20 % without the monitor (its chain: a 20 kHz
+    first-order amplifier, not a slew), and diagnose names nothing on the clean press, as with it."""
+    import independent_press as ip
+
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    press = ip.clean_press(np.random.default_rng([0, 98]))
+    char.characterize(tmp_path / "full", backend=press)
+    d = foreign_dir(tmp_path / "full", tmp_path / "nomon", custom=True, drop_monitor=True)
+    doc = F.fit_bundle([d], base=True).doc
+    mode = doc["shaper"]["mode"]
+    assert mode["drive_chain"]["form"] == "first_order"
+    assert mode["natural_freq_rad_s"] == pytest.approx(2 * np.pi * press.mode_hz, rel=0.05)
+    assert mode["damping"] == pytest.approx(press.mode_damping, rel=0.20)
+    B.write_document(doc, tmp_path / "base.json")
+    result, _ = D.diagnose([d], tmp_path / "base.json", tmp_path / "diag")
+    assert [f.cause for f in result.findings] == []

@@ -536,7 +536,28 @@ class Bundle:
         from piezopress.analysis import diagnosis as dg
 
         wn, zeta, lp = self.mode if self.mode is not None else (None, None, None)
-        return dg.Model(self.hysteresis, self.creep, wn, zeta, lp)
+        # the drive chain's bandwidth is the press's own (a lag a low-pass chain explains is no
+        # input delay, no slew limit); an identified slew stays for diagnose to name, as with a monitor
+        _, tau = self.drive_chain
+        return dg.Model(self.hysteresis, self.creep, wn, zeta, lp, drive_tau_s=tau or 0.0)
+
+    @property
+    def drive_chain(self) -> tuple[float | None, float | None]:
+        """``(slew V/s, first-order lag s)`` of the drive chain ``fit`` identified with the mode
+        when no amplifier monitor was recorded (``shaper.mode.drive_chain``; ``None``: none)."""
+        chain = self.doc.get("shaper", {}).get("mode", {}).get("drive_chain") if isinstance(self.doc, dict) else None
+        if not isinstance(chain, dict):
+            return None, None
+
+        def positive(v):
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            return float(v) if ok else None
+
+        form = chain.get("form")
+        return (
+            positive(chain.get("slew_v_per_s")) if form == "slew" else None,
+            positive(chain.get("tau_s")) if form == "first_order" else None,
+        )
 
     def remove_creep(self, run) -> np.ndarray:
         """A run's measured output with the creep taken out (the creep compensator applied

@@ -139,7 +139,8 @@ class Model:
     zeta: float | None = None
     sensor_lowpass_hz: float | None = None  # the load cell's analog RC filter, a known part of the chain
     # extensions
-    slew_v_per_s: float | None = None  # amplifier_slew_limit
+    slew_v_per_s: float | None = None  # amplifier_slew_limit (or the identified drive chain's slew)
+    drive_tau_s: float = 0.0  # the drive chain's first-order lag, identified by fit when no monitor was recorded
     # rate_dependent_hysteresis: every play threshold grows by rate_v_per_kv_s V per kV/s of the
     # drive rate (smoothed over rate_tau_s), or the loop's width (the plays' lag behind the
     # drive) by rate_loss_per_kv_s of itself per kV/s; the rate saturating at
@@ -170,6 +171,7 @@ class Model:
                 id(run),
                 self.hysteresis,
                 self.slew_v_per_s,
+                self.drive_tau_s,
                 self.rate_v_per_kv_s,
                 self.rate_loss_per_kv_s,
                 self.rate_saturation_v_per_s,
@@ -179,6 +181,8 @@ class Model:
             if hit is not None and hit[0] is run:
                 return hit[1]
         x = run.x if x is None else x
+        if self.drive_tau_s > 0:  # the amplifier's own bandwidth (a held command through a first-order lag)
+            x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
         if self.slew_v_per_s:
             x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
         rate = None

@@ -307,7 +307,7 @@ def first_order(command: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
     return c[0] + lfilter([1.0 - a], [1.0, -a], c - c[0])
 
 
-def identify_mode_chain(t_s_list, command_list, y_list) -> ChainFit:
+def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> ChainFit:
     """The mode from steps whose applied drive was not recorded: the drive chain between the
     command and the stack (a slew limit or a first-order bandwidth) is identified with it.
 
@@ -316,8 +316,26 @@ def identify_mode_chain(t_s_list, command_list, y_list) -> ChainFit:
     of the command (sampled, so modelled as linear between samples); the chain with the
     lowest residual wins, the plain command unless another lowers it by 10 % or more (so a
     chain is named only where the steps show it).
+
+    ``chain_from``: other steps ``(t_s_list, command_list, y_list)`` to choose the chain on
+    (steps of every size: a slew limit lengthens a large step's rise, a bandwidth does not,
+    which the small steps alone cannot tell apart); the mode is then fitted on the given
+    (small) steps through the chain chosen there.
     """
     from scipy.optimize import minimize_scalar
+
+    if chain_from is not None:
+        chosen = identify_mode_chain(*chain_from)
+        p = chosen.slew_v_per_s if chosen.chain == "slew" else chosen.tau_s
+        fs_own = [1.0 / float(np.mean(np.diff(np.asarray(t, float)))) for t in t_s_list]
+        if chosen.chain == "none":
+            mode = identify_mode_runs(t_s_list, command_list, y_list, hold="zoh")
+        else:
+            make = slew_limited if chosen.chain == "slew" else first_order
+            mode = identify_mode_runs(
+                t_s_list, [make(c, f, p) for c, f in zip(command_list, fs_own)], y_list, hold="foh"
+            )
+        return ChainFit(mode, chosen.chain, chosen.slew_v_per_s, chosen.tau_s, chosen.candidates)
 
     t_s_list, command_list, y_list = list(t_s_list), list(command_list), list(y_list)
     fs = [1.0 / float(np.mean(np.diff(np.asarray(t, float)))) for t in t_s_list]
