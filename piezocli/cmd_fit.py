@@ -383,9 +383,15 @@ def _fit_error(fit, unit: str) -> str:
     "(default: the drive range is not checked, the rate against the virtual rig's maximum).",
 )
 @click.option("--no-shaper", is_flag=True, help="Leave the input shaper out.")
+@click.option(
+    "--allow-clip",
+    is_flag=True,
+    help="Write the drive even when more than 1 % of the reference is out of the drive range's reach (the output's "
+    "clipped column marks those samples).",
+)
 @_replace_opt
 @reports_errors
-def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, replace) -> None:
+def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, allow_clip, replace) -> None:
     """Turn a reference force (or displacement) trajectory into the actuator drive.
 
     The reference is in the bundle's output unit: column reference_n (N above the preload)
@@ -410,11 +416,13 @@ def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, replace) -> 
         replace=replace,
         rig_limits=char.rig_limits(rig_path),
         rig=str(rig_path) if rig_path else None,
+        allow_clip=allow_clip,
     )
     for w in result.warnings:
         click.echo(f"Warning: {w}", err=True)
     click.echo(
         f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to "
         f"{result.command_v.max():.2f} V"
-        f"{files_mod.kept_note(previous)}"
+        + (f", {result.clipped_samples} clipped (column clipped)" if result.clipped_samples else "")
+        + f"{files_mod.kept_note(previous)}"
     )

@@ -139,6 +139,13 @@ def _rows(text: str | None) -> tuple[int | None, int | None] | None:
     "--delimiter", default="auto", show_default=True, help="auto, comma, tab, semicolon, whitespace or one character."
 )
 @click.option(
+    "--decimal",
+    type=click.Choice(["auto", "point", "comma"]),
+    default="auto",
+    show_default=True,
+    help="Decimal mark of the numbers: auto detects a decimal comma (0,125) with ; or tab separators.",
+)
+@click.option(
     "--header/--no-header", default=None, help="Whether line 1 holds column names  [default: guessed from line 1]"
 )
 @click.option(
@@ -165,6 +172,7 @@ def import_command(
     name: str | None,
     sample_rate_hz: float | None,
     delimiter: str,
+    decimal: str,
     header: bool | None,
     rows_text: str | None,
     keep_time: bool,
@@ -183,6 +191,7 @@ def import_command(
         name=name,
         sample_rate_hz=sample_rate_hz,
         delimiter=None if delimiter == "auto" else delimiter,
+        decimal=decimal,
         header=header,
         rows=_rows(rows_text),
         zero_time=not keep_time,
@@ -196,5 +205,15 @@ def import_command(
         f"Wrote {out}: {len(data)} samples at {run.sample_rate_hz:.6g} Hz ({t[-1] - t[0]:.6g} s), kind {run.kind}, "
         f"from rows {rows[0]}:{rows[1]} of {source.name}; {ranges}"
     )
+    dropped = [
+        f"{n} {what}"
+        for n, what in (
+            (run.meta["import"].get("blank_lines_dropped", 0), "blank line(s)"),
+            (run.meta["import"].get("repeated_headers_dropped", 0), "repeated header line(s)"),
+        )
+        if n
+    ]
+    if dropped:
+        click.echo(f"Note: {' and '.join(dropped)} among the data left out (not samples)", err=True)
     if previous is not None:
         click.echo(f"previous version kept as {previous}")

@@ -11,13 +11,33 @@ import pandas as pd
 from piezopress import units
 from piezopress.acquisition.drive_check import check_drive, check_sample_rate
 from piezopress.analysis.bundle import MAX_OUTPUT, Bundle, BundleError
-from piezopress.analysis.compensation import CompensationResult
+from piezopress.analysis.compensation import UNREACHED_RTOL, CompensationResult
 from piezopress.errors import ImportFormatError
 from piezopress.pipelines.bundle import read_bundle
 from piezopress.pipelines.characterize import DEFAULT_RIG
 from piezopress.pipelines.characterize import rig_limits as limits_of_rig
 from piezopress.pipelines.files import check_output, write_output
 from piezopress.runformat import UNIFORM_RTOL
+
+MAX_CLIP_SHARE = 0.01
+"""Largest share of a reference's samples ``compensate`` clips without ``--allow-clip``."""
+
+
+class ReachError(ImportFormatError):
+    """A reference the bundle's drive range cannot reach on more than :data:`MAX_CLIP_SHARE` of it."""
+
+
+def _clipped_mask(result: CompensationResult) -> np.ndarray:
+    """1 where the drive was clipped or the reference is out of reach, else 0 (the output's ``clipped`` column)."""
+    x = result.stages.get("unclipped_v", result.command_v)
+    mask = (x < result.command_v - 1e-12) | (x > result.command_v + 1e-12)
+    req = next((v for k, v in result.stages.items() if k.startswith("requested_")), None)
+    got = next((v for k, v in result.stages.items() if k.startswith("reachable_")), None)
+    if req is not None and got is not None and req.size == mask.size:
+        miss = np.abs(got - req)
+        scale = max(float(np.ptp(req)), float(np.max(np.abs(req))), 1e-12)
+        mask |= miss > UNREACHED_RTOL * scale
+    return mask.astype(np.int8)
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:
@@ -40,8 +60,17 @@ def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.nd
         r = df[column].to_numpy(dtype=float)
     except ValueError:
         raise ImportFormatError(f"{path}: non-numeric values in t_s or {column}; expected numbers") from None
-    if t.size < 2 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(r))):
-        raise ImportFormatError(f"{path}: {t.size} rows or non-finite values; expected at least 2 finite rows")
+    if t.size < 2:
+        raise ImportFormatError(f"{path}: {t.size} rows; expected at least 2 rows of t_s, {column}")
+    for name, v in (("t_s", t), (column, r)):
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            # row numbers as a spreadsheet shows them: the header is row 1
+            rows = ", ".join(str(int(i) + 2) for i in bad[:5]) + (" ..." if bad.size > 5 else "")
+            raise ImportFormatError(
+                f"{path}: {bad.size} empty or non-finite {name} value(s), at row {rows} (the header is row 1); "
+                "expected a number on every row"
+            )
     if np.max(np.abs(r)) > MAX_OUTPUT:
         raise ImportFormatError(
             f"{path}: {column} reaches {np.max(np.abs(r)):.6g}; expected values within +/-{MAX_OUTPUT:g} (a press's "
@@ -84,6 +113,8 @@ def compensate_file(
     replace: bool = False,
     rig_limits: Any = None,
     rig: str | None = None,
+    allow_clip: bool = False,
+    max_clip_share: float = MAX_CLIP_SHARE,
 ) -> tuple[CompensationResult, Path | None]:
     """The drive for a reference file, written to ``out`` (``t_s``, the reference, ``command_v``);
     returns the result and where the replaced file was kept (``None``: nothing replaced).
@@ -112,7 +143,18 @@ def compensate_file(
             f"{bundle_path}: its compensator gives a non-finite drive for {ref_path}; expected a finite drive (check "
             "the bundle)"
         )
+    share = result.clipped_samples / max(result.command_v.size, 1)
+    if share > max_clip_share and not allow_clip:
+        raise ReachError(
+            f"{ref_path}: {result.clipped_samples} of {result.command_v.size} samples ({100 * share:.1f} %) cannot be "
+            f"reached with {bundle_path} (its drive range is {bundle.settings.drive_min_v:g} to "
+            f"{bundle.settings.drive_max_v:g} V); "
+            f"expected at most {100 * max_clip_share:g} % clipped. Lower the reference, or pass --allow-clip to write "
+            "the clipped drive anyway"
+        )
     check_drive(result.command_v, fs, limits, f"{ref_path} through {bundle_path}")
     frame = pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v})
+    if result.clipped_samples:
+        frame["clipped"] = _clipped_mask(result)
     previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)
     return result, previous

@@ -61,6 +61,7 @@ def import_table(
     name: str | None = None,
     sample_rate_hz: float | None = None,
     delimiter: str | None = None,
+    decimal: str | None = None,
     header: bool | None = None,
     scales: Mapping[str, float] | None = None,
     offsets: Mapping[str, float] | None = None,
@@ -89,6 +90,10 @@ def import_table(
     delimiter : str, optional
         ``"comma"``, ``"tab"``, ``"semicolon"``, ``"whitespace"``, a single character, or
         ``None``/``"auto"`` to pick one from the first line.
+    decimal : str, optional
+        ``"point"`` (``.``), ``"comma"`` (``,``: a European export, with ``;`` or tab between
+        fields), or ``None``/``"auto"``: a comma when the first data line's fields are numbers
+        written with one and the fields are not comma-separated.
     header : bool, optional
         Whether the first line holds column names; ``None`` decides from the first line
         (all text: a header; all numbers: data; a mix: an error asking to say which).
@@ -136,7 +141,9 @@ def import_table(
     offsets = _check_numbers(label, "offset", offsets, columns, nonzero=False)
     lags = _check_lags(label, lag_samples, columns)
 
-    source = _read_table(path, delimiter, header)
+    source = _read_table(
+        path, delimiter, header, DECIMALS.get(decimal, decimal) if isinstance(decimal, str) else decimal
+    )
     delim_name, has_header, skipped, n_cols = source.delim_name, source.header, source.skipped, source.n_cols
     first_line = skipped + (2 if has_header else 1)  # file line of data row 0
 
@@ -205,6 +212,9 @@ def import_table(
         "source_rows": n_rows,
         "source_columns": n_cols,
         "delimiter": delim_name,
+        "decimal": "comma" if source.decimal == "," else "point",
+        "repeated_headers_dropped": source.repeated_headers,
+        "blank_lines_dropped": source.blank_lines,
         "header": has_header,
         "columns": {t: columns[t] for t in KNOWN_COLUMNS if t in columns},
         "column_numbers": {t: index[t] + 1 for t in KNOWN_COLUMNS if t in index},
@@ -363,15 +373,30 @@ def _first_line(path: Path, label: str) -> tuple[str | None, int]:
 
 
 def _split(line: str, sep: str) -> list[str]:
-    return line.split() if sep == r"\s+" else [f.strip() for f in line.split(sep)]
+    """The fields of a line, each without the quotes a spreadsheet puts around it."""
+    fields = line.split() if sep == r"\s+" else [f.strip() for f in line.split(sep)]
+    return [f[1:-1].strip() if len(f) >= 2 and f[0] == f[-1] and f[0] in "\"'" else f for f in fields]
 
 
-def _is_number(text: str) -> bool:
+def _is_number(text: str, decimal: str = ".") -> bool:
     try:
-        float(text)
+        float(text.replace(",", ".") if decimal == "," else text)
     except ValueError:
         return False
     return True
+
+
+#: A number written with a decimal comma (``0,125``, ``-1,5e-3``): a European spreadsheet's or LabVIEW's export.
+_COMMA_NUMBER = __import__("re").compile(r"^[+-]?\d+,\d+([eE][+-]?\d+)?$")
+DECIMALS = {"auto": None, "point": ".", "comma": ","}
+
+
+def _guess_decimal(fields: list[str], sep: str) -> str:
+    """``,`` when the delimiter is not a comma and the fields are numbers with a decimal comma."""
+    if sep == ",":
+        return "."
+    comma = [bool(_COMMA_NUMBER.match(f)) for f in fields if f]
+    return "," if comma and sum(comma) >= max(1, len(comma) // 2) else "."
 
 
 #: Largest source file imported: above it, the reason and what to do (select a segment first).
@@ -383,7 +408,7 @@ CHUNK_ROWS = 100_000
 class _Table:
     """A CSV/TSV source, read a chunk at a time: its delimiter, header and shape."""
 
-    def __init__(self, path: Path, sep: str, delim_name: str, header: bool, skipped: int):
+    def __init__(self, path: Path, sep: str, delim_name: str, header: bool, skipped: int, decimal: str = "."):
         self.path, self.label, self.sep, self.delim_name, self.header, self.skipped = (
             path,
             str(path),
@@ -392,6 +417,10 @@ class _Table:
             header,
             skipped,
         )
+        self.decimal = decimal
+        self.repeated_headers = 0  # a header line repeated among the data (an export appended to): dropped
+        self.blank_lines = 0  # blank lines among the data: dropped
+        self.lines: np.ndarray | None = None
         first = self._read(nrows=1)
         if len(first) == 0:
             raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers")
@@ -429,40 +458,62 @@ class _Table:
 
     def read_columns(self, cols: list[int]) -> tuple[dict[int, np.ndarray], int]:
         """Columns ``cols`` (0-based) of every data row as float64 (NaN where a cell is not a
-        number) and the number of data rows; blank lines at the end are not data."""
+        number) and the number of data rows. Blank lines are not data (those among the data are
+        counted in :attr:`blank_lines`), nor is a repeated header (:attr:`repeated_headers`)."""
         parts: dict[int, list[np.ndarray]] = {c: [] for c in cols}
-        last, offset = -1, 0
+        kept: list[np.ndarray] = []  # the file's line (after the skipped ones) of each kept row
+        offset = 0
         try:
             for chunk in self._read(
                 chunksize=CHUNK_ROWS
             ):  # every field (a line with too many is refused), one chunk at a time
-                filled = (chunk.notna() & (chunk != "")).any(axis=1).to_numpy()
-                if filled.any():
-                    last = offset + int(np.flatnonzero(filled)[-1])
-                for c in cols:
-                    parts[c].append(
-                        pd.to_numeric(chunk[c].astype(str).str.strip(), errors="coerce").to_numpy(dtype=np.float64)
-                    )
+                line = offset + np.arange(len(chunk))
+                keep = (chunk.notna() & (chunk != "")).any(axis=1).to_numpy().copy()
+                if self.header and self.names is not None:  # a header repeated among the data is not data
+                    again = np.ones(len(chunk), bool)
+                    for k, name in enumerate(self.names):
+                        again &= chunk[k].astype(str).str.strip().to_numpy() == name
+                    if offset == 0:
+                        again[0] = False  # the header itself
+                    self.repeated_headers += int(again.sum())
+                    keep &= ~again
                 offset += len(chunk)
+                if not keep.any():
+                    continue
+                chunk = chunk[keep]
+                kept.append(line[keep])
+                for c in cols:
+                    text = chunk[c].astype(str).str.strip()
+                    if self.decimal == ",":
+                        text = text.str.replace(",", ".", regex=False)
+                    parts[c].append(pd.to_numeric(text, errors="coerce").to_numpy(dtype=np.float64))
         except pd.errors.ParserError as exc:
             raise self._parser_error(exc) from None
         except UnicodeDecodeError as exc:
             raise ImportFormatError(
                 f"{self.label}: is not UTF-8 text (byte {exc.start}); expected a CSV/TSV text file"
             ) from None
-        if last < 0:
+        if not kept:
             raise ImportFormatError(f"{self.label}: is empty; expected rows of numbers")
         head = 1 if self.header else 0
-        columns = {c: np.concatenate(parts[c])[head : last + 1] for c in cols}
-        return columns, last + 1 - head
+        lines = np.concatenate(kept)[head:]
+        # blank lines between the first and the last data row (those at the end are not counted)
+        span = int(lines[-1] - lines[0] + 1) if lines.size else 0
+        self.blank_lines = max(span - lines.size - self.repeated_headers, 0)
+        self.lines = lines - head  # data row (counted from 0 after any header, blanks included) of each row
+        columns = {c: np.concatenate(parts[c])[head:] for c in cols}
+        return columns, int(lines.size)
 
     def cell(self, row: int, col: int) -> str:
         """The text of data row ``row``, column ``col`` (0-based), read again for a message."""
-        found = self._read(skiprows=self.skipped + (1 if self.header else 0) + row, nrows=1, usecols=[col])
-        return str(found.iloc[0, 0]).strip() if len(found) else ""
+        if self.lines is not None and 0 <= row < self.lines.size:
+            row = int(self.lines[row])
+        found = self._read(skiprows=self.skipped + (1 if self.header else 0) + row, nrows=1)
+        # a short line has no such field: an empty cell, as the message says
+        return str(found.iloc[0, col]).strip() if len(found) and col < found.shape[1] else ""
 
 
-def _read_table(path: Path, delimiter: str | None, header: bool | None) -> _Table:
+def _read_table(path: Path, delimiter: str | None, header: bool | None, decimal: str | None = None) -> _Table:
     """The source, its delimiter and header decided from its first line, refused above
     :data:`MAX_IMPORT_BYTES`; its columns are read later, streamed."""
     label = str(path)
@@ -490,10 +541,19 @@ def _read_table(path: Path, delimiter: str | None, header: bool | None) -> _Tabl
         else:
             chosen = "whitespace", DELIMITERS["whitespace"]
     delim_name, sep = chosen
+    if decimal not in (None, ".", ","):
+        raise ImportFormatError(f"{label}: decimal {decimal!r}; expected point (.) or comma (,)")
+    if decimal == "," and sep == ",":
+        raise ImportFormatError(
+            f"{label}: a decimal comma with comma-separated fields cannot be read; expected --delimiter semicolon "
+            "(or tab) with --decimal comma"
+        )
+    if decimal is None:
+        decimal = _guess_decimal(_split(_data_line(path, line, skipped), sep), sep)
 
     if header is None:
         fields = [f for f in _split(line, sep) if f]
-        numeric = [_is_number(f) for f in fields]
+        numeric = [_is_number(f, decimal) for f in fields]
         if all(numeric):
             header = False
         elif not any(numeric):
@@ -503,7 +563,16 @@ def _read_table(path: Path, delimiter: str | None, header: bool | None) -> _Tabl
                 f"{label}: line 1 mixes numbers and text ({line[:60]!r}); expected to be told whether it is a header "
                 "(--header/--no-header)"
             )
-    return _Table(path, sep, delim_name, bool(header), skipped)
+    return _Table(path, sep, delim_name, bool(header), skipped, decimal)
+
+
+def _data_line(path: Path, first: str, skipped: int) -> str:
+    """The first line, or the line after it when the first holds text (a header)."""
+    if any(ch.isdigit() for ch in first) and not any(ch.isalpha() and ch not in "eE" for ch in first):
+        return first
+    with open(path, encoding="utf-8-sig") as fh:
+        lines = [ln for _, ln in zip(range(skipped + 2), fh)]
+    return lines[-1].rstrip("\r\n") if len(lines) == skipped + 2 else first
 
 
 def _resolve_column(label: str, target: str, spec: int | str, names: list[str] | None, n_cols: int) -> int:
@@ -542,7 +611,12 @@ def _bad_cell(label: str, cell: str, col: int, target: str, row: int, first_line
     value = pd.to_numeric(pd.Series([cell]), errors="coerce").iloc[0]
     if cell.lower() in _NAN_TEXT or (not np.isnan(value) and not np.isfinite(value)):
         raise ImportFormatError(f"{label}: {cell} {where} ({count} such cell(s)); expected finite numbers")
-    raise ImportFormatError(f"{label}: non-numeric cell {cell[:40]!r} {where}; expected a number")
+    hint = ""
+    if _COMMA_NUMBER.match(cell):
+        hint = " (a number with a decimal comma: give --decimal comma, with --delimiter semicolon or tab)"
+    elif cell.replace(".", "", 1).replace(",", "").lstrip("+-").isdigit() and "," in cell:
+        hint = " (thousands separators are not read: export without them)"
+    raise ImportFormatError(f"{label}: non-numeric cell {cell[:40]!r} {where}; expected a number{hint}")
 
 
 def _uniform_step(label: str, t: np.ndarray, col: int, row0: int, first_line: int) -> tuple[float, float, float]:

@@ -279,6 +279,12 @@ def check_output_dir(out_dir: str | Path, replace: bool = False) -> None:
             f"{out}: already exists and is not empty; choose a new directory, or pass --replace to replace "
             f"an old report (kept as {out.name}.replaced-<UTC time>)"
         )
+    runs = sorted(p.name for p in out.iterdir() if p.suffix == ".parquet" or p.name == "manifest.json")
+    if runs:
+        raise OutputExistsError(
+            f"{out}: holds runs ({', '.join(runs[:3])}{' ...' if len(runs) > 3 else ''}), not only a report; "
+            "refusing to move it aside: choose another --out for the report"
+        )
     if not _is_report_dir(out):
         raise OutputExistsError(
             f"{out}: is not a piezopress report (none of {', '.join(REPORT_FILES)}); refusing to replace it"

@@ -195,7 +195,7 @@ def test_random_peaks_with_a_huge_count_is_refused_without_drawing_them():
                 "kind": "triangle",
                 "freq_hz": 1.0,
                 "sample_rate_hz": 1000.0,
-                "random_peaks": {"count": 10**12, "min_v": 0, "max_v": 100, "seed": 1},
+                "random_peaks": {"count": 10**12, "min_v": 10, "max_v": 100, "seed": 1},
             }
         ],
     }

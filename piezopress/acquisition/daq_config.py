@@ -362,7 +362,7 @@ def read_rig_document(path: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise ConfigError(str(path), ["no such file; expected a rig TOML file (see rigs/)"])
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(str(path), [f"not valid TOML: {exc}"]) from None
 

@@ -128,6 +128,11 @@ def _check_periodic(p: Mapping[str, Any], fs: float) -> list[str]:
         )
     if p.get("cycles") is not None and (not isinstance(p["cycles"], int) or p["cycles"] < 1):
         problems.append(f"key 'cycles' = {p['cycles']!r} must be a whole number of at least 1")
+    if p.get("peaks_v") is None and p.get("random_peaks") is None and p["low_v"] >= p["peak_v"]:
+        problems.append(
+            f"key 'low_v' = {p['low_v']:g} is not below peak_v = {p['peak_v']:g}; expected low_v < peak_v (the sweep "
+            "rises from low_v to peak_v)"
+        )
     return problems
 
 
@@ -144,6 +149,10 @@ def _check_triangle(p: Mapping[str, Any], fs: float) -> list[str]:
             or not all(isinstance(v, _NUM) and not isinstance(v, bool) for v in peaks)
         ):
             problems.append(f"key 'peaks_v' = {peaks!r} must be a non-empty list of voltages")
+        elif min(peaks) <= p["low_v"]:
+            problems.append(
+                f"key 'peaks_v': {min(peaks):g} is not above low_v = {p['low_v']:g}; expected every peak above low_v"
+            )
     rp = p.get("random_peaks")
     if rp is not None:
         need = {"count": int, "min_v": _NUM, "max_v": _NUM, "seed": int}
@@ -161,6 +170,13 @@ def _check_triangle(p: Mapping[str, Any], fs: float) -> list[str]:
                 problems.append(f"key 'random_peaks.count' = {rp['count']} must be at least 1")
             if not problems and rp["min_v"] > rp["max_v"]:
                 problems.append(f"key 'random_peaks': min_v = {rp['min_v']} is above max_v = {rp['max_v']}")
+            if not problems and rp["min_v"] <= p["low_v"]:
+                problems.append(
+                    f"key 'random_peaks': min_v = {rp['min_v']} is not above low_v = {p['low_v']:g}; expected every "
+                    "peak above low_v"
+                )
+            if not problems and rp["seed"] < 0:
+                problems.append(f"key 'random_peaks.seed' = {rp['seed']} is negative; expected a whole number >= 0")
     return problems
 
 
@@ -228,6 +244,8 @@ def _check_random(p: Mapping[str, Any], fs: float) -> list[str]:
         )
     if p["taper_s"] < 0:
         problems.append(f"key 'taper_s' = {p['taper_s']:g} must not be negative")
+    if p["seed"] < 0:
+        problems.append(f"key 'seed' = {p['seed']} is negative; expected a whole number >= 0")
     if p["low_v"] > p["peak_v"]:
         problems.append(f"key 'low_v' = {p['low_v']:g} is above peak_v = {p['peak_v']:g}")
     return problems
@@ -653,7 +671,7 @@ def load_plan(path: str | Path, limits: DriveLimits, unit: str = "V") -> Plan:
     if not path.is_file():
         raise PlanError(str(path), ["no such file; expected a TOML plan (see protocols/)"])
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise PlanError(str(path), [f"not valid TOML: {exc}"]) from None
     return parse_plan(doc, limits, source=str(path), unit=unit)

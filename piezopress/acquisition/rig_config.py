@@ -464,7 +464,7 @@ def load_rig(path: str | Path | None) -> RigConfig:
     if not path.is_file():
         raise ConfigError(str(path), ["no such file; expected a rig TOML file (see rigs/)"])
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        doc = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(str(path), [f"not valid TOML: {exc}"]) from None
     return parse_rig(doc, source=str(path))

@@ -82,6 +82,13 @@ class VirtualRig:
         factor, segments = phys.fine_windows(command_v, sample_rate_hz, self.config)
         info = {"seed": seed, "fine_factor": factor, "fine_segments": sum(1 for s in segments if s[2] > 1)}
         measured = Measurement(channels=channels, info=info)
+        reason = self._over_force(channels.get("force_n"), sample_rate_hz)
+        if reason:
+            # as a real rig's interlock: the run stops at the first sample above the stack's limit
+            stop = int(reason[0])
+            measured = Measurement(
+                channels={k: v[:stop] for k, v in channels.items()}, complete=False, reason=reason[1], info=info
+            )
         if progress is not None:
             try:
                 progress(1.0)
@@ -89,6 +96,20 @@ class VirtualRig:
                 exc.measurement = measured  # type: ignore[attr-defined]
                 raise
         return measured
+
+    def _over_force(self, force_n: np.ndarray | None, sample_rate_hz: float) -> tuple[int, str] | None:
+        """``(first bad sample, why)`` when the force passes the stack's ``max_force_n``, else ``None``."""
+        if force_n is None:
+            return None
+        limit = float(self.limits.max_force_n)
+        bad = ~(np.asarray(force_n, dtype=np.float64) <= limit)
+        if not bad.any():
+            return None
+        i = int(np.argmax(bad))
+        return i, (
+            f"over-force: {force_n[i]:.1f} N at t = {i / sample_rate_hz:.4g} s (sample {i}), above the stack's "
+            f"max_force_n = {limit:g} N; the run was stopped there (lower the drive or the preload)"
+        )
 
     def check_drive(self, command_v: np.ndarray, sample_rate_hz: float, label: str = "drive") -> None:
         """Refuse a drive the rig may not play (the shared check of :mod:`piezopress.acquisition.drive_check`)."""

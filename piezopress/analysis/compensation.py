@@ -309,6 +309,7 @@ class Compensator:
                     notes.append(note)
         # what the drive range cannot reach is asked for as the clipped drive delivers it, so the inverse's
         # operators and the creep compensator follow the drive the press gets (the top of a loop at the range's edge)
+        stages[f"requested_{k}"] = r
         r = reachable(self.hysteresis, self.creep, r, fs_hz, self.drive_min_v, self.drive_max_v)
         stages[f"reachable_{k}"] = r
         if self.creep is not None:
@@ -414,14 +415,54 @@ class Compensator:
         lo, hi = float(x.min()), float(x.max())
         clipped = int(np.count_nonzero((x < self.drive_min_v) | (x > self.drive_max_v)))
         warnings = []
+        unit = self.hysteresis.output_unit
+        unreached, short = _unreached(stages.get(f"requested_{k}", r), stages.get(f"reachable_{k}", r))
+        clipped = max(clipped, unreached)
         if clipped:
+            low_v, high_v = self.drive_min_v, self.drive_max_v
+            asked = f" (requested {lo:.1f} to {hi:.1f} V)" if lo < low_v or hi > high_v else ""
             warnings.append(
-                f"the reference cannot be reached everywhere: {clipped} of {x.size} samples need a drive outside "
-                f"{self.drive_min_v:g} to {self.drive_max_v:g} V (requested {lo:.1f} to {hi:.1f} V); clipped"
+                f"the reference cannot be reached everywhere: {clipped} of {x.size} samples "
+                f"({100.0 * clipped / x.size:.1f} %) need a drive outside {low_v:g} to {high_v:g} V{asked}"
+                + (f", up to {short:.4g} {unit} short of the reference" if short > 0 else "")
+                + "; clipped"
+            )
+        lag = _rate_lag(r, stages.get(f"rate_limited_{k}"))
+        if lag is not None:
+            warnings.append(
+                f"the rate limit ({self.max_rate_per_s:.4g} {unit}/s) keeps the drive from following the reference: "
+                f"{lag:.1f} % of its range behind it (RMS); raise max_rate or slow the reference"
             )
         return CompensationResult(
             np.clip(x, self.drive_min_v, self.drive_max_v), stages, clipped, lo, hi, tuple(warnings), tuple(notes)
         )
+
+
+UNREACHED_RTOL = 0.005
+"""A sample is out of reach when what the clipped drive delivers misses the requested reference
+by more than this share of the reference's range (or of its level, for a constant reference)."""
+
+RATE_LAG_PCT = 5.0
+"""The rate limit is reported when the rate-limited reference trails the reference by more
+than this RMS share of its range."""
+
+
+def _unreached(requested: np.ndarray, delivered: np.ndarray) -> tuple[int, float]:
+    """Samples where the reachable reference misses the requested one, and the largest miss."""
+    requested = np.asarray(requested, float)
+    miss = np.abs(np.asarray(delivered, float) - requested)
+    scale = max(float(np.ptp(requested)), float(np.max(np.abs(requested))), 1e-12)
+    bad = miss > UNREACHED_RTOL * scale
+    return int(np.count_nonzero(bad)), float(np.max(miss[bad])) if bad.any() else 0.0
+
+
+def _rate_lag(r: np.ndarray, limited: np.ndarray | None) -> float | None:
+    """RMS lag of the rate-limited reference (% of the reference's range), when above :data:`RATE_LAG_PCT`."""
+    if limited is None:
+        return None
+    span = max(float(np.ptp(r)), 1e-12)
+    lag = 100.0 * float(np.sqrt(np.mean((np.asarray(limited, float) - r) ** 2))) / span
+    return lag if lag > RATE_LAG_PCT else None
 
 
 def _segments(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -1,0 +1,200 @@
+"""Issue 24, round three: plans (negative seeds, inverted sweeps, a preload that leaves no room,
+a TOML with a byte-order mark), references beyond reach (refused unless ``--allow-clip``, the
+clipped samples marked), a rate limit that stops the drive, a NaN in a reference named by its
+row, imports with blank or short lines, ``report --replace`` aimed at a run directory."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from piezopress.acquisition.plan import DriveLimits, load_plan
+from piezopress.acquisition.virtual_rig import VirtualRig
+from piezopress.errors import PlanError
+from piezopress.piezocli.main import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+BUNDLE = ROOT / "sample_runs" / "bundle.json"
+CHAR = ROOT / "sample_runs" / "characterization"
+
+TRIANGLE = """
+[plan]
+name = "p"
+{head}
+[[protocol]]
+name = "t"
+kind = "triangle"
+freq_hz = 1.0
+cycles = 2
+sample_rate_hz = 1000.0
+{extra}
+"""
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def _plan(tmp_path: Path, extra: str = "", head: str = "", bom: bool = False) -> Path:
+    p = tmp_path / "plan.toml"
+    text = TRIANGLE.format(extra=extra, head=head)
+    p.write_bytes((b"\xef\xbb\xbf" if bom else b"") + text.encode())
+    return p
+
+
+@pytest.mark.parametrize(
+    "extra, named",
+    [
+        ("random_peaks = {count = 2, min_v = 10.0, max_v = 100.0, seed = -1}", "random_peaks.seed' = -1"),
+        ("low_v = 120.0\npeak_v = 60.0", "low_v' = 120 is not below peak_v = 60"),
+        ("low_v = 50.0\npeaks_v = [40.0, 90.0]", "peaks_v': 40 is not above low_v = 50"),
+        ("low_v = 50.0\nrandom_peaks = {count = 2, min_v = 10.0, max_v = 100.0, seed = 1}", "min_v = 10.0 is not"),
+    ],
+)
+def test_a_plan_that_cannot_play_as_written_is_refused_by_name(tmp_path, extra, named):
+    with pytest.raises(PlanError) as err:
+        load_plan(_plan(tmp_path, extra), DriveLimits())
+    assert named in str(err.value)
+
+
+def test_a_random_trajectory_with_a_negative_seed_is_refused(tmp_path):
+    p = tmp_path / "plan.toml"
+    p.write_text(
+        '[plan]\nname = "p"\n[[protocol]]\nname = "r"\nkind = "random"\nduration_s = 10.0\n'
+        "sample_rate_hz = 1000.0\nseed = -5\n"
+    )
+    with pytest.raises(PlanError, match=r"key 'seed' = -5 is negative"):
+        load_plan(p, DriveLimits())
+
+
+def test_a_plan_saved_with_a_byte_order_mark_reads_as_without(tmp_path):
+    with_bom = load_plan(_plan(tmp_path, bom=True), DriveLimits())
+    assert [p.name for p in with_bom.protocols] == ["t"]
+
+
+def test_the_virtual_rig_stops_a_run_at_the_stacks_force_limit():
+    rig = VirtualRig()
+    fs = 1000.0
+    t = np.arange(int(2 * fs)) / fs
+    drive = 150.0 * np.sin(np.pi * t / 2.0) ** 2  # 0 -> 150 V over 1 s, back over the next
+    limit = rig.limits.max_force_n
+    m = rig.run(drive, fs, preload_n=limit - 1.0, label="near-limit")
+    assert not m.complete
+    assert "over-force" in m.reason and f"{limit:g} N" in m.reason
+    assert m.channels["force_n"].size < drive.size
+    assert np.all(m.channels["force_n"] <= limit)  # every kept sample is below the limit
+    assert rig.output_v == 0.0
+    ok = rig.run(drive, fs, preload_n=50.0, label="normal")
+    assert ok.complete and ok.channels["force_n"].size == drive.size
+
+
+def _reference(path: Path, peak: float, nan_at: int | None = None) -> Path:
+    t = np.arange(0, 10, 1e-3)
+    r = peak * 0.5 * (1 - np.cos(2 * np.pi * 0.1 * t))
+    if nan_at is not None:
+        r[nan_at] = np.nan
+    pd.DataFrame({"t_s": t, "reference_n": r}).to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize("peak", [400.0, 4000.0])
+def test_a_reference_beyond_reach_is_refused_unless_allowed_and_the_clipped_samples_are_marked(tmp_path, peak):
+    ref = _reference(tmp_path / "ref.csv", peak)
+    out = tmp_path / "drive.csv"
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", out)
+    assert res.exit_code != 0
+    assert "cannot be reached" in res.output and "--allow-clip" in res.output
+    assert not out.exists()  # nothing written
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", out, "--allow-clip")
+    assert res.exit_code == 0, res.output
+    drive = pd.read_csv(out)
+    share = drive["clipped"].mean()
+    assert share > 0.25  # a third of a 400 N cosine is beyond a ~300 N press, more of a 4000 N one
+    # the marked samples are where the drive sits at the range's top (within the reachability's settling)
+    top = drive["command_v"] >= drive["command_v"].max() - 0.5
+    assert (drive["clipped"].astype(bool) & top).sum() >= 0.9 * drive["clipped"].sum()
+    assert f"{int(drive['clipped'].sum())} clipped" in res.output
+
+
+def test_a_reference_within_reach_has_no_clipped_column(tmp_path):
+    ref = _reference(tmp_path / "ref.csv", 200.0)
+    out = tmp_path / "drive.csv"
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", out)
+    assert res.exit_code == 0, res.output
+    assert "Warning" not in res.output
+    assert list(pd.read_csv(out).columns) == ["t_s", "reference_n", "command_v"]
+
+
+def test_a_rate_limit_that_holds_the_drive_back_is_said(tmp_path):
+    doc = json.loads(BUNDLE.read_text())
+    doc["compensation"]["max_rate_n_per_s"] = 1e-9
+    bundle = tmp_path / "slow.json"
+    bundle.write_text(json.dumps(doc))
+    ref = _reference(tmp_path / "ref.csv", 200.0)
+    res = invoke("compensate", "--bundle", bundle, "--reference", ref, "--out", tmp_path / "d.csv")
+    assert res.exit_code == 0
+    assert "the rate limit (1e-09 N/s) keeps the drive from following the reference" in res.output
+
+
+def test_a_nan_in_a_reference_is_named_by_its_row(tmp_path):
+    ref = _reference(tmp_path / "ref.csv", 200.0, nan_at=2500)
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", tmp_path / "d.csv")
+    assert res.exit_code != 0
+    assert "at row 2502 (the header is row 1)" in res.output
+
+
+def _csv(path: Path, lines: list[str]) -> Path:
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _sine_lines(n: int = 2000) -> list[str]:
+    t = np.arange(n) / 1000.0
+    x = 75 + 75 * np.sin(2 * np.pi * t)
+    return [f"{a:.4f},{b:.4f},{0.2 * b:.4f}" for a, b in zip(t, x)]
+
+
+def test_a_blank_line_among_the_data_is_left_out_and_said(tmp_path):
+    lines = ["t_s,voltage_v,force_n", *_sine_lines()]
+    lines.insert(500, "")
+    src = _csv(tmp_path / "blank.csv", lines)
+    out = tmp_path / "run.parquet"
+    res = invoke(
+        "import", src, "--out", out, "--col", "t_s=t_s", "--col", "command_v=voltage_v", "--col", "force_n=force_n"
+    )
+    assert res.exit_code == 0, res.output
+    assert "1 blank line(s) among the data left out" in res.output
+    from piezopress import runformat
+
+    run = runformat.read_run(out)
+    assert len(run.data) == 2000
+    assert run.meta["import"]["blank_lines_dropped"] == 1
+
+
+def test_a_short_line_is_named_not_a_traceback(tmp_path):
+    lines = _sine_lines()
+    lines[700] = "0.7000,1.0"
+    src = _csv(tmp_path / "short.csv", lines)
+    res = invoke(
+        "import", src, "--out", tmp_path / "r.parquet", "--col", "t_s=1", "--col", "command_v=2", "--col", "force_n=3"
+    )
+    assert res.exit_code == 1
+    assert "empty cell at data row 700 (line 701), column 3 (force_n)" in res.output
+    assert "Traceback" not in res.output
+
+
+def test_report_replace_never_moves_a_run_directory_aside(tmp_path):
+    runs = tmp_path / "runs"
+    shutil.copytree(CHAR, runs)
+    (runs / "report.md").write_text("an old report written into the run directory\n")
+    res = invoke("report", "--characterization", runs, "--out", runs, "--replace")
+    assert res.exit_code != 0
+    assert "holds runs" in res.output
+    assert sorted(p.name for p in runs.iterdir()) == sorted([*(p.name for p in CHAR.iterdir()), "report.md"])
+    assert not list(tmp_path.glob("runs.replaced-*"))
