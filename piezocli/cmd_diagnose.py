@@ -134,7 +134,14 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
     def say(text: str) -> None:
         click.echo(text, err=as_json)
 
-    result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None, on_progress=_progress_printer(as_json))
+    from piezopress.acquisition.backend import stop_signals_interrupt
+
+    if gain:  # checked before the diagnosis's minutes of work, not after
+        from piezopress.pipelines import gain as gain_mod
+
+        gain_mod.rig_of_runs(runs)
+    with stop_signals_interrupt():  # SIGTERM/SIGHUP as Ctrl-C: the directory is marked interrupted
+        result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None, on_progress=_progress_printer(as_json))
     plan = diag.next_plan_info(out)
     say(diag.format_summary(result, plan))
     files = {

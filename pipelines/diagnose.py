@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import replace
+from datetime import UTC
 from pathlib import Path
 from typing import Any
 
@@ -137,9 +138,72 @@ def diagnose(
     runs = diagnosis_runs(loaded)
     if not runs:
         raise dg.H.HysteresisFitError("no runs to diagnose")
+    short = [f"{r.name} ({r.y.size} samples)" for r in runs if r.y.size < MIN_RUN_SAMPLES]
+    if short:
+        raise PiezopressError(
+            f"run {', '.join(short[:5])}{' ...' if len(short) > 5 else ''} too short to diagnose; expected at least "
+            f"{MIN_RUN_SAMPLES} samples per run (a noise floor and a residual need them): leave such runs out"
+        )
     base = checked.forward_model()
     fitted = fitted_run_keys(bundle)
     out = new_output_dir(out_dir)  # refused (or created) before the diagnosis's minutes of work
+    mark_status(out, RUNNING, "started; a diagnosis that stays 'running' did not finish (killed or crashed)")
+    try:
+        result = _diagnose_into(out, paths, bundle_path, checked, loaded, runs, base, fitted, causes, on_progress)
+    except KeyboardInterrupt as exc:
+        mark_status(out, INTERRUPTED, str(exc) or "interrupted by the user (Ctrl-C)")
+        raise
+    except Exception as exc:
+        mark_status(out, FAILED, f"{type(exc).__name__}: {exc}")
+        raise
+    mark_status(out, COMPLETE, "")
+    return result, out
+
+
+#: Fewer samples than this in a run: refused by ``diagnose`` (no noise floor, no residual to read).
+MIN_RUN_SAMPLES = 50
+
+#: ``status.json`` in a diagnosis directory: written first as ``running``, last as ``complete``
+#: (or ``interrupted``/``failed`` with the reason), so a directory left by a killed diagnosis is
+#: never taken for a finished one (``report --diagnosis`` says it is incomplete).
+STATUS_FILE = "status.json"
+RUNNING, COMPLETE, INTERRUPTED, FAILED = "running", "complete", "interrupted", "failed"
+
+
+def mark_status(out: Path, status: str, reason: str) -> None:
+    from datetime import datetime
+
+    now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    write_json_atomic(Path(out) / STATUS_FILE, {"status": status, "reason": reason, "time_utc": now})
+
+
+def read_status(out: str | Path) -> tuple[str, str]:
+    """``(status, reason)`` of a diagnosis directory; one written before the status file existed,
+    with its diagnosis.json, counts as complete."""
+    import json
+
+    path = Path(out) / STATUS_FILE
+    if not path.is_file():
+        return (COMPLETE, "") if (Path(out) / "diagnosis.json").is_file() else (RUNNING, "no status.json")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        return str(doc.get("status", RUNNING)), str(doc.get("reason", ""))
+    except (ValueError, UnicodeDecodeError, AttributeError):
+        return RUNNING, f"{path} unreadable"
+
+
+def _diagnose_into(
+    out: Path,
+    paths: list,
+    bundle_path: str | Path,
+    checked: Bundle,
+    loaded: list[runformat.Run],
+    runs: list[dg.RunData],
+    base: dg.Model,
+    fitted: list[str],
+    causes: list[str] | None,
+    on_progress: Callable[[dg.CauseProgress], None] | None,
+) -> dg.Diagnosis:
     result = dg.diagnose(base, runs, fitted, causes, on_progress)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
@@ -171,7 +235,7 @@ def diagnose(
     )
     (out / "residuals.png").write_bytes(plotting.to_png(bars))
     (out / "residual_traces.png").write_bytes(plotting.to_png(residual_figure(runs, base, result)))
-    return result, out
+    return result
 
 
 #: Residual traces are drawn within this percentile of |residual| (per run kind), times CLIP_MARGIN:

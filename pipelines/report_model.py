@@ -204,6 +204,15 @@ def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
     """The diagnosis section: its summary, the findings, what is unexplained, the residuals."""
     path = Path(path)
     doc_path = path / "diagnosis.json"
+    from piezopress.pipelines.diagnose import COMPLETE, read_status
+
+    status, reason = read_status(path)
+    if status != COMPLETE:
+        missing.append(
+            f"{path}: the diagnosis did not finish ({status}{': ' + reason if reason else ''}); the diagnosis section "
+            "is missing (run `piezopress diagnose` again into a new directory)."
+        )
+        return []
     if not doc_path.is_file():
         missing.append(f"{path}: no diagnosis.json; the diagnosis section is missing (run `piezopress diagnose`).")
         return []

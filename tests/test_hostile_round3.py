@@ -198,3 +198,122 @@ def test_report_replace_never_moves_a_run_directory_aside(tmp_path):
     assert "holds runs" in res.output
     assert sorted(p.name for p in runs.iterdir()) == sorted([*(p.name for p in CHAR.iterdir()), "report.md"])
     assert not list(tmp_path.glob("runs.replaced-*"))
+
+
+# --------------------------------------------------------------------------- diagnose: short runs, interruptions
+
+
+def _short_runs(tmp_path: Path, n: int) -> Path:
+    from piezopress import runformat
+
+    d = tmp_path / "short"
+    d.mkdir()
+    run = runformat.read_run(CHAR / "triangle-1hz.parquet")
+    runformat.write_run(runformat.Run(run.data.iloc[:n].reset_index(drop=True), run.meta), d / "tiny.parquet")
+    return d
+
+
+def test_diagnose_refuses_a_two_sample_run_before_writing_anything(tmp_path):
+    runs = _short_runs(tmp_path, 2)
+    out = tmp_path / "diag"
+    res = invoke("diagnose", runs, "--bundle", ROOT / "sample_runs" / "base-bundle.json", "--out", out)
+    assert res.exit_code == 1
+    assert "(2 samples) too short to diagnose; expected at least 50 samples" in res.output
+    assert not out.exists()
+
+
+def test_diagnose_gain_on_runs_from_elsewhere_is_refused_before_the_diagnosis(tmp_path):
+    from piezopress import runformat
+
+    d = tmp_path / "foreign"
+    d.mkdir()
+    run = runformat.read_run(CHAR / "triangle-1hz.parquet")
+    meta = {k: run.meta[k] for k in ("schema_version", "kind", "name", "sample_rate_hz")}
+    runformat.write_run(runformat.Run(run.data, meta), d / "t.parquet")
+    out = tmp_path / "diag"
+    res = invoke("diagnose", d, "--bundle", ROOT / "sample_runs" / "base-bundle.json", "--out", out, "--gain")
+    assert res.exit_code == 1
+    assert "virtual rig" in res.output
+    assert not out.exists()  # nothing ran, nothing written
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.mark.parametrize("after", [0, 1, 3])
+def test_a_diagnosis_stopped_at_any_cause_leaves_a_directory_the_report_calls_incomplete(tmp_path, after):
+    """Ctrl-C (or SIGTERM, turned into it) after ``after`` causes: status.json says interrupted,
+    and the report leaves the diagnosis out, naming the directory."""
+    from piezopress.pipelines import diagnose as diag
+    from piezopress.pipelines import report as rep
+
+    seen = []
+
+    def progress(p):
+        seen.append(p)
+        if len(seen) > after:
+            raise KeyboardInterrupt("interrupted by SIGTERM")
+
+    out = tmp_path / "diag"
+    with pytest.raises(KeyboardInterrupt):
+        diag.diagnose([CHAR], ROOT / "sample_runs" / "base-bundle.json", out, on_progress=progress)
+    assert diag.read_status(out) == (diag.INTERRUPTED, "interrupted by SIGTERM")
+    report = rep.build_report(None, None, None, out)
+    md = report.markdown()
+    assert "the diagnosis did not finish (interrupted: interrupted by SIGTERM)" in md
+    assert "Diagnosis: what the model gets wrong" not in md
+
+
+def test_a_diagnosis_killed_outright_stays_running_and_is_not_taken_for_finished(tmp_path):
+    """SIGKILL leaves no chance to write: whatever files are there, status.json still says running."""
+    from piezopress.pipelines import diagnose as diag
+    from piezopress.pipelines import report as rep
+
+    out = tmp_path / "diag"
+    shutil.copytree(ROOT / "sample_runs" / "diagnosis", out)
+    diag.mark_status(out, diag.RUNNING, "started")
+    md = rep.build_report(None, None, None, out).markdown()
+    assert "the diagnosis did not finish (running: started)" in md
+    shutil.rmtree(out)
+    shutil.copytree(ROOT / "sample_runs" / "diagnosis", out)  # written before status.json existed: complete
+    assert diag.read_status(out)[0] == diag.COMPLETE
+
+
+def test_a_sigterm_during_diagnose_marks_the_directory_interrupted(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "diag"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "from piezopress.piezocli.main import cli; cli(prog_name='piezopress')",
+            "diagnose",
+            str(CHAR),
+            "--bundle",
+            str(ROOT / "sample_runs" / "base-bundle.json"),
+            "--out",
+            str(out),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while not (out / "status.json").is_file() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    output, _ = proc.communicate(timeout=60)
+    from piezopress.pipelines import diagnose as diag
+
+    status, reason = diag.read_status(out)
+    if proc.returncode == 0:  # finished before the signal came (a fast machine): complete, never half
+        assert status == diag.COMPLETE
+    else:
+        assert proc.returncode == 128 + signal.SIGTERM, output
+        assert (status, reason) == (diag.INTERRUPTED, "interrupted by SIGTERM")
