@@ -22,22 +22,43 @@ from piezopress.pipelines.files import kept_note
     "--out",
     type=click.Path(dir_okay=False, path_type=Path),
     required=True,
-    help="Run file to write: the run with columns predicted and residual added.",
+    help="File to write: for a run, the run with columns predicted and residual added; for a drive CSV, a CSV "
+    "with the predicted output (and its error against the reference).",
 )
 @click.option(
     "--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>)."
 )
 @reports_errors
 def simulate_cmd(run, bundle_path, out, replace) -> None:
-    """Run the bundle's model on a run's measured drive, beside the measurement.
+    """Run the bundle's model on a run's measured drive, beside the measurement; or on a
+    drive file before it goes to the press.
 
     This is "the simulation" diagnose judges: hysteresis, creep, mode and the sensor's
-    low-pass applied to the drive the run applied.
+    low-pass applied to the drive the run applied. Given a CSV (compensate's output, or any
+    file with t_s and command_v), it writes the predicted output above the model's rest,
+    the zero compensate's references use, and its error against the file's reference column.
 
     \b
-    Example:
+    Examples:
       piezopress simulate runs/char/step-100v.parquet --bundle build/bundle.json --out sim.parquet
+      piezopress compensate --bundle build/bundle.json --reference ramp.csv --out drive.csv
+      piezopress simulate drive.csv --bundle build/bundle.json --out predicted.csv
     """
+    if run.suffix.lower() in (".csv", ".txt", ".tsv"):  # a drive file: compensate's output, or any t_s, command_v
+        ds, previous = diag.simulate_drive_file(bundle_path, run, out, replace=replace)
+        u = units.label(ds.unit)
+        pred = ds.frame.iloc[:, list(ds.frame.columns).index(f"predicted_{units.key(ds.unit)}")]
+        zero = (
+            f"on the record's own scale (the model's rest: {ds.rest:.4g} {u})"
+            if ds.absolute
+            else f"above the model's rest ({ds.rest:.4g} {u}, the zero of compensate's references)"
+        )
+        line = f"Wrote {out}: predicted {pred.min():.4g} to {pred.max():.4g} {u} {zero}"
+        if ds.error_rms is not None:
+            held = f"; the model's held-out error {ds.holdout_rms:.3g} {u} RMS" if ds.holdout_rms is not None else ""
+            line += f"; against the reference: {ds.error_rms:.3g} {u} RMS, {ds.error_max:.3g} {u} max{held}"
+        click.echo(line + kept_note(previous))
+        return
     sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace)
     res = sim.data["residual"].to_numpy()
     u = units.label(sim.output_unit)

@@ -253,9 +253,9 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
     "--rig",
     "rig_path",
     type=click.Path(dir_okay=False, path_type=Path),
-    default=char.DEFAULT_RIG,
-    show_default="rigs/thesis-press.toml",
-    help="Rig file: the drive range.",
+    default=None,
+    help="Rig file: the drive range  [default: for imported runs the range the record drove, else "
+    "rigs/thesis-press.toml].",
 )
 @click.option(
     "--base",
@@ -281,14 +281,20 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
       piezopress fit runs/char --out build/bundle.json
       piezopress fit runs/smarthysteresis_150v_1hz.parquet --base --out build/smart-base.json
     """
-    act = char.rig_limits(rig_path)  # the rig file checked, and its drive range, before any fitting
+    act = char.rig_limits(rig_path or char.DEFAULT_RIG)  # the rig file checked, and its drive range, before fitting
     files_mod.check_output(out, replace=replace)
 
     def say(text: str) -> None:
         click.echo(text, err=as_json)
 
     fitted = fit_mod.fit_bundle(
-        runs, act, base=base, skip_s=skip_s, rows=rows, on_stage=lambda stage: say(f"fitting {stage} ...")
+        runs,
+        act if rig_path is not None else None,
+        base=base,
+        skip_s=skip_s,
+        rows=rows,
+        on_stage=lambda stage: say(f"fitting {stage} ..."),
+        record_range=act if rig_path is None else None,
     )
     res = fitted.result
     u = units.label(res.unit)
@@ -314,12 +320,26 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")
     lo, hi = res.drive_v
-    if lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
+    comp = fitted.doc.get("compensation", {})
+    if rig_path is None and fit_mod.runs_from_elsewhere(res):
+        say(
+            f"drive range: {comp.get('drive_min_v', lo):.4g} to {comp.get('drive_max_v', hi):.4g} V, the range the "
+            "record drove (runs from elsewhere, no --rig); pass --rig with the actuator's range to change it"
+        )
+    elif lo < act.drive_min_v - 1e-9 or hi > act.drive_max_v + 1e-9:
         say(
             f"note: the runs drive {lo:.4g} to {hi:.4g} V, beyond the rig's drive range {act.drive_min_v:g} to "
-            f"{act.drive_max_v:g} V ({rig_path}); compensate clips the drive to that range (pass --rig with this "
+            f"{act.drive_max_v:g} V ({rig_path or char.DEFAULT_RIG}); compensate clips the drive to that range (pass "
+            "--rig with this "
             "actuator's range)"
         )
+    checked = bundle_mod.Bundle.from_dict(fitted.doc, str(out))
+    r_lo, r_hi = checked.reach()
+    y0 = checked.hysteresis.y0
+    say(
+        f"rest:       the model's rest output is {y0:.4g} {u} (the zero of references above the rest); the drive range "
+        f"reaches {y0 + r_lo:.4g} to {y0 + r_hi:.4g} {u} ({r_lo:.4g} to {r_hi:.4g} above the rest)"
+    )
     previous = bundle_mod.write_document(fitted.doc, out, replace=replace)
     if as_json:
         say(f"Wrote {out}{files_mod.kept_note(previous)}")
@@ -389,9 +409,17 @@ def _fit_error(fit, unit: str) -> str:
     help="Write the drive even when more than 1 % of the reference is out of the drive range's reach (the output's "
     "clipped column marks those samples).",
 )
+@click.option(
+    "--zero",
+    type=click.Choice(["auto", "rest", "absolute"]),
+    default="auto",
+    show_default=True,
+    help="The reference's zero: rest (above the model's rest output, e.g. N above the preload), absolute (the "
+    "record's own scale), auto (absolute for a bundle fitted on imported runs, else rest).",
+)
 @_replace_opt
 @reports_errors
-def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, allow_clip, replace) -> None:
+def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, allow_clip, zero, replace) -> None:
     """Turn a reference force (or displacement) trajectory into the actuator drive.
 
     The reference is in the bundle's output unit: column reference_n (N above the preload)
@@ -417,12 +445,32 @@ def compensate_cmd(bundle_path, ref_path, out, rig_path, no_shaper, allow_clip, 
         rig_limits=char.rig_limits(rig_path),
         rig=str(rig_path) if rig_path else None,
         allow_clip=allow_clip,
+        zero=zero,
     )
     for w in result.warnings:
         click.echo(f"Warning: {w}", err=True)
+    for n in result.notes:
+        click.echo(f"Note: {n}", err=True)
     click.echo(
         f"Wrote {out}: {result.command_v.size} samples, drive {result.command_v.min():.2f} to "
         f"{result.command_v.max():.2f} V"
         + (f", {result.clipped_samples} clipped (column clipped)" if result.clipped_samples else "")
         + f"{files_mod.kept_note(previous)}"
+    )
+    from piezopress import units
+    from piezopress.pipelines.bundle import read_bundle
+
+    b = read_bundle(bundle_path)
+    u = units.label(b.unit)
+    lim = char.rig_limits(rig_path) if rig_path else None
+    lo, hi = b.reach(*((lim.drive_min_v, lim.drive_max_v) if lim is not None else ()))
+    rest = b.hysteresis.y0
+    if comp_mod.reference_zero(b, zero) == comp_mod.ABSOLUTE:
+        where = f"on the record's own scale (absolute); the model's rest is {rest:.4g} {u}, it reaches {rest + lo:.4g} "
+        where += f"to {rest + hi:.4g} {u}"
+    else:
+        where = f"above the model's rest ({rest:.4g} {u}); it reaches {lo:.4g} to {hi:.4g} {u} above it"
+    click.echo(
+        f"The reference is read {where}. Check the drive on the model before the press:\n"
+        f"  piezopress simulate {out} --bundle {bundle_path} --out {out.with_name(out.stem + '-predicted.csv')}"
     )

@@ -183,6 +183,25 @@ def trust_metadata_option() -> click.Option:
     )
 
 
+def _allow_mixed_rigs(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    from piezopress.pipelines import sources
+
+    sources.allow_mixed_rigs(value)
+    ctx.call_on_close(lambda: sources.allow_mixed_rigs(False))
+
+
+def allow_mixed_rigs_option() -> click.Option:
+    return click.Option(
+        ["--allow-mixed-rigs"],
+        is_flag=True,
+        expose_value=False,
+        is_eager=True,
+        callback=_allow_mixed_rigs,
+        help="Join runs recorded on different presses (their rig configurations differ); without it they are "
+        "refused, naming which run comes from which press.",
+    )
+
+
 class LazyGroup(click.Group):
     """A group whose commands are imported on first use (see :data:`COMMANDS`)."""
 
@@ -204,6 +223,7 @@ class LazyGroup(click.Group):
         ):
             cmd.params.append(accept_incomplete_option())
             cmd.params.append(trust_metadata_option())
+            cmd.params.append(allow_mixed_rigs_option())
         return cmd
 
     def format_commands(self, ctx, formatter):

@@ -19,6 +19,7 @@ from piezopress import runformat
 from piezopress.analysis.bundle import BUNDLE_VERSION, SECTIONS, Bundle, BundleError, check_section
 from piezopress.pipelines.files import run_files, utc_now, write_json_atomic, write_output
 from piezopress.pipelines.profiles import read_measured
+from piezopress.pipelines.sources import check_one_rig, rig_identity
 
 
 def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> list[runformat.Run]:
@@ -39,6 +40,7 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
         else:
             raise BundleError(f"{p}: no such file or directory; expected run files or a run directory")
     runs = [read_measured(f) for f in files]
+    check_one_rig(runs)
     wanted = list(names)
     if wanted:
         have = {r.name for r in runs}
@@ -50,9 +52,14 @@ def collect_runs(paths: Iterable[str | Path], *, names: Iterable[str] = ()) -> l
 
 
 def provenance(runs: Iterable[runformat.Run]) -> list[dict[str, Any]]:
-    return [
-        {"name": r.name, "file": str(r.path), "sha256": runformat.sha256_file(r.path) if r.path else None} for r in runs
-    ]
+    """Each run's name, file, sha256 and, where it names one, its press (:func:`rig_identity`'s digest)."""
+    out = []
+    for r in runs:
+        entry = {"name": r.name, "file": str(r.path), "sha256": runformat.sha256_file(r.path) if r.path else None}
+        ident = rig_identity(r.meta)
+        entry["rig"] = ident.digest if ident is not None else None  # None: a run from elsewhere, no press recorded
+        out.append(entry)
+    return out
 
 
 def inputs_digest(

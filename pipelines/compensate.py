@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,20 @@ def _clipped_mask(result: CompensationResult) -> np.ndarray:
         scale = max(float(np.ptp(req)), float(np.max(np.abs(req))), 1e-12)
         mask |= miss > UNREACHED_RTOL * scale
     return mask.astype(np.int8)
+
+
+REST, ABSOLUTE = "rest", "absolute"
+
+
+def reference_zero(bundle: Bundle, zero: str | None) -> str:
+    """Where a reference's zero is: ``rest`` (the model's rest output: force above the preload,
+    as the thesis's references) or ``absolute`` (the record's own scale); ``None`` chooses
+    ``absolute`` for a bundle fitted on runs from elsewhere (imported), ``rest`` otherwise."""
+    if zero is None or zero == "auto":
+        return ABSOLUTE if bundle.from_elsewhere else REST
+    if zero not in (REST, ABSOLUTE):
+        raise ImportFormatError(f"zero {zero!r}; expected rest, absolute or auto")
+    return zero
 
 
 def read_reference(path: str | Path, column: str = "reference_n") -> tuple[np.ndarray, np.ndarray, float]:
@@ -115,6 +130,7 @@ def compensate_file(
     rig: str | None = None,
     allow_clip: bool = False,
     max_clip_share: float = MAX_CLIP_SHARE,
+    zero: str | None = None,
 ) -> tuple[CompensationResult, Path | None]:
     """The drive for a reference file, written to ``out`` (``t_s``, the reference, ``command_v``);
     returns the result and where the replaced file was kept (``None``: nothing replaced).
@@ -128,16 +144,31 @@ def compensate_file(
     out = Path(out)
     check_output(out, replace=replace)
     bundle = read_bundle(bundle_path)
-    if rig_limits is not None and rig is not None:
-        bundle.check_drive_range(rig_limits.drive_min_v, rig_limits.drive_max_v, rig)
+    limits = rig_limits if rig_limits is not None else limits_of_rig(DEFAULT_RIG)
+    s = bundle.settings
+    range_note = ""
+    if rig is None:  # no rig named: the range fixed into the bundle at fit time
+        limits = dataclasses.replace(limits, drive_min_v=s.drive_min_v, drive_max_v=s.drive_max_v)
+    elif (limits.drive_min_v, limits.drive_max_v) != (s.drive_min_v, s.drive_max_v):
+        range_note = (
+            f"the drive range is the rig's, {limits.drive_min_v:g} to {limits.drive_max_v:g} V ({rig}), not the "
+            f"bundle's {s.drive_min_v:g} to {s.drive_max_v:g} V"
+        )
     ref_path = Path(ref_path)
     _reference_unit(ref_path, bundle)
     column = reference_column(bundle)
-    t, r, fs = read_reference(ref_path, column)
-    limits = rig_limits if rig_limits is not None else limits_of_rig(DEFAULT_RIG)
+    t, r_given, fs = read_reference(ref_path, column)
+    zero = reference_zero(bundle, zero)
+    rest = float(bundle.hysteresis.y0)
+    r = r_given - rest if zero == ABSOLUTE else r_given
     check_sample_rate(fs, limits, str(ref_path))
     bundle.check_reference(t.size, fs, str(ref_path))
-    result = bundle.compensator(use_shaper=use_shaper).drive(r, fs)
+    comp = dataclasses.replace(
+        bundle.compensator(use_shaper=use_shaper), drive_min_v=limits.drive_min_v, drive_max_v=limits.drive_max_v
+    )
+    result = comp.drive(r, fs)
+    if range_note:
+        result = dataclasses.replace(result, notes=(range_note, *result.notes))
     if not np.all(np.isfinite(result.command_v)):
         raise BundleError(
             f"{bundle_path}: its compensator gives a non-finite drive for {ref_path}; expected a finite drive (check "
@@ -147,13 +178,15 @@ def compensate_file(
     if share > max_clip_share and not allow_clip:
         raise ReachError(
             f"{ref_path}: {result.clipped_samples} of {result.command_v.size} samples ({100 * share:.1f} %) cannot be "
-            f"reached with {bundle_path} (its drive range is {bundle.settings.drive_min_v:g} to "
-            f"{bundle.settings.drive_max_v:g} V); "
+            f"reached with {bundle_path} (the drive range is {limits.drive_min_v:g} to "
+            f"{limits.drive_max_v:g} V); "
             f"expected at most {100 * max_clip_share:g} % clipped. Lower the reference, or pass --allow-clip to write "
             "the clipped drive anyway"
         )
     check_drive(result.command_v, fs, limits, f"{ref_path} through {bundle_path}")
-    frame = pd.DataFrame({"t_s": t, column: r, "command_v": result.command_v})
+    frame = pd.DataFrame({"t_s": t, column: r_given, "command_v": result.command_v})
+    if zero == ABSOLUTE:  # the reference on the record's scale: its zero written beside it (simulate reads it)
+        frame[f"rest_{units.key(bundle.unit)}"] = rest
     if result.clipped_samples:
         frame["clipped"] = _clipped_mask(result)
     previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from datetime import UTC
 from pathlib import Path
 from typing import Any
@@ -64,6 +64,76 @@ def simulate_file(
     meta = {**run.meta, "simulated_with": {"bundle": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)}}
     sim = runformat.make_run(cols, meta)
     previous = write_output(out, lambda tmp: runformat.write_run(sim, tmp), replace=replace)
+    return sim, previous
+
+
+@dataclass(frozen=True)
+class DriveSimulation:
+    """``simulate`` on a drive file: the model's output for the drive, on the reference's zero."""
+
+    frame: Any  # pandas DataFrame written to the output
+    unit: str
+    rest: float  # the model's rest output (the zero of references and of ``predicted``, unless absolute)
+    absolute: bool  # predicted (and the reference) on the record's own scale
+    error_rms: float | None  # against the file's reference column, when it has one
+    error_max: float | None
+    holdout_rms: float | None  # the bundle's own held-out error, for comparison
+
+
+def simulate_drive_file(
+    bundle_path: str | Path, drive_path: str | Path, out: str | Path, *, replace: bool = False
+) -> tuple[DriveSimulation, Path | None]:
+    """The bundle's model on a drive file (``compensate``'s CSV, or any CSV with ``t_s`` and
+    ``command_v``), written as CSV: the drive, the predicted output above the model's rest
+    (``predicted_n``/``predicted_um``: the zero ``compensate``'s references use) and, when the
+    file has the reference column, ``error_...`` = predicted - reference."""
+    import pandas as pd
+
+    from piezopress.errors import ImportFormatError
+    from piezopress.pipelines.compensate import read_reference, reference_column
+
+    check_output(out, replace=replace)
+    bundle = read_bundle(bundle_path)
+    drive_path = Path(drive_path)
+    t, x, fs = read_reference(drive_path, "command_v")
+    ref_col = reference_column(bundle)
+    k = units.key(bundle.unit)
+    try:
+        header = list(pd.read_csv(drive_path, nrows=0).columns)
+    except Exception:  # read_reference read it: cannot happen
+        header = []
+    ref = read_reference(drive_path, ref_col)[1] if ref_col in header else None
+    for other in units.LABELS:
+        col = f"reference_{units.key(other)}"
+        if col in header and col != ref_col:
+            raise ImportFormatError(
+                f"{drive_path}: column {col} is a {units.quantity(other)} reference; {bundle_path} models "
+                f"{units.quantity(bundle.unit)} (expected {ref_col})"
+            )
+    model = bundle.forward_model()
+    rest = float(bundle.hysteresis.y0)
+    absolute = f"rest_{k}" in header  # compensate --zero absolute wrote the reference on the record's scale
+    pred = model.predict(dg.RunData(drive_path.stem, "custom", t, x, np.zeros_like(x), fs)) - (
+        0.0 if absolute else rest
+    )
+    cols: dict[str, np.ndarray] = {"t_s": t, "command_v": x}
+    err_rms = err_max = None
+    if ref is not None:
+        cols[ref_col] = ref
+    cols[f"predicted_{k}"] = pred
+    if absolute:
+        cols[f"rest_{k}"] = np.full(t.size, rest)
+    if ref is not None:
+        err = pred - ref
+        cols[f"error_{k}"] = err
+        err_rms, err_max = float(np.sqrt(np.mean(err**2))), float(np.max(np.abs(err)))
+    frame = pd.DataFrame(cols)
+    fit = (bundle.to_dict().get("hysteresis") or {}).get("fit") or {}
+    held = fit.get(f"holdout_rms_{k}")
+    previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)
+    sim = DriveSimulation(
+        frame, bundle.unit, rest, absolute, err_rms, err_max, float(held) if isinstance(held, (int, float)) else None
+    )
     return sim, previous
 
 

@@ -751,6 +751,12 @@ class FittedBundle:
         return Bundle.from_dict(self.doc, "the fitted bundle")
 
 
+def runs_from_elsewhere(res: FitAll) -> bool:
+    """True when every run the hysteresis was fitted on names no press (imported, another program's)."""
+    runs = (res.sections.get("hysteresis") or {}).get("runs") or []
+    return bool(runs) and all(isinstance(r, dict) and r.get("rig", 0) is None for r in runs)
+
+
 def fit_bundle(
     runs: Iterable[str | Path],
     limits: Any = None,
@@ -761,18 +767,29 @@ def fit_bundle(
     rows: tuple[int | None, int | None] | None = None,
     max_rate_per_s: float | None = None,
     on_stage: Callable[[str], None] | None = None,
+    record_range: Any = None,
 ) -> FittedBundle:
     """``piezopress fit``: every stage the runs allow (:func:`fit_all`), assembled with the
     compensation settings into a bundle, which is checked as any bundle read from a file.
 
     ``limits``: the rig's drive range (``drive_min_v``, ``drive_max_v``; e.g.
-    :func:`piezopress.pipelines.characterize.rig_limits`), ``None``: 0 to 150 V. ``shaper=False``
+    :func:`piezopress.pipelines.characterize.rig_limits`), ``None``: 0 to 150 V. With
+    ``record_range`` (limits to fall back on) and no ``limits``, runs from elsewhere (no press
+    recorded) give the range the record drove, and our own runs ``record_range``. ``shaper=False``
     leaves the shaper section out (a model of the press's static and slow behaviour only).
     """
     res = fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=on_stage, shaper=shaper)
-    drive = (
-        {} if limits is None else {"drive_min_v": float(limits.drive_min_v), "drive_max_v": float(limits.drive_max_v)}
-    )
+    if record_range is not None and runs_from_elsewhere(res):
+        # no rig named, runs from elsewhere: the actuator's range is the one the record drove
+        limits = None
+        drive = {"drive_min_v": float(res.drive_v[0]), "drive_max_v": float(res.drive_v[1])}
+    else:
+        limits = record_range if limits is None and record_range is not None else limits
+        drive = (
+            {}
+            if limits is None
+            else {"drive_min_v": float(limits.drive_min_v), "drive_max_v": float(limits.drive_max_v)}
+        )
     doc = assemble(res.sections, compensation_settings(res.sections, max_rate_per_s=max_rate_per_s, **drive))
     Bundle.from_dict(doc, "the fitted bundle")  # a bundle that would not be read back is never written
     return FittedBundle(doc, res)

@@ -55,6 +55,12 @@ def measured(run: runformat.Run) -> runformat.Run:
         meta["recorded_kind"] = run.meta.get("kind")
         meta["kind"] = kind
     data = run.data
+    if p.saturated:
+        note(
+            f"{label}: {run.output_column} sits at {p.saturated_at:.6g} for {100 * p.saturated:.1f} % of its samples "
+            "(a saturated sensor or ADC at its limit); those samples are not measurements: lower the drive, or "
+            "re-range the sensor"
+        )
     if p.glitches:
         col = run.output_column
         g = list(p.glitches)

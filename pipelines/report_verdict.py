@@ -15,7 +15,6 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import re
 from collections import defaultdict
@@ -31,6 +30,7 @@ from piezopress.pipelines.files import MANIFEST, read_manifest
 from piezopress.pipelines.report_doc import Block, Heading, Para, Table
 from piezopress.pipelines.report_inputs import _freq, _Source
 from piezopress.pipelines.report_tables import _num, _Row613
+from piezopress.pipelines.sources import check_one_rig, config_digest
 
 #: piezopress's targets for the controlled Table 6.13 figures (%): the acceptance of issue 4,
 #: which tests/test_compensation_acceptance.py asserts on the virtual rig (thesis beside each:
@@ -227,11 +227,6 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def config_digest(config: Any) -> str:
-    """sha256 of a rig configuration as the runs recorded it (canonical JSON)."""
-    return hashlib.sha256(json.dumps(config, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
-
-
 def consistency_warnings(bundle_path: Path | None, char: _Source | None, val: _Source | None) -> list[Warning_]:
     """Runs validated with another bundle than the one given; runs from different rigs."""
     out = []
@@ -251,8 +246,10 @@ def consistency_warnings(bundle_path: Path | None, char: _Source | None, val: _S
                     len(other),
                 )
             )
+    runs = _all_runs(char, val)
+    check_one_rig(runs, "the characterization and validation runs")  # refused unless --allow-mixed-rigs
     rigs: dict[str, list[str]] = defaultdict(list)
-    for r in _all_runs(char, val):
+    for r in runs:
         rigs[config_digest(runformat.meta_get(r.meta, "rig", "config"))[:DIGEST_CHARS]].append(r.name)
     if len(rigs) > 1:
         out.append(

@@ -24,6 +24,7 @@ from piezopress.pipelines.characterize import (
     execute_plan,
     make_backend,
 )
+from piezopress.pipelines.sources import rig_identity
 from piezopress.resources import shipped
 
 DEFAULT_VALIDATION_PLAN = shipped("protocols", "validate.toml")
@@ -73,6 +74,9 @@ def validate(
             use_creep=use_creep,
         )
     bundle_sha = runformat.sha256_file(bundle_path)
+    other = other_press_note(checked.to_dict(), backend, str(bundle_path))
+    if other and on_warning:
+        on_warning(other)
 
     def compensated(proto: Protocol) -> Drive:
         t, ref = proto.waveform()
@@ -117,4 +121,30 @@ def validate(
     )
 
 
-__all__ = ["validate", "DEFAULT_VALIDATION_PLAN"]
+def other_press_note(bundle: dict, backend: Backend, bundle_label: str) -> str:
+    """A line when the bundle's runs were not recorded on the press ``backend`` plays ('' : they were)."""
+    try:
+        here = rig_identity({"rig": backend.describe()})
+    except Exception:  # a backend whose describe() fails: nothing to compare with
+        return ""
+    fitted = [
+        r
+        for sec in ("hysteresis", "creep", "shaper")
+        for r in (bundle.get(sec) or {}).get("runs", []) or []
+        if isinstance(r, dict)
+    ]
+    fitted = [r for r in fitted if "rig" in r]  # bundles fitted before the press was recorded: nothing to say
+    if here is None or not fitted:
+        return ""
+    digests = {r.get("rig") for r in fitted}
+    if here.digest in digests:
+        return ""
+    known = sorted(d for d in digests if isinstance(d, str))
+    where = f"on another press (rig {', '.join(known)})" if known else "on runs from elsewhere (no press recorded)"
+    return (
+        f"{bundle_label} was fitted {where}, not on this one ({here.label}): the validation measures that model on "
+        "this press, not this press's own model"
+    )
+
+
+__all__ = ["validate", "DEFAULT_VALIDATION_PLAN", "other_press_note"]

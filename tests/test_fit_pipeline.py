@@ -138,6 +138,18 @@ def test_compensate_writes_the_drive_and_warns_when_unreachable(runs, tmp_path):
     res = invoke(
         "compensate", "--bundle", tmp_path / "b.json", "--reference", tmp_path / "big.csv", "--out", tmp_path / "d2.csv"
     )
+    assert res.exit_code == 1 and "cannot be reached" in res.output and "--allow-clip" in res.output
+    assert not (tmp_path / "d2.csv").exists()
+    res = invoke(
+        "compensate",
+        "--bundle",
+        tmp_path / "b.json",
+        "--reference",
+        tmp_path / "big.csv",
+        "--out",
+        tmp_path / "d2.csv",
+        "--allow-clip",
+    )
     assert res.exit_code == 0 and "cannot be reached" in res.output
     assert pd.read_csv(tmp_path / "d2.csv").command_v.max() <= 150.0
     pd.DataFrame({"time": t}).to_csv(tmp_path / "bad.csv", index=False)

@@ -317,3 +317,132 @@ def test_a_sigterm_during_diagnose_marks_the_directory_interrupted(tmp_path):
     else:
         assert proc.returncode == 128 + signal.SIGTERM, output
         assert (status, reason) == (diag.INTERRUPTED, "interrupted by SIGTERM")
+
+
+# --------------------------------------------------------------------------- a saturated sensor
+
+
+def test_a_reading_pinned_at_the_adcs_limit_is_named_a_held_quantised_one_is_not():
+    from piezopress import runformat
+    from piezopress.analysis import profile as prof
+
+    run = runformat.read_run(CHAR / "triangle-0.1hz.parquet")
+    for q in (0.01, 0.5, 0.7):
+        pinned = np.minimum(run.output, np.quantile(run.output, q))
+        share, at = prof.saturation(pinned, run.command_v)
+        assert share == pytest.approx(1 - q, abs=0.02) and at == pytest.approx(np.quantile(run.output, q))
+    # every sample set of the project's own runs: steps and holds read on one code are not saturation
+    for f in sorted((ROOT / "sample_runs").glob("*/*.parquet")):
+        r = runformat.read_run(f)
+        assert prof.saturation(r.output, r.command_v) == (0.0, None), f.name
+
+
+def test_fit_says_when_the_force_is_pinned_at_the_sensors_limit(tmp_path):
+    from piezopress import runformat
+
+    d = tmp_path / "runs"
+    d.mkdir()
+    for name in ("triangle-0.1hz", "triangle-1hz"):
+        run = runformat.read_run(CHAR / f"{name}.parquet")
+        data = run.data.copy()
+        data["force_n"] = np.minimum(data["force_n"], np.quantile(data["force_n"], 0.01))
+        runformat.write_run(runformat.Run(data, run.meta), d / f"{name}.parquet")
+    res = invoke("fit-hysteresis", d, "--out", tmp_path / "h.json")
+    assert "force_n sits at" in res.output and "a saturated sensor or ADC" in res.output
+
+
+def test_a_whole_bundle_given_as_a_section_is_named_as_one(tmp_path):
+    res = invoke("bundle", "--hysteresis", BUNDLE, "--out", tmp_path / "b.json")
+    assert res.exit_code == 1
+    assert "is a whole bundle, not a hysteresis section" in res.output and "None" not in res.output
+    creep_only = tmp_path / "creep.json"
+    creep_only.write_text(
+        json.dumps({"bundle_version": json.loads(BUNDLE.read_text())["bundle_version"], "section": "creep"})
+    )
+    res = invoke("bundle", "--hysteresis", creep_only, "--out", tmp_path / "b.json")
+    assert "has section 'creep'; expected a hysteresis section" in res.output
+
+
+# --------------------------------------------------------------------------- runs of two presses
+
+
+def _other_press(tmp_path: Path, names: list[str], change: str = "stiffness") -> Path:
+    """Copies of some runs, as if recorded on another press (one number of its configuration changed),
+    or on the same press with another noise seed (``change='seed'``)."""
+    import copy
+
+    from piezopress import runformat
+
+    d = tmp_path / f"other-{change}"
+    d.mkdir()
+    for n in names:
+        run = runformat.read_run(CHAR / f"{n}.parquet")
+        meta = copy.deepcopy(run.meta)
+        cfg = meta["rig"]["config"]
+        if change == "seed":
+            cfg["rig"]["seed"] = int(cfg["rig"].get("seed", 0)) + 7
+        else:
+            section = next(k for k, v in cfg.items() if isinstance(v, dict) and k != "rig")
+            key = next(k for k, v in cfg[section].items() if isinstance(v, float))
+            cfg[section][key] = cfg[section][key] * 1.1 + 1.0
+        runformat.write_run(runformat.Run(run.data, meta), d / f"{n}.parquet")
+    return d
+
+
+def test_fit_refuses_runs_of_two_presses_naming_each_unless_allowed(tmp_path):
+    other = _other_press(tmp_path, ["triangle-1hz"])
+    args = ["fit-hysteresis", CHAR / "triangle-0.1hz.parquet", other / "triangle-1hz.parquet"]
+    res = invoke(*args, "--out", tmp_path / "h.json")
+    assert res.exit_code == 1
+    assert "come from 2 presses" in res.output and "--allow-mixed-rigs" in res.output
+    assert "triangle-0.1hz.parquet" in res.output and "triangle-1hz.parquet" in res.output
+    res = invoke(*args, "--out", tmp_path / "h.json", "--allow-mixed-rigs")
+    assert res.exit_code == 0, res.output
+
+
+def test_another_noise_seed_or_a_run_from_elsewhere_is_the_same_press(tmp_path):
+    from piezopress import runformat
+    from piezopress.pipelines.sources import check_one_rig
+
+    same = _other_press(tmp_path, ["triangle-1hz"], change="seed")
+    run = runformat.read_run(CHAR / "triangle-0.1hz.parquet")
+    foreign = runformat.Run(run.data, {k: run.meta[k] for k in ("schema_version", "kind", "name", "sample_rate_hz")})
+    check_one_rig([run, runformat.read_run(same / "triangle-1hz.parquet"), foreign])  # no error
+
+
+def test_diagnose_refuses_runs_of_two_presses(tmp_path):
+    other = _other_press(tmp_path, ["triangle-1hz"])
+    res = invoke(
+        "diagnose", CHAR, other, "--bundle", ROOT / "sample_runs" / "base-bundle.json", "--out", tmp_path / "d"
+    )
+    assert res.exit_code == 1 and "come from 2 presses" in res.output
+    assert not (tmp_path / "d").exists()
+
+
+def test_report_refuses_a_validation_of_another_press_unless_allowed(tmp_path):
+    other = _other_press(tmp_path, ["triangle-1hz", "triangle-0.1hz"])
+    res = invoke("report", "--characterization", CHAR, "--validation", other, "--out", tmp_path / "rep")
+    assert res.exit_code == 1 and "come from 2 presses" in res.output
+    res = invoke(
+        "report", "--characterization", CHAR, "--validation", other, "--out", tmp_path / "rep", "--allow-mixed-rigs"
+    )
+    assert "come from 2 presses" not in res.output
+
+
+def test_validate_says_when_the_bundle_was_fitted_on_another_press(tmp_path):
+    from piezopress.acquisition.virtual_rig import VirtualRig
+    from piezopress.pipelines.validate import other_press_note
+
+    rig = VirtualRig()
+    here = {"rig": rig.describe()}
+    from piezopress.pipelines.sources import rig_identity
+
+    ident = rig_identity(here)
+    own = {"hysteresis": {"runs": [{"name": "t", "rig": ident.digest}]}}
+    assert other_press_note(own, rig, "b.json") == ""
+    elsewhere = {"hysteresis": {"runs": [{"name": "t", "rig": None}]}}
+    assert "fitted on runs from elsewhere" in other_press_note(elsewhere, rig, "b.json")
+    other = {"hysteresis": {"runs": [{"name": "t", "rig": "0123456789ab"}]}}
+    assert "on another press (rig 0123456789ab)" in other_press_note(other, rig, "b.json")
+    legacy = {"hysteresis": {"runs": [{"name": "t"}]}}  # fitted before presses were recorded: nothing to say
+    assert other_press_note(legacy, rig, "b.json") == ""

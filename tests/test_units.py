@@ -178,12 +178,27 @@ def test_compensate_takes_a_reference_in_um(fitted, work):
     assert (model.y0 + ref).min() < 0.0  # reaches negative displacements
     pd.DataFrame({"t_s": t, "reference_um": ref}).to_csv(work / "ref_um.csv", index=False)
     out = invoke(
-        "compensate", "--bundle", str(path), "--reference", str(work / "ref_um.csv"), "--out", str(work / "drive.csv")
+        "compensate",
+        "--bundle",
+        str(path),
+        "--reference",
+        str(work / "ref_um.csv"),
+        "--out",
+        str(work / "drive.csv"),
+        "--zero",
+        "rest",
     )
-    assert "Wrote" in out and "Warning" not in out
+    assert "Wrote" in out and "Warning" not in out and "above the model's rest" in out
     drive = pd.read_csv(work / "drive.csv")
     assert list(drive.columns) == ["t_s", "reference_um", "command_v"]
     np.testing.assert_allclose(drive.command_v, target_v, atol=1e-5)  # the exact inverse, no clip of the output
+    # the bundle comes from an imported record: by default its references are on the record's own scale
+    pd.DataFrame({"t_s": t, "reference_um": model.y0 + ref}).to_csv(work / "ref_abs.csv", index=False)
+    out = invoke(
+        "compensate", "--bundle", str(path), "--reference", str(work / "ref_abs.csv"), "--out", str(work / "d_abs.csv")
+    )
+    assert "on the record's own scale (absolute)" in out and "Warning" not in out
+    np.testing.assert_allclose(pd.read_csv(work / "d_abs.csv").command_v, target_v, atol=1e-5)
     # a force reference does not fit a displacement bundle: the error names the column it needs
     pd.DataFrame({"t_s": t, "reference_n": ref}).to_csv(work / "ref_n.csv", index=False)
     res = CliRunner().invoke(

@@ -403,7 +403,13 @@ def check_section(kind: str, doc: Any, source: str) -> None:
     if doc.get("bundle_version") != BUNDLE_VERSION:
         c.fail("bundle_version", doc.get("bundle_version"), f"{BUNDLE_VERSION} (this software's schema)")
     if doc.get("section") != kind:
-        c.fail("section", doc.get("section"), f"{kind!r}")
+        if doc.get("section") is None and kind in doc and "hysteresis" in doc:
+            raise BundleError(
+                f"{source}: is a whole bundle, not a {kind} section; expected the file `piezopress fit-{kind}` "
+                f"writes (a whole bundle is used as it is: pass it as --bundle to compensate, validate or diagnose)"
+            )
+        what = f"section {doc.get('section')!r}" if doc.get("section") is not None else "no 'section' key"
+        raise BundleError(f"{source}: has {what}; expected a {kind} section (the file `piezopress fit-{kind}` writes)")
     if kind == "hysteresis":
         check_hysteresis(c, doc)
     elif kind == "creep":
@@ -510,6 +516,28 @@ class Bundle:
                 f"{self.source}: compensation drive range {s.drive_min_v:g} to {s.drive_max_v:g} V; expected inside "
                 f"the rig's {drive_min_v:g} to {drive_max_v:g} V ({rig})"
             )
+
+    def reach(
+        self, drive_min_v: float | None = None, drive_max_v: float | None = None, points: int = 400
+    ) -> tuple[float, float]:
+        """The output the drive range (the bundle's, unless given) reaches, ``(lowest, highest)``
+        above the model's rest: the extremes of the hysteresis model's major loop (the drive
+        swept over the whole range twice, from 0 V)."""
+        s = self.settings
+        lo = s.drive_min_v if drive_min_v is None else drive_min_v
+        hi = s.drive_max_v if drive_max_v is None else drive_max_v
+        legs = [(0.0, hi), (hi, lo), (lo, hi), (hi, lo), (lo, hi)]
+        x = np.concatenate([np.linspace(a, b, points) for a, b in legs])
+        y, _ = self.hysteresis.forward(x)
+        loop = y[2 * points :] - self.hysteresis.y0
+        return float(np.min(loop)), float(np.max(loop))
+
+    @property
+    def from_elsewhere(self) -> bool:
+        """True when the runs the hysteresis was fitted on name no press (imported, or another
+        program's): references are then read on the record's own scale by default."""
+        runs = [r for r in (self.doc.get("hysteresis") or {}).get("runs", []) or [] if isinstance(r, Mapping)]
+        return bool(runs) and all("rig" in r and r["rig"] is None for r in runs)
 
     # ------------------------------------------------------------------ the models
 

@@ -85,6 +85,9 @@ class RunProfile:
     hold_s: float | None = None
     levels: tuple[float, ...] = ()
     glitches: tuple[int, ...] = field(default=())
+    #: Share of the output's samples pinned at one extreme value (a saturated sensor or ADC), and which.
+    saturated: float = 0.0
+    saturated_at: float | None = None
 
     @property
     def quasi_static(self) -> bool:
@@ -273,6 +276,39 @@ def find_glitches(y: np.ndarray) -> np.ndarray:
     return np.flatnonzero(hit) + 1
 
 
+#: An output that repeats its extreme value exactly on more than this share of its samples is
+#: taken as saturated (a sensor or ADC at its limit; a noisy measurement reaches its extreme once).
+SATURATED_MIN_SHARE = 0.02
+
+
+#: ... and the drive, over those samples, spans more than this share of its range (a held level
+#: read on one code of a quantised sensor, or a compensated hold, spans a few %).
+SATURATED_DRIVE_SHARE = 0.1
+
+
+def saturation(y: np.ndarray, x: np.ndarray | None = None) -> tuple[float, float | None]:
+    """``(share, value)``: the share of ``y``'s samples exactly at its maximum or minimum, the
+    larger of the two, when the reading is pinned there: on more than :data:`SATURATED_MIN_SHARE`
+    of the samples while the drive ``x`` spans more than :data:`SATURATED_DRIVE_SHARE` of its
+    range (a sensor or ADC at its limit while the press is driven on); else ``(0.0, None)``."""
+    y = np.asarray(y, float)
+    ok = np.isfinite(y)
+    if y.size < 10 or not ok.any() or np.ptp(y[ok]) == 0:
+        return 0.0, None
+    x = np.asarray(x, float) if x is not None and np.asarray(x).shape == y.shape else None
+    best: tuple[float, float | None] = (0.0, None)
+    for v in (float(np.max(y[ok])), float(np.min(y[ok]))):
+        at = y == v
+        share = float(np.count_nonzero(at)) / y.size
+        if share <= max(SATURATED_MIN_SHARE, best[0]):
+            continue
+        lo_x, hi_x = np.percentile(x[at], [5, 95]) if x is not None else (0.0, np.inf)
+        if x is not None and hi_x - lo_x <= SATURATED_DRIVE_SHARE * max(float(np.ptp(x)), 1e-12):
+            continue
+        best = (share, v)
+    return best
+
+
 def without_glitches(y: np.ndarray, glitches: np.ndarray) -> np.ndarray:
     """A copy of ``y`` with each glitched sample replaced by the mean of its neighbours."""
     out = np.array(y, float, copy=True)
@@ -310,7 +346,18 @@ def profile_signals(
     glitches = tuple(int(i) for i in find_glitches(output)) if output is not None else ()
     lo, hi = (float(np.min(x)), float(np.max(x))) if x.size else (0.0, 0.0)
     span = hi - lo
-    common = dict(signal=signal, sample_rate_hz=fs, t0_s=t0, duration_s=duration, low=lo, high=hi, glitches=glitches)
+    sat, sat_at = saturation(output, x) if output is not None else (0.0, None)
+    common = dict(
+        signal=signal,
+        sample_rate_hz=fs,
+        t0_s=t0,
+        duration_s=duration,
+        low=lo,
+        high=hi,
+        glitches=glitches,
+        saturated=sat,
+        saturated_at=sat_at,
+    )
     if x.size < 3 or span <= max(1e-3, 1e-9 * max(abs(lo), abs(hi))):
         return RunProfile("rest", "custom", level=lo, base=lo, **common)
     tol = max(1e-6 * span, 4.0 * _noise_sigma(x))

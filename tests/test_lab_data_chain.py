@@ -1,0 +1,175 @@
+"""Issue 22: a lab's own record, end to end, in the record's own terms: import -> fit (the drive
+range the record drove, the rest and the reach printed) -> compensate (a reference on the
+record's scale) -> simulate the drive -> the predicted output follows the reference within the
+model's held-out error. The same on our own force bundle (references above the rest)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from conftest import DATASETS, needs_datasets
+
+from piezopress.piezocli.main import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+BUNDLE = ROOT / "sample_runs" / "bundle.json"
+SMART = "smarthysteresis/hysteresis_v_150_1hz.csv"
+AYE_MODEL = "aye-ang-2018/Model_Vi_Do.dat"
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def _triangle(path: Path, column: str, lo: float, hi: float, fs: float, freq: float = 0.1, cycles: int = 2) -> Path:
+    t = np.arange(0, cycles / freq, 1 / fs)
+    ph = (t * freq) % 1.0
+    tri = np.where(ph < 0.5, 2 * ph, 2 - 2 * ph)  # 0 -> 1 -> 0
+    pd.DataFrame({"t_s": t, column: lo + (hi - lo) * tri}).to_csv(path, index=False)
+    return path
+
+
+def _chain(tmp_path: Path, run: Path, ref: Path) -> tuple[dict, pd.DataFrame, str]:
+    bundle = tmp_path / "b.json"
+    res = invoke("fit", run, "--out", bundle)
+    assert res.exit_code == 0, res.output
+    fit_out = res.output
+    drive = tmp_path / "drive.csv"
+    res = invoke("compensate", "--bundle", bundle, "--reference", ref, "--out", drive)
+    assert res.exit_code == 0, res.output
+    assert "Warning" not in res.output  # nothing clipped
+    pred = tmp_path / "pred.csv"
+    res = invoke("simulate", drive, "--bundle", bundle, "--out", pred)
+    assert res.exit_code == 0, res.output
+    return json.loads(bundle.read_text()), pd.read_csv(pred), fit_out + res.output
+
+
+@needs_datasets(SMART)
+def test_smarthysteresis_record_to_a_checked_drive_on_its_own_scale(tmp_path):
+    run = tmp_path / "smart.parquet"
+    res = invoke(
+        "import",
+        DATASETS / SMART,
+        "--out",
+        run,
+        "--no-header",
+        "--kind",
+        "sine",
+        "--col",
+        "t_s=2",
+        "--col",
+        "displacement_um=3",
+        "--col",
+        "command_v=4",
+        "--sample-rate-hz",
+        "5000",
+    )
+    assert res.exit_code == 0, res.output
+    ref = _triangle(tmp_path / "ref.csv", "reference_um", -15.0, 15.0, 5000.0)  # inside the record's -19.7..19.7
+    doc, pred, out = _chain(tmp_path, run, ref)
+    # the drive range is the record's (it drove -150..150 V), not the default rig's -30..150 V
+    assert doc["compensation"]["drive_min_v"] == pytest.approx(-150, abs=0.5)
+    assert "the range the record drove" in out and "the model's rest output is" in out
+    held = doc["hysteresis"]["fit"]["holdout_rms_um"]
+    assert "rest_um" in pred.columns  # the absolute zero, written beside the reference
+    err = pred["predicted_um"] - pred["reference_um"]
+    assert float(np.sqrt(np.mean(err**2))) <= held
+    assert pred["predicted_um"].min() == pytest.approx(-15.0, abs=3 * held)
+
+
+@needs_datasets(AYE_MODEL)
+def test_aye_ang_record_to_a_checked_drive(tmp_path):
+    run = tmp_path / "aye.parquet"
+    res = invoke(
+        "import",
+        DATASETS / AYE_MODEL,
+        "--out",
+        run,
+        "--no-header",
+        "--delimiter",
+        "tab",
+        "--kind",
+        "sine",
+        "--col",
+        "command_v=1",
+        "--col",
+        "displacement_um=5",
+        "--lag",
+        "displacement_um=1",
+        "--sample-rate-hz",
+        "200",
+    )
+    assert res.exit_code == 0, res.output
+    rec = pd.read_parquet(run)["displacement_um"]
+    lo, hi = np.quantile(rec, [0.2, 0.8])  # well inside the record's range
+    ref = _triangle(tmp_path / "ref.csv", "reference_um", float(lo), float(hi), 200.0)
+    doc, pred, _ = _chain(tmp_path, run, ref)
+    held = doc["hysteresis"]["fit"]["holdout_rms_um"]
+    err = pred["predicted_um"] - pred["reference_um"]
+    assert float(np.sqrt(np.mean(err**2))) <= held
+
+
+def test_a_european_labview_export_to_a_checked_drive(tmp_path):
+    """Decimal commas, semicolons, a BOM, CRLF and units in the header: a sine through a
+    known hysteretic model (the project's own forward model, so the truth is known)."""
+    from piezopress.pipelines.bundle import read_bundle
+
+    model = read_bundle(ROOT / "sample_runs" / "base-bundle.json").hysteresis
+    fs = 1000.0
+    t = np.arange(0, 20, 1 / fs)
+    x = 75 - 75 * np.cos(2 * np.pi * 0.2 * t) * np.minimum(1, t / 2)
+    y, _ = model.forward(x)
+    y = y + np.random.default_rng(0).normal(0, 0.05, y.size)
+    lines = ["Zeit [s];Spannung [V];Kraft [N]"] + [
+        f"{a:.4f};{b:.4f};{c:.4f}".replace(".", ",") for a, b, c in zip(t, x, y)
+    ]
+    src = tmp_path / "labview.csv"
+    src.write_bytes(b"\xef\xbb\xbf" + "\r\n".join(lines).encode() + b"\r\n")
+    run = tmp_path / "lv.parquet"
+    res = invoke(
+        "import", src, "--out", run, "--col", "t_s=1", "--col", "command_v=2", "--col", "force_n=3", "--kind", "sine"
+    )
+    assert res.exit_code == 0, res.output
+    lo, hi = np.quantile(y, [0.2, 0.8])
+    ref = _triangle(tmp_path / "ref.csv", "reference_n", float(lo), float(hi), fs)
+    doc, pred, _ = _chain(tmp_path, run, ref)
+    held = doc["hysteresis"]["fit"]["holdout_rms_n"]
+    err = pred["predicted_n"] - pred["reference_n"]
+    assert float(np.sqrt(np.mean(err**2))) <= held
+
+
+@pytest.mark.parametrize("peak", [50.0, 150.0, 250.0])
+def test_compensate_then_simulate_round_trips_on_our_own_bundle(tmp_path, peak):
+    """Property: a reference within reach, compensated and played through the bundle's own model,
+    comes back within the model's held-out error (references above the rest, the default)."""
+    ref = _triangle(tmp_path / "ref.csv", "reference_n", 0.0, peak, 1000.0, freq=0.5, cycles=2)
+    drive = tmp_path / "drive.csv"
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", drive)
+    assert res.exit_code == 0 and "above the model's rest" in res.output
+    res = invoke("simulate", drive, "--bundle", BUNDLE, "--out", tmp_path / "p.csv")
+    assert res.exit_code == 0, res.output
+    pred = pd.read_csv(tmp_path / "p.csv")
+    assert "rest_n" not in pred.columns
+    held = json.loads(BUNDLE.read_text())["hysteresis"]["fit"]["holdout_rms_n"]
+    # the creep compensator and the shaper's transients: within twice the held-out error over the sweep
+    err = pred["error_n"].to_numpy()[200:]
+    assert float(np.sqrt(np.mean(err**2))) <= 2 * held + 0.01 * peak
+
+
+def test_compensate_with_a_rig_uses_its_range_and_says_so(tmp_path):
+    rig = tmp_path / "rig.toml"
+    text = (ROOT / "sample_runs" / "rig.toml").read_text()
+    assert "drive_min_v" in text
+    import re
+
+    rig.write_text(re.sub(r"drive_min_v\s*=\s*[-0-9.]+", "drive_min_v = 0.0", text, count=1))
+    ref = _triangle(tmp_path / "ref.csv", "reference_n", 30.0, 100.0, 1000.0, freq=0.5, cycles=1)
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", tmp_path / "d.csv", "--rig", rig)
+    assert res.exit_code == 0, res.output
+    assert "the drive range is the rig's, 0 to 150 V" in res.output and "not the bundle's -30 to 150 V" in res.output
+    assert pd.read_csv(tmp_path / "d.csv")["command_v"].min() >= 0.0
