@@ -62,6 +62,22 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
     sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace)
     res = sim.data["residual"].to_numpy()
     u = units.label(sim.output_unit)
+    judged = sim.meta["simulated_with"].get("judged_rows")
+    if judged:  # a run the bundle was fitted on: judged on the rows fit judged it on, the start apart
+        a, h, b = judged["fitted_from"], judged["held_out_from"], judged["stop"]
+        held, fitted = res[h:b], res[a:b]
+        line = (
+            f"Wrote {out}: residual on the held-out rows {h}:{b} (as fit judged them) {(held**2).mean() ** 0.5:.3g} "
+            f"{u} RMS; on rows {a}:{b} {(fitted**2).mean() ** 0.5:.3g} {u} RMS, {abs(fitted).max():.3g} {u} max"
+        )
+        if a:
+            start = res[:a]
+            line += (
+                f"; the start (rows 0:{a}, not fitted: a rest of unknown state) {(start**2).mean() ** 0.5:.3g} {u} "
+                "RMS, not counted"
+            )
+        click.echo(f"{line} ({sim.output_column}){kept_note(previous)}")
+        return
     click.echo(
         f"Wrote {out}: residual {abs(res).max():.3g} {u} max, {(res**2).mean() ** 0.5:.3g} {u} RMS "
         f"({sim.output_column})"

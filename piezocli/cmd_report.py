@@ -14,8 +14,8 @@ from piezopress.pipelines import report as rep
 @click.option(
     "--characterization",
     "char_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Characterization run directory (from `piezopress characterize`).",
+    type=click.Path(path_type=Path),
+    help="Characterization run directory (from `piezopress characterize`), or a run file (from `piezopress import`).",
 )
 @click.option(
     "--validation",

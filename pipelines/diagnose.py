@@ -34,7 +34,14 @@ def fitted_run_names(bundle: dict[str, Any]) -> list[str]:
     return sorted({r["name"] for sec in ("hysteresis", "creep", "shaper") for r in bundle.get(sec, {}).get("runs", [])})
 
 
-def run_data(run: runformat.Run) -> dg.RunData:
+def run_data(run: runformat.Run, bundle: Bundle | None = None) -> dg.RunData:
+    """The run as the diagnosis sees it; with the bundle it was fitted on, judged from the row
+    ``fit`` judged it from (the start before it, a rest of unknown state, is not misfit)."""
+    judged, held = 0, None
+    if bundle is not None:
+        rows = bundle.judged_rows(runformat.sha256_file(run.path) if run.path is not None else None, run.name)
+        if rows is not None:
+            judged, held = rows[0], (rows[1], rows[2])
     return dg.RunData(
         run.name,
         run.kind,
@@ -44,6 +51,8 @@ def run_data(run: runformat.Run) -> dg.RunData:
         run.sample_rate_hz,
         run.column("monitor_v"),
         dict(run.meta),
+        judged_from=judged,
+        held_out=held,
     )
 
 
@@ -61,7 +70,10 @@ def simulate_file(
     cols = {c: run.data[c].to_numpy() for c in run.data.columns}
     cols["predicted"] = pred
     cols["residual"] = run.output - pred
+    rows = bundle.judged_rows(runformat.sha256_file(run.path) if run.path is not None else None, run.name)
     meta = {**run.meta, "simulated_with": {"bundle": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)}}
+    if rows is not None:
+        meta["simulated_with"]["judged_rows"] = {"fitted_from": rows[0], "held_out_from": rows[1], "stop": rows[2]}
     sim = runformat.make_run(cols, meta)
     previous = write_output(out, lambda tmp: runformat.write_run(sim, tmp), replace=replace)
     return sim, previous
@@ -155,10 +167,10 @@ def fitted_run_keys(bundle: dict[str, Any]) -> list[str]:
     )
 
 
-def diagnosis_runs(loaded: list[runformat.Run]) -> list[dg.RunData]:
+def diagnosis_runs(loaded: list[runformat.Run], bundle: Bundle | None = None) -> list[dg.RunData]:
     """The runs as the diagnosis sees them, each keyed by its file's sha256; a name that
     repeats (two imports of one source, or two directories) is told apart by its file."""
-    runs = [run_data(r) for r in loaded]
+    runs = [run_data(r, bundle) for r in loaded]
     count: dict[str, int] = {}
     for r in runs:
         count[r.name] = count.get(r.name, 0) + 1
@@ -205,7 +217,7 @@ def diagnose(
     loaded = collect_runs(paths)
     for r in loaded:  # one unit: a displacement run is not judged by a force model
         checked.check_unit(r.output_unit, f"{r.path} ({r.output_column})")
-    runs = diagnosis_runs(loaded)
+    runs = diagnosis_runs(loaded, checked)
     if not runs:
         raise dg.H.HysteresisFitError("no runs to diagnose")
     short = [f"{r.name} ({r.y.size} samples)" for r in runs if r.y.size < MIN_RUN_SAMPLES]
@@ -389,7 +401,10 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
         verdict = "poor" if bf["poor"] else "fair"
         lines.append(
             f"Base fit ({verdict}): {bf[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on "
-            f"({', '.join(bf['runs'])}), "
+            f"({', '.join(bf['runs'])}"
+            + (f"; {bf[f'holdout_rms_{k}']:.3g} {u} on the rows its fit held out" if f"holdout_rms_{k}" in bf else "")
+            + (", the start the fit skipped not counted" if bf.get("judged_from_row") else "")
+            + "), "
             f"{bf['ratio']:.1f} x the noise floor; largest in {bf['worst_run']} at {bf['worst_at_s']:.4g} s."
             + (" Every cause the runs allow was still tried against it." if bf["poor"] else "")
         )

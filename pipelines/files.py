@@ -185,6 +185,8 @@ def run_files(run_dir: str | Path, *, expect_kind: str | None = None) -> list[Pa
     :func:`check_status`, unless incomplete directories are accepted (then a note names it
     and the runs skipped)."""
     run_dir = Path(run_dir)
+    if run_dir.is_file():  # one run file (an import): itself
+        return [run_dir]
     if (run_dir / MANIFEST).is_file():
         check_status(run_dir, expect_kind=expect_kind)
         return [

@@ -150,6 +150,10 @@ def fit_hysteresis_section(
         f"output_range_{unit.lower()}": fit.output_range,
         "holdout_fraction": holdout_fraction,
         "fitted_from_row": [int(np.argmax(t)) for t in data.train],
+        # the rows every command judges the model on (fit, simulate, diagnose, the report): per run, the
+        # held-out rows from this one to the stop; the start before fitted_from_row is never counted as misfit
+        "held_out_from_row": [int(np.argmax(h)) if h.any() else int(h.size) for h in data.holdout],
+        "stop_row": [int(n) for n in stops],
         "pruned_operators": fit.pruned,
         "candidates": fit.candidates,
     }
@@ -193,6 +197,9 @@ def fit_sweep_sections(
         "holdout_rms_pct_of_range": found.holdout_rms_pct,
         f"output_range_{k}": found.output_range,
         "holdout_fraction": holdout_fraction,
+        "fitted_from_row": [a for a, _, _ in found.rows],
+        "held_out_from_row": [h for _, h, _ in found.rows],
+        "stop_row": [n for _, _, n in found.rows],
         "pruned_operators": found.hysteresis.pruned,
         "candidates": found.hysteresis.candidates,
     }

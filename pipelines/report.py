@@ -27,6 +27,7 @@ from typing import Any
 
 import pandas as pd
 
+from piezopress import units
 from piezopress.errors import OutputExistsError
 from piezopress.pipelines import report_frequency, summary
 from piezopress.pipelines.bundle import read_document
@@ -142,7 +143,17 @@ def build_report(
             f"The characterization directory {char.path} holds no complete run: uncontrolled figures are missing."
         )
     if val is None:
-        missing.append("No validation runs given: controlled figures are missing (run `piezopress validate`).")
+        foreign = bundle_doc is not None and not units.is_force(
+            units.normalise((bundle_doc.get("hysteresis") or {}).get("model", {}).get("output_unit"))
+        )
+        imported = char is not None and any(isinstance(r.meta.get("import"), dict) for r in char.runs.values())
+        if foreign or imported:  # validate plays force references on a press it drives: not this record's
+            missing.append(
+                "No validation runs given (a model of a record from elsewhere): check a drive with "
+                "`piezopress compensate` and `piezopress simulate`, then play it on that press and import the run."
+            )
+        else:
+            missing.append("No validation runs given: controlled figures are missing (run `piezopress validate`).")
     elif not val.runs:
         missing.append(f"The validation directory {val.path} holds no complete run: controlled figures are missing.")
     if bundle_doc is None:

@@ -76,6 +76,12 @@ def _pick_loop_before(char: _Source) -> runformat.Run | None:
     return (plain or static or [None])[0]
 
 
+def _slowest_sweep(char: _Source) -> runformat.Run | None:
+    """The slowest sweep of any frequency (a record from elsewhere: a 1 Hz sine, say)."""
+    sweeps = [r for r in char.runs.values() if profile.of(r).is_sweep and profile.of(r).freq_hz]
+    return min(sweeps, key=lambda r: profile.of(r).freq_hz, default=None)
+
+
 def _pick_loop_after(val: _Source) -> runformat.Run | None:
     static = [r for r in val.runs.values() if _is_static_triangle(r) and r.column("reference_n") is not None]
     preferred = val.runs.get("tri-300n-0.1hz")
@@ -104,17 +110,22 @@ def _straight_line_deviation(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return y - (y[lo] + (x - x[lo]) * (y[hi] - y[lo]) / (x[hi] - x[lo]))
 
 
-def _before_panel(run: runformat.Run, model: H.PIModel | None) -> plotting.LoopPanel:
+def _before_panel(run: runformat.Run, model: H.PIModel | None, start: int = 0) -> plotting.LoopPanel:
+    """The measured loop and the model over it, from row ``start`` (the rows the fit judged: a
+    start of unknown state, a rest the fit skipped, is left out of the plot and the figures)."""
     u = units.label(run.output_unit)
+    s = min(max(int(start), 0), max(run.output.size - 20, 0))
+    x, y = run.command_v[s:], run.output[s:]
     model_curve = None
     if model is not None:
-        pred, _ = model.forward(run.command_v)
-        model_curve = plotting.Curve(run.command_v, pred, f"model (RMS {_rms(run.output - pred):.2f} {u})")
-    h = metrics.max_hysteresis(run.command_v, run.output)
+        pred = model.forward(run.command_v)[0][s:]  # the model's state carried through the skipped start
+        model_curve = plotting.Curve(x, pred, f"model (RMS {_rms(y - pred):.3g} {u})")
+    h = metrics.max_hysteresis(x, y)
+    skipped = f", from row {s}: the start the fit skipped left out" if s else ""
     return plotting.LoopPanel(
-        f"Before: {run.name} (uncompensated, {h.percent:.2f} %)",
-        plotting.Curve(run.command_v, run.output, "measured"),
-        plotting.Curve(run.command_v, _straight_line_deviation(run.command_v, run.output)),
+        f"Before: {run.name} (uncompensated, {h.percent:.2f} %{skipped})",
+        plotting.Curve(x, y, "measured"),
+        plotting.Curve(x, _straight_line_deviation(x, y)),
         "drive command_v (V)",
         f"measured - straight line ({u})",
         model=model_curve,
@@ -144,16 +155,28 @@ def _loops_figure(
 ) -> FigureBlock | None:
     before = _pick_loop_before(char) if char else None
     after = _pick_loop_after(val) if val else None
+    title = "Hysteresis loops (0.1 Hz triangles), before and after"
     if char and before is None:
-        missing.append("No 0.1 Hz triangle in the characterization: the uncompensated hysteresis loop is missing.")
+        before = _slowest_sweep(char)
+        if before is None:
+            missing.append("No sweep in the characterization: the uncompensated hysteresis loop is missing.")
+        else:
+            f = profile.of(before).freq_hz
+            title = f"Hysteresis loop of {before.name} ({f:.3g} Hz {before.kind}: no 0.1 Hz triangle in the runs)"
     if val and after is None:
         missing.append("No compensated 0.1 Hz triangle in the validation: the compensated hysteresis loop is missing.")
     if before is None and after is None:
         return None
     model = _hysteresis_model(bundle, missing) if before is not None else None
-    panels = ([_before_panel(before, model)] if before else []) + ([_after_panel(after)] if after else [])
+    start = 0
+    if model is not None and before is not None:
+        rows = Bundle.from_dict(bundle).judged_rows(
+            runformat.sha256_file(before.path) if before.path is not None else None, before.name
+        )
+        start = rows[0] if rows is not None else 0
+    panels = ([_before_panel(before, model, start)] if before else []) + ([_after_panel(after)] if after else [])
     unit = (before or after).output_unit
-    fig = plotting.loops_with_error(panels, unit=unit, title="Hysteresis loops (0.1 Hz triangles), before and after")
+    fig = plotting.loops_with_error(panels, unit=unit, title=title)
     q, u = units.quantity(unit), units.label(unit)
     return _figure_block(
         "hysteresis_loops",

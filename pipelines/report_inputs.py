@@ -43,8 +43,11 @@ class _Source:
 
 def _load_dir(path: str | Path, what: str, command: str, table_of: Callable[[Path], pd.DataFrame]) -> _Source:
     path = Path(path)
-    if not path.is_dir():
-        raise ReportError(f"{path}: no such directory; expected a {what} run directory (from `piezopress {command}`)")
+    if not (path.is_dir() or (path.is_file() and path.suffix.lower() == ".parquet")):
+        raise ReportError(
+            f"{path}: no such directory or run file; expected a {what} run directory (from `piezopress {command}`) "
+            "or a run file (from `piezopress import`)"
+        )
     files = run_files(path, expect_kind=what if what in ("characterization", "validation") else None)
     runs: dict[str, runformat.Run] = {}
     for f in files:

@@ -270,7 +270,11 @@ def _manifest_date(src: _Source | None) -> str:
         if created:
             return str(created)
     started = sorted(str(r.meta.get("started_utc")) for r in src.runs.values() if r.meta.get("started_utc"))
-    return started[0] if started else "unknown"
+    if started:
+        return started[0]
+    imported = sorted(str(runformat.meta_get(r.meta, "import", "imported_utc", default="")) for r in src.runs.values())
+    imported = [d for d in imported if d]
+    return f"unknown (imported {imported[0]})" if imported else "unknown"
 
 
 def provenance(
@@ -287,13 +291,24 @@ def provenance(
         | ({str(bundle["software_version"])} if bundle and bundle.get("software_version") else set())
     )
     parts = []
+    imported = [r for r in runs if isinstance(r.meta.get("import"), dict)]
+    if imported:
+        sources = sorted(
+            {
+                f"{r.meta['import'].get('source_file', '?')} (sha256 "
+                f"{str(r.meta['import'].get('source_sha256', '?'))[:DIGEST_CHARS]})"
+                for r in imported
+            }
+        )
+        parts.append(f"imported from {', '.join(sources)} by piezopress import")
+        runs = [r for r in runs if r not in imported]
     if runs:
         parts.append(
             f"Rig {', '.join(rig_names)} (file {', '.join(sources)}; configuration sha256 {', '.join(digests)})"
         )
         simulated = " (simulated: not measurements of a real press)" if backends == ["virtual"] else ""
         parts.append(f"backend {', '.join(backends)}{simulated}")
-    else:
+    elif not imported:
         parts.append("No runs given: rig and backend unknown")
     parts.append(f"characterized {_manifest_date(char)}")
     parts.append(f"validated {_manifest_date(val)}")
@@ -303,6 +318,20 @@ def provenance(
     else:
         parts.append("no bundle given")
     return "Provenance: " + "; ".join(parts) + "."
+
+
+def model_error(bundle: dict[str, Any]) -> str:
+    """The bundle's hysteresis held-out error in its own unit, for the MODEL ONLY verdict."""
+    h = bundle.get("hysteresis") or {}
+    fit = h.get("fit") or {}
+    unit = units.normalise((h.get("model") or {}).get("output_unit"))
+    k = units.key(unit)
+    held, pct = fit.get(f"holdout_rms_{k}"), fit.get("holdout_rms_pct_of_range")
+    if not isinstance(held, (int, float)):
+        return "the model's held-out error is not recorded"
+    share = f" ({pct:.3g} % of its range)" if isinstance(pct, (int, float)) else ""
+    runs = ", ".join(str(r.get("name")) for r in h.get("runs") or [] if isinstance(r, dict))
+    return f"the model's held-out error is {held:.3g} {units.label(unit)} RMS{share} on {runs or 'its runs'}"
 
 
 def verdict_table(rows: list[VerdictRow]) -> Table:
@@ -380,6 +409,8 @@ def verdict_blocks(
             f"FAIL: {len(failed)} of {len(vrows)} controlled figures miss their target "
             f"({', '.join(v.key for v in failed)})"
         )
+    elif val is None and bundle is not None:
+        overall = "MODEL ONLY: no validation runs, so no controlled figure is measured; " + model_error(bundle)
     elif untested:
         overall = (
             f"INCOMPLETE: {len(untested)} of {len(vrows)} controlled figures not measured "

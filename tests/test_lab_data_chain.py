@@ -141,6 +141,20 @@ def test_a_european_labview_export_to_a_checked_drive(tmp_path):
     held = doc["hysteresis"]["fit"]["holdout_rms_n"]
     err = pred["predicted_n"] - pred["reference_n"]
     assert float(np.sqrt(np.mean(err**2))) <= held
+    # the report of a model without validation runs: MODEL ONLY, the import's provenance, the loop
+    # of the sweep there is with the model over it, and no advice the data cannot follow
+    res = invoke("report", "--characterization", run, "--bundle", tmp_path / "b.json", "--out", tmp_path / "rep")
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert f"the model's held-out error is {held:.3g} N" in md
+    assert "MODEL ONLY" in md and "INCOMPLETE" not in md
+    import hashlib
+
+    digest = hashlib.sha256(src.read_bytes()).hexdigest()[:12]
+    assert f"imported from labview.csv (sha256 {digest}" in md and "Rig ?" not in md
+    assert "hysteresis loop is missing" not in md  # the 0.2 Hz sine's loop stands in for the 0.1 Hz triangle's
+    assert (tmp_path / "rep" / "hysteresis_loops.png").is_file()
+    assert "run `piezopress validate`" not in md
 
 
 @pytest.mark.parametrize("peak", [50.0, 150.0, 250.0])
@@ -173,3 +187,35 @@ def test_compensate_with_a_rig_uses_its_range_and_says_so(tmp_path):
     assert res.exit_code == 0, res.output
     assert "the drive range is the rig's, 0 to 150 V" in res.output and "not the bundle's -30 to 150 V" in res.output
     assert pd.read_csv(tmp_path / "d.csv")["command_v"].min() >= 0.0
+
+
+@needs_datasets(SMART)
+@pytest.mark.parametrize("base", [False, True], ids=["fit", "fit --base"])
+def test_fit_simulate_and_diagnose_judge_one_model_on_the_same_rows(tmp_path, base):
+    """One model, one error: the held-out error fit prints, simulate's on the same rows, and
+    diagnose's base fit, within 5 %; the record's start (a rest of unknown state) is reported
+    apart, never as misfit."""
+    from piezopress import runformat
+
+    run = tmp_path / "smart.parquet"
+    args = ["--no-header", "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4"]
+    assert invoke("import", DATASETS / SMART, "--out", run, *args, "--sample-rate-hz", "5000").exit_code == 0
+    bundle = tmp_path / "b.json"
+    res = invoke("fit", run, "--out", bundle, *(["--base"] if base else []))
+    assert res.exit_code == 0, res.output
+    fit = json.loads(bundle.read_text())["hysteresis"]["fit"]
+    held_fit = fit["holdout_rms_um"]
+    res = invoke("simulate", run, "--bundle", bundle, "--out", tmp_path / "sim.parquet")
+    assert res.exit_code == 0 and "not counted" in res.output, res.output
+    sim = runformat.read_run(tmp_path / "sim.parquet")
+    rows = sim.meta["simulated_with"]["judged_rows"]
+    assert rows["fitted_from"] > 0  # the record's start is skipped
+    held_sim = float(np.sqrt(np.mean(sim.data["residual"].to_numpy()[rows["held_out_from"] : rows["stop"]] ** 2)))
+    res = invoke("diagnose", run, "--bundle", bundle, "--out", tmp_path / "diag")
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    held_diag = doc["base_fit"]["holdout_rms_um"]
+    for other in (held_sim, held_diag):
+        assert other == pytest.approx(held_fit, rel=0.05)
+    # the headline residual is judged on the same rows (no 3.4 µm from the start's unknown state)
+    assert doc["residual_rms_um"] < 3 * held_fit

@@ -532,6 +532,26 @@ class Bundle:
         loop = y[2 * points :] - self.hysteresis.y0
         return float(np.min(loop)), float(np.max(loop))
 
+    def judged_rows(self, sha256: str | None, name: str | None = None) -> tuple[int, int, int] | None:
+        """``(fitted_from, held_out_from, stop)`` rows of a run the hysteresis was fitted on (found
+        by its file's sha256, else its name), as ``fit`` judged it; ``None``: not one of them, or
+        a bundle fitted before the rows were recorded."""
+        h = self.doc.get("hysteresis") or {}
+        runs = h.get("runs") or []
+        fit = h.get("fit") or {}
+        cols = [fit.get(k) for k in ("fitted_from_row", "held_out_from_row", "stop_row")]
+        if not all(isinstance(c, list) and len(c) == len(runs) for c in cols):
+            return None
+        for i, r in enumerate(runs):
+            if not isinstance(r, Mapping):
+                continue
+            if (sha256 and r.get("sha256") == sha256) or (not sha256 and name is not None and r.get("name") == name):
+                try:
+                    return int(cols[0][i]), int(cols[1][i]), int(cols[2][i])
+                except (TypeError, ValueError):
+                    return None
+        return None
+
     @property
     def from_elsewhere(self) -> bool:
         """True when the runs the hysteresis was fitted on name no press (imported, or another

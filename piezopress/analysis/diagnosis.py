@@ -77,6 +77,8 @@ class RunData:
     monitor: np.ndarray | None = None  # the drive actually applied, when recorded
     meta: dict[str, Any] = field(default_factory=dict)
     key: str = ""  # what identifies the run (its file's sha256, say): names may repeat, keys may not
+    judged_from: int = 0  # rows before it (a rest of unknown state the fit skipped) are not judged as misfit
+    held_out: tuple[int, int] | None = None  # the rows the fit held out (its held-out error's rows)
 
     @property
     def ident(self) -> str:
@@ -310,15 +312,23 @@ class ResidualStats:
         return {**self.__dict__, "ratio": self.ratio}
 
 
+def judged(run: RunData, a: np.ndarray) -> np.ndarray:
+    """``a`` (a run-long array) from the row the run is judged from (the start its fit skipped left out)."""
+    return a[min(run.judged_from, max(a.size - 2, 0)) :]
+
+
 def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> ResidualStats:
+    residual = judged(run, residual)
     r = residual - np.mean(residual)
-    x = run.x
+    x = judged(run, run.x)
+    t = judged(run, run.t_s)
     rate = np.gradient(x) * run.fs_hz
     big = np.abs(np.diff(x, prepend=x[0])) > 0.05 * max(float(np.ptp(x)), 1e-9)
     idx = np.where(big, np.arange(x.size), 0)
-    since = run.t_s - run.t_s[np.maximum.accumulate(idx)]
+    since = t - t[np.maximum.accumulate(idx)]
     f, p = signal.periodogram(r, run.fs_hz, window="hann")
-    k = int(np.argmax(p[1:])) + 1 if p.size > 1 else 0
+    # a tone needs at least two periods in the run: the lowest bins are the run's length, not a frequency
+    k = int(np.argmax(p[2:])) + 2 if p.size > 2 else 0
     return ResidualStats(
         run.name,
         rms(residual),
@@ -328,8 +338,8 @@ def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> Residual
         _corr(r, rate),
         _corr(r, np.abs(rate)),
         _corr(r, np.log1p(since * 1e3)),
-        float(f[k]) if p.size > 1 else 0.0,
-        float(run.t_s[int(np.argmax(np.abs(r)))]),
+        float(f[k]) if p.size > 2 else 0.0,
+        float(t[int(np.argmax(np.abs(r)))]),
     )
 
 
@@ -1815,7 +1825,7 @@ def _base_fit(ctx: Context, floor: float) -> dict[str, Any]:
     runs = fitted or ([] if ctx.fitted_runs else ctx.sweeps(0.0, ctx.slow_hz))
     if not runs:
         return {}
-    res = {r.name: r.y - ctx.pred(r) for r in runs}
+    res = {r.name: (r.y - ctx.pred(r))[min(r.judged_from, r.y.size - 1) :] for r in runs}
     total = rms(np.concatenate(list(res.values())))
     worst = max(runs, key=lambda r: rms(res[r.name]))
     k = units.key(ctx.model.unit)
@@ -1826,8 +1836,18 @@ def _base_fit(ctx: Context, floor: float) -> dict[str, Any]:
         "ratio": total / floor,
         "poor": bool(total > POOR_FIT_RATIO * floor),
         "worst_run": worst.name,
-        "worst_at_s": float(worst.t_s[int(np.argmax(np.abs(res[worst.name])))]),
+        "worst_at_s": float(
+            worst.t_s[min(worst.judged_from, worst.y.size - 1) + int(np.argmax(np.abs(res[worst.name])))]
+        ),
+        "judged_from_row": {r.name: r.judged_from for r in runs if r.judged_from},
+        **_held_out_rms(ctx, runs, k),
     }
+
+
+def _held_out_rms(ctx: Context, runs: list[RunData], k: str) -> dict[str, float]:
+    """The base model's RMS on the rows its fit held out (the figure ``fit`` prints), when known."""
+    parts = [(r.y - ctx.pred(r))[a:b] for r in runs if r.held_out is not None for a, b in [r.held_out] if 0 <= a < b]
+    return {f"holdout_rms_{k}": rms(np.concatenate(parts))} if parts else {}
 
 
 @dataclass(frozen=True)
@@ -1870,7 +1890,7 @@ def diagnose(
     floor = {r.name: noise_floor(r.y) for r in runs}
     ctx = Context(runs, base, frozenset(fitted_runs), floor)
     before = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
-    total_rms = rms(np.concatenate([r.y - ctx.pred(r) for r in runs]))
+    total_rms = rms(np.concatenate([judged(r, r.y - ctx.pred(r)) for r in runs]))
     total_floor = float(np.median(list(floor.values())))
     base_fit = _base_fit(ctx, total_floor)
     findings: list[Finding] = []

@@ -68,6 +68,8 @@ class SweepFit:
     output_range: float
     reason: str
     creep_reason: str
+    #: per run, ``(fitted_from, held_out_from, stop)``: the rows the figures judge
+    rows: tuple[tuple[int, int, int], ...] = ()
 
     @property
     def holdout_rms_pct(self) -> float:
@@ -141,6 +143,7 @@ def fit_sweeps(
         hfit.output_range,
         hfit.reason,
         "creep not tried",
+        judged_rows(data),
     )
     if not creep:
         return out
@@ -183,7 +186,15 @@ def fit_sweeps(
         f"Kelvin-Voigt creep from the sweeps ({cmf.describe()}): held-out RMS {creep_ho:.4g} with it against "
         f"{static_ho:.4g} without"
     )
-    return SweepFit(hfit2, hmf, cmf, train, creep_ho, static_ho, hfit.output_range, hfit.reason, why)
+    return SweepFit(hfit2, hmf, cmf, train, creep_ho, static_ho, hfit.output_range, hfit.reason, why, judged_rows(data))
+
+
+def judged_rows(data: H.HysteresisData) -> tuple[tuple[int, int, int], ...]:
+    """Per run, ``(fitted_from, held_out_from, stop)`` of prepared data."""
+    return tuple(
+        (int(np.argmax(t)), int(np.argmax(h)) if h.any() else int(h.size), int(t.size))
+        for t, h in zip(data.train, data.holdout)
+    )
 
 
 def _candidate(label: str) -> tuple[int, float, int]:
