@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, progress_line, reports_errors
+from piezopress.piezocli.main import cli, next_command, progress_line, reports_errors
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import summary
 
@@ -51,7 +51,7 @@ def _print_progress(ev: char.ProgressEvent) -> None:
     else:
         if tty:
             click.echo(f"\r{head}", nl=False)
-        left = f", {_duration(ev.remaining_s)} of drive left" if ev.remaining_s > 0 else ""
+        left = f", {_duration(ev.remaining_s)} of drive left" if ev.remaining_s > 1e-6 else ""
         click.echo(f"done in {ev.elapsed_s:.2f} s{left}")
         progress_line(False)
 
@@ -108,6 +108,7 @@ def characterize_cmd(out_dir: Path, plan_path: Path, rig_path: Path, backend_nam
     click.echo(summary.format_table(table))
     path = summary.write_table(table, result.out_dir / "characterization.csv")
     click.echo(f"\nTable saved as {path}")
+    next_command(f"piezopress fit {out_dir} --out {out_dir.parent / (out_dir.name + '-bundle.json')}")
 
 
 def _copy_new(sources: list[Path], dest_dir: Path) -> list[Path]:

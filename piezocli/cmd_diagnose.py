@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from piezopress import units
-from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
+from piezopress.piezocli.main import cli, emit_json, json_option, next_command, reports_errors
 from piezopress.pipelines import diagnose as diag
 from piezopress.pipelines.files import kept_note
 
@@ -86,22 +86,28 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
 
 
 def _progress_printer(err: bool):
-    """Progress per cause for a terminal (stdout, or stderr under ``--json``): a line per
-    cause tried, redrawn in place while it runs; nothing when the stream is not a terminal."""
+    """Progress per cause (stdout, or stderr under ``--json``): on a terminal a line per cause
+    tried, redrawn in place while it runs; piped (a log, CI), one line per cause when it is done,
+    with its time, so a long diagnosis is never silent."""
+    import time
+
     stream = sys.stderr if err else sys.stdout
-    if not stream.isatty():
-        return None
+    tty = stream.isatty()
+    started = {"t": time.monotonic()}
 
     def show(ev: diag.dg.CauseProgress) -> None:
         head = f"[pass {ev.round}, {ev.index:>{len(str(ev.total))}}/{ev.total}] {ev.cause:<28}"
         if not ev.done:
-            click.echo(f"\r{head} ...", nl=False, err=err)
+            started["t"] = time.monotonic()
+            if tty:
+                click.echo(f"\r{head} ...", nl=False, err=err)
             return
         if ev.gain_pct is None:
             what = "nothing to fit"
         else:
             what = f"held-out gain {ev.gain_pct:.0f} %" + (" (a finding)" if ev.accepted else "")
-        click.echo(f"\r{head} {what}", err=err)
+        took = f" ({time.monotonic() - started['t']:.1f} s)"
+        click.echo(f"\r{head} {what}{took}" if tty else f"{head} {what}{took}", err=err)
 
     return show
 
@@ -202,6 +208,15 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
         say(gain_mod.format_table(gain_rows, {f.cause: f.gain_pct for f in result.findings}))
         say(f"\nWrote {csv}")
         files["compensated_gain"] = csv
+    nxt = []
+    if plan and plan.get("file"):
+        nxt.append(f"piezopress characterize --plan {plan['file']} --out {out.parent / (out.name + '-more')}")
+    first = runs[0] if runs else "RUNS"
+    nxt.append(
+        f"piezopress report --characterization {first} --bundle {out / 'extended_bundle.json'} --diagnosis {out} "
+        f"--out {out.parent / (out.name + '-report')}"
+    )
+    next_command(*nxt, err=as_json)
     if as_json:
         import json
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from piezopress import units
-from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, reports_errors
+from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, next_command, reports_errors
 from piezopress.pipelines import bundle as bundle_mod
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import files as files_mod
@@ -365,6 +365,17 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
         )
     else:
         _wrote(out, previous)
+    k = units.key(res.unit)
+    if units.is_force(res.unit) and not fit_mod.runs_from_elsewhere(res):
+        validate = f"piezopress validate --bundle {out} --out {out.parent / (out.stem + '-validation')}"
+    else:
+        validate = None
+    next_command(
+        *([validate] if validate else []),
+        f"piezopress compensate --bundle {out} --reference REFERENCE.csv (columns t_s, reference_{k}) "
+        f"--out {out.parent / (out.stem + '-drive.csv')}",
+        err=as_json,
+    )
 
 
 def _fit_error(fit, unit: str) -> str:

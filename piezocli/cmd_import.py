@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from piezopress.errors import ImportFormatError
-from piezopress.piezocli.main import cli, reports_errors
+from piezopress.piezocli.main import cli, next_command, reports_errors
 from piezopress.pipelines.importing import import_file
 
 # The two shared data sets, imported with one command each (also in docs/import.md; the
@@ -26,7 +26,7 @@ RUN_COLUMN=N pairs the input of row i with that column's row i+N (dropping the e
 header). The source file's name and sha256 and every option are stored in the run's
 metadata ("import"); show them with `piezopress inspect`.
 
-Examples (data sets in ../shared/datasets, see its README.md and docs/import.md):
+Examples (data sets in ../shared/datasets, see its README.md; the README's "Importing measured data"):
 
 \b
   # SmartHysteresis: +-150 V, 1 Hz sine, displacement in um, 5 kHz time column
@@ -217,3 +217,4 @@ def import_command(
         click.echo(f"Note: {' and '.join(dropped)} among the data left out (not samples)", err=True)
     if previous is not None:
         click.echo(f"previous version kept as {previous}")
+    next_command(f"piezopress fit {out} --out {out.with_suffix('.json')}")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from piezopress.piezocli.cmd_characterize import _print_progress
-from piezopress.piezocli.main import cli, emit_json, json_option, reports_errors
+from piezopress.piezocli.main import cli, emit_json, json_option, next_command, reports_errors
 from piezopress.pipelines import characterize as char
 from piezopress.pipelines import summary
 from piezopress.pipelines import validate as val
@@ -98,3 +98,7 @@ def validate_cmd(bundle_path, out_dir, plan_path, rig_path, backend_name, no_sha
     click.echo(f"\n{len(result.runs)} runs written to {result.out_dir}\n")
     click.echo(summary.format_table(table, title="Validation (compensated)"))
     click.echo(f"\nTable saved as {path}")
+    next_command(
+        f"piezopress report --validation {result.out_dir} --bundle {bundle_path} "
+        f"--characterization CHARACTERIZATION_DIR --out {result.out_dir.parent / (result.out_dir.name + '-report')}"
+    )

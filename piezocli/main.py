@@ -202,6 +202,13 @@ def allow_mixed_rigs_option() -> click.Option:
     )
 
 
+def next_command(*lines: str, err: bool = False) -> None:
+    """End a command with the next useful command(s), filled in."""
+    click.echo("Next:", err=err)
+    for line in lines:
+        click.echo(f"  {line}", err=err)
+
+
 class LazyGroup(click.Group):
     """A group whose commands are imported on first use (see :data:`COMMANDS`)."""
 
@@ -239,7 +246,20 @@ def cli() -> None:
     """Open-loop force control of piezoelectric presses.
 
     \b
-    Typical session at the rig:
-      piezopress characterize --out runs/2026-11-21      # scripted protocols -> Parquet runs
-      piezopress import data.csv --out run.parquet ...   # measured data from elsewhere
+    At the rig (the virtual one without hardware):
+      piezopress characterize --out runs/char                 # scripted protocols -> Parquet runs
+      piezopress fit runs/char --out build/bundle.json        # hysteresis, creep, shaper
+      piezopress validate --bundle build/bundle.json --out runs/val
+      piezopress fit runs/char --base --out build/base.json   # the thesis's model, for diagnose
+      piezopress diagnose runs/char --bundle build/base.json --out runs/diag
+      piezopress report --characterization runs/char --validation runs/val --bundle build/bundle.json \\
+          --diagnosis runs/diag --out build/report
+    \b
+    With a record from elsewhere:
+      piezopress import data.csv --out run.parquet --col t_s=1 --col command_v=2 --col force_n=3
+      piezopress fit run.parquet --out model.json             # prints the rest and the reach
+      piezopress compensate --bundle model.json --reference ref.csv --out drive.csv
+      piezopress simulate drive.csv --bundle model.json --out predicted.csv
+      piezopress diagnose run.parquet --bundle model.json --out diag
+      piezopress report --characterization run.parquet --bundle model.json --out report
     """

@@ -209,6 +209,22 @@ def check_output(path: str | Path, *, replace: bool = False) -> None:
             "under a timestamped name)"
         )
     writable_folder(path.parent)
+    check_stale_lock(path)
+
+
+def check_stale_lock(path: Path) -> None:
+    """Refuse, before any work, an output whose lock file is older than :data:`LOCK_WAIT_S` (left
+    by a writer that was killed): the work would be done, then thrown away at the write."""
+    lock = Path(path).with_name(f".{Path(path).name}.lock")
+    try:
+        age = time.time() - lock.stat().st_mtime
+    except OSError:  # no lock: the usual case
+        return
+    if age > LOCK_WAIT_S:
+        raise PiezopressError(
+            f"{path}: a lock file {lock} has been there for {age:.0f} s (a writer killed while writing?); expected "
+            "none: remove it if no piezopress is running, then run this again"
+        )
 
 
 # --- the status of a run directory ------------------------------------------------------------

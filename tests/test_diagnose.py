@@ -13,6 +13,7 @@ and ``bench/bench_diagnose.py`` is the full measurement over 20 seeds.
 """
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -134,7 +135,8 @@ def test_cli_diagnose_json_progress_and_simulate(tmp_path):
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     assert "Diagnosis: input_delay" in res.stderr and "held-out" in res.stderr and "Diagnosis:" not in res.stdout
-    assert "[pass " not in res.stderr  # progress is for a terminal only
+    # piped: one progress line per cause tried, with its time, on stderr (never on --json's stdout)
+    assert re.search(r"\[pass 1, 1/\d+\] \w+ +.* \(\d+\.\d s\)", res.stderr) and "[pass " not in res.stdout
     assert [f["cause"] for f in doc["findings"]] == ["input_delay"]  # named, and nothing else
     assert doc["findings"][0]["parameters"]["delay_s"] == pytest.approx(3e-4, rel=0.1)
     assert doc["findings"][0]["gain_pct"] >= MIN_TEST_GAIN_PCT
@@ -211,7 +213,20 @@ def test_progress_is_reported_for_every_cause_tried_in_every_pass():
     assert all(e.round == 1 and e.total == len(tried) for e in events)
     assert [e.index for e in events if e.done] == list(range(1, len(tried) + 1))
     assert not any(e.accepted for e in events)
-    assert cmd_diagnose._progress_printer(err=False) is None  # pytest's stdout is not a terminal
+    import io
+    import sys
+
+    piped = io.StringIO()  # not a terminal: a line per cause when done, nothing redrawn
+    sys_stdout, sys.stdout = sys.stdout, piped
+    try:
+        show = cmd_diagnose._progress_printer(err=False)
+        for e in events:
+            show(e)
+    finally:
+        sys.stdout = sys_stdout
+    lines = piped.getvalue().splitlines()
+    assert len(lines) == len(tried) and "\r" not in piped.getvalue()
+    assert all(f"] {c}" in line and line.endswith(" s)") for c, line in zip(tried, lines))
 
 
 def test_the_progress_printer_draws_a_line_per_cause_on_a_terminal(monkeypatch):
@@ -235,8 +250,8 @@ def test_the_progress_printer_draws_a_line_per_cause_on_a_terminal(monkeypatch):
     ):
         show(ev)
     lines = out.getvalue().split("\n")
-    assert lines[0].endswith("held-out gain 92 % (a finding)") and "[pass 1, 1/2] input_delay" in lines[0]
-    assert lines[1].endswith("nothing to fit") and "[pass 1, 2/2] second_resonance" in lines[1] and lines[2] == ""
+    assert "held-out gain 92 % (a finding) (" in lines[0] and "[pass 1, 1/2] input_delay" in lines[0]
+    assert "nothing to fit (" in lines[1] and "[pass 1, 2/2] second_resonance" in lines[1] and lines[2] == ""
 
 
 from conftest import DATASETS, needs_datasets  # noqa: E402

@@ -446,3 +446,72 @@ def test_validate_says_when_the_bundle_was_fitted_on_another_press(tmp_path):
     assert "on another press (rig 0123456789ab)" in other_press_note(other, rig, "b.json")
     legacy = {"hysteresis": {"runs": [{"name": "t"}]}}  # fitted before presses were recorded: nothing to say
     assert other_press_note(legacy, rig, "b.json") == ""
+
+
+def test_a_stale_lock_is_reported_before_the_work_not_after(tmp_path):
+    import os
+    import time
+
+    out = tmp_path / "h.json"
+    lock = tmp_path / ".h.json.lock"
+    lock.write_text("")
+    old = time.time() - 120
+    os.utime(lock, (old, old))
+    t0 = time.monotonic()
+    res = invoke("fit-hysteresis", CHAR / "triangle-0.1hz.parquet", "--out", out)
+    assert res.exit_code == 1 and "a lock file" in res.output and "remove it if no piezopress is running" in res.output
+    assert time.monotonic() - t0 < 10  # refused before the fit, not after it
+    lock.unlink()
+    assert invoke("fit-hysteresis", CHAR / "triangle-0.1hz.parquet", "--out", out).exit_code == 0
+
+
+def test_one_sign_reversed_run_beside_a_normal_one_is_named(tmp_path):
+    from piezopress import runformat
+
+    d = tmp_path / "runs"
+    d.mkdir()
+    for name, sign in (("triangle-0.1hz", 1.0), ("triangle-increasing-0.1hz", -1.0)):
+        run = runformat.read_run(CHAR / f"{name}.parquet")
+        data = run.data.copy()
+        data["force_n"] = sign * data["force_n"] + (0.0 if sign > 0 else 2 * float(data["force_n"].mean()))
+        runformat.write_run(runformat.Run(data, run.meta), d / f"{name}.parquet")
+    res = invoke("fit-hysteresis", d, "--out", tmp_path / "h.json")
+    assert res.exit_code == 1
+    assert "in triangle-increasing-0.1hz the output falls as the input rises" in res.output and "--scale" in res.output
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_mixes_of_presses_generated_are_refused_exactly_when_two_presses_meet(seed):
+    """The class, generated: runs drawn from up to three presses (a configuration value changed),
+    each measured with its own noise seed, some stripped of metadata (from elsewhere): refused
+    exactly when two known presses meet, and the message names each press's runs."""
+    import copy
+
+    from piezopress import runformat
+    from piezopress.pipelines.sources import MixedRigsError, allow_mixed_rigs, check_one_rig
+
+    rng = np.random.default_rng(seed)
+    base = runformat.read_run(CHAR / "triangle-1hz.parquet")
+    runs, presses = [], set()
+    for i in range(int(rng.integers(2, 6))):
+        meta = copy.deepcopy(base.meta)
+        meta["name"] = f"run{i}"
+        press = int(rng.integers(0, 3))
+        meta["rig"]["config"]["rig"]["seed"] = int(rng.integers(0, 1000))  # the noise, not the press
+        meta["rig"]["config"]["actuator"]["drive_max_v"] = 150.0 - press  # the press
+        if rng.random() < 0.3:  # a run from elsewhere: no press recorded
+            meta = {k: meta[k] for k in ("schema_version", "kind", "name", "sample_rate_hz")}
+        else:
+            presses.add(press)
+        runs.append(runformat.Run(base.data, meta))
+    if len(presses) > 1:
+        with pytest.raises(MixedRigsError) as err:
+            check_one_rig(runs)
+        assert f"come from {len(presses)} presses" in str(err.value)
+        allow_mixed_rigs(True)
+        try:
+            check_one_rig(runs)  # told: joined
+        finally:
+            allow_mixed_rigs(False)
+    else:
+        check_one_rig(runs)

@@ -117,7 +117,9 @@ def smart_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("smart") / "smart.parquet"
     result = invoke(localised(documented(SMART), out))
     assert result.exit_code == 0, result.output
-    assert len(result.output.strip().splitlines()) == 1 and "50001 samples at 5000 Hz" in result.output
+    lines = result.output.strip().splitlines()
+    assert "50001 samples at 5000 Hz" in lines[0]
+    assert lines[1:] == ["Next:", f"  piezopress fit {out} --out {out.with_suffix('.json')}"]  # the next command
     return read_run(out)
 
 

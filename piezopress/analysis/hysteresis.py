@@ -492,13 +492,20 @@ def _partial_sums(idx0: int, n_neg: int, n_pos: int) -> np.ndarray:
 
 
 def _check_rising(data: HysteresisData) -> None:
+    """Refuse runs whose output falls as the input rises: each run on its own (one reversed run
+    beside normal ones would be drowned in the whole), then all together."""
+    fix = "the model expects a rising output: import the output with --scale COLUMN=-1 (and say so in --units-note)"
+    falling = [
+        name
+        for name, u, z, m in zip(data.names, data.u, data.z, data.train)
+        if m.sum() > 2 and np.ptp(u[m]) > 0 and np.ptp(z[m]) > 0 and np.corrcoef(u[m], z[m])[0, 1] < 0
+    ]
+    if falling:
+        raise HysteresisFitError(f"in {', '.join(falling)} the output falls as the input rises; {fix}")
     u = np.concatenate([u[m] for u, m in zip(data.u, data.train)])
     z = np.concatenate([z[m] for z, m in zip(data.z, data.train)])
     if u.size > 2 and np.ptp(u) > 0 and np.ptp(z) > 0 and np.corrcoef(u, z)[0, 1] < 0:
-        raise HysteresisFitError(
-            "the output falls as the input rises; the model expects a rising output: "
-            "import the output with --scale COLUMN=-1 (and say so in --units-note)"
-        )
+        raise HysteresisFitError(f"the output falls as the input rises; {fix}")
 
 
 def fit_structure(
