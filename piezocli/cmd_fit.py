@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import click
@@ -287,13 +288,14 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     def say(text: str) -> None:
         click.echo(text, err=as_json)
 
+    started = time.monotonic()
     fitted = fit_mod.fit_bundle(
         runs,
         act if rig_path is not None else None,
         base=base,
         skip_s=skip_s,
         rows=rows,
-        on_stage=lambda stage: say(f"fitting {stage} ..."),
+        on_stage=lambda stage: say(f"fitting {stage} ... ({time.monotonic() - started:.1f} s so far)"),
         record_range=act if rig_path is None else None,
     )
     res = fitted.result
@@ -333,6 +335,7 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
             "--rig with this "
             "actuator's range)"
         )
+    say(f"fitted in {time.monotonic() - started:.1f} s")
     checked = bundle_mod.Bundle.from_dict(fitted.doc, str(out))
     r_lo, r_hi = checked.reach()
     y0 = checked.hysteresis.y0

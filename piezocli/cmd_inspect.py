@@ -61,6 +61,45 @@ def _describe(run: Run) -> list[str]:
     return lines
 
 
+def _bundle_lines(path: Path) -> tuple[list[str], dict]:
+    """A bundle's summary: sections, the held-out error, the rest, the reach, the drive range, its runs."""
+    from piezopress import units
+    from piezopress.pipelines.bundle import read_bundle
+
+    b = read_bundle(path)
+    doc = b.to_dict()
+    u = units.label(b.unit)
+    k = units.key(b.unit)
+    fit = (doc.get("hysteresis") or {}).get("fit") or {}
+    lo, hi = b.reach()
+    rest = float(b.hysteresis.y0)
+    s = b.settings
+    runs = [r.get("name") for r in (doc.get("hysteresis") or {}).get("runs", []) if isinstance(r, dict)]
+    sections = [name for name in ("hysteresis", "creep", "shaper") if doc.get(name)]
+    held = fit.get(f"holdout_rms_{k}")
+    info = {
+        "path": path,
+        "sections": sections,
+        "output_unit": b.unit,
+        f"holdout_rms_{k}": held,
+        f"rest_{k}": rest,
+        f"reach_above_rest_{k}": [lo, hi],
+        "drive_v": [s.drive_min_v, s.drive_max_v],
+        "fitted_on": runs,
+        "from_elsewhere": b.from_elsewhere,
+    }
+    lines = [
+        str(path),
+        f"  bundle of {', '.join(sections)}; output {units.quantity(b.unit)} in {u}",
+        f"  held-out error {held:.4g} {u} RMS" if isinstance(held, (int, float)) else "  held-out error not recorded",
+        f"  rest: {rest:.4g} {u} (the zero of references above the rest); the drive range {s.drive_min_v:g} to "
+        f"{s.drive_max_v:g} V reaches {rest + lo:.4g} to {rest + hi:.4g} {u} ({lo:.4g} to {hi:.4g} above the rest)",
+        f"  fitted on {', '.join(map(str, runs)) or '?'}"
+        + (" (runs from elsewhere: compensate reads references on the record's own scale)" if b.from_elsewhere else ""),
+    ]
+    return lines, info
+
+
 def _as_dict(run: Run) -> dict:
     stats = run.data.agg(["min", "max", "mean"])
     t = run.t_s
@@ -90,6 +129,9 @@ def _as_dict(run: Run) -> dict:
 def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool, as_json: bool) -> None:
     """Validate run files and print a summary of each.
 
+    A parameter bundle (.json) gets its sections, held-out error, rest level, the output its
+    drive range reaches and the runs it was fitted on.
+
     For each RUN (a run file, or a directory: every run file in it): kind, name, sample rate,
     duration and number of samples; what its signals show (the measured profile); minimum,
     maximum and mean of every column; the other metadata (units note, protocol, ...) and,
@@ -116,18 +158,20 @@ def inspect_command(runs: tuple[Path, ...], allow_incomplete: bool, as_json: boo
     docs = []
     for i, path in enumerate(files):
         try:
-            run = read_run(path, allow_incomplete=allow_incomplete)
+            if path.suffix.lower() == ".json" and path.is_file():  # a bundle: what a person needs before compensate
+                lines, info = _bundle_lines(path)
+            else:
+                run = read_run(path, allow_incomplete=allow_incomplete)
+                lines, info = ([], _as_dict(run)) if as_json else (_describe(run), None)
         except PiezopressError as exc:
             bad += 1
             click.echo(f"Error: {exc}", err=True)
             docs.append({"path": path, "error": str(exc)})
             continue
         if as_json:
-            docs.append(_as_dict(run))
-            continue
-        if i:
-            click.echo()
-        click.echo("\n".join(_describe(run)))
+            docs.append(info)
+        else:
+            click.echo(("\n" if i else "") + "\n".join(lines))
     if as_json:
         emit_json({"runs": docs, "bad": bad})
     if bad:

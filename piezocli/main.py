@@ -106,6 +106,7 @@ ROWS = RowsType()
 #: are imported only when run (or asked for their own help), so ``--version``, ``--help`` and
 #: shell completion start without numpy's, scipy's, pandas' or matplotlib's import time.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "batch": ("cmd_batch", "Run a stage for many presses at once (Dask), with a fleet report."),
     "bundle": ("cmd_fit", "Join fitted sections into a parameter bundle."),
     "characterize": ("cmd_characterize", "Run the characterization protocols through a backend into runs."),
     "check-rig": ("cmd_check_rig", "Drive a small, safe signal and say whether the force follows."),

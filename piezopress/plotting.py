@@ -474,3 +474,34 @@ def drive_and_reference(panels: Sequence[DrivePanel], *, unit: str = "N", title:
     if title:
         fig.suptitle(title)
     return fig
+
+
+def fleet_strips(
+    figures: Sequence[tuple[str, Sequence[str], Sequence[float]]], flagged: set[tuple[str, str]] | None = None
+) -> Figure:
+    """One strip per key figure of a fleet: each press a dot (``(title, presses, values)`` per
+    figure); a press outside the fleet's spread (``flagged``: ``(press, title)``) drawn red and
+    named, the median a grey line."""
+    flagged = flagged or set()
+    n = max(len(figures), 1)
+    fig = _figure(0.9 + 0.75 * n)
+    axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+    for ax, (title, presses, values) in zip(axes, figures):
+        x = np.asarray(values, float)
+        ok = np.isfinite(x)
+        ax.set_yticks([])
+        ax.set_title(title, fontsize=9, loc="left")
+        if not ok.any():
+            _no_data(ax, "no press has this figure")
+            continue
+        jitter = np.linspace(-0.25, 0.25, x.size) if x.size > 1 else np.zeros(1)
+        ax.axvline(float(np.median(x[ok])), color="0.6", lw=1)
+        for p, v, j in zip(presses, x, jitter):
+            if not np.isfinite(v):
+                continue
+            out = (p, title) in flagged
+            ax.plot(v, j, "o", ms=5, color="#c0392b" if out else "#34495e", alpha=0.9)
+            if out:
+                ax.annotate(p, (v, j), textcoords="offset points", xytext=(4, 4), fontsize=8, color="#c0392b")
+        ax.set_ylim(-0.6, 0.6)
+    return fig

@@ -289,8 +289,11 @@ def _diagnose_into(
     result = dg.diagnose(base, runs, fitted, causes, on_progress)
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
+    from piezopress.pipelines.sources import group_by_rig
+
     doc = {
         "bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
+        "rigs": [ident.as_dict() for ident in group_by_rig(loaded)],
         "causes": {
             c.id: {
                 "physics": c.physics,

@@ -230,7 +230,8 @@ def build_report(
         if residuals is not None:
             blocks.append(residuals)
     if diagnosis is not None:
-        blocks += _diagnosis_blocks(diagnosis, missing)
+        runs = [r for s in (char, val) if s is not None for r in s.runs.values()]
+        blocks += _diagnosis_blocks(diagnosis, missing, runs)
     blocks += [Heading("Missing pieces"), Bullets(tuple(missing)) if missing else Para("Nothing missing.")]
     return Report(metrics_table(char, val), comparison, blocks, missing, verdict)
 

@@ -28,6 +28,28 @@ def _unit_key(d: dict[str, Any], prefix: str) -> tuple[float, str]:
     return math.nan, "n"
 
 
+def _rest_and_reach(bundle: dict[str, Any]) -> str:
+    """The zero of references and the output the drive range reaches ('' : the bundle cannot say)."""
+    from piezopress.analysis.bundle import Bundle
+    from piezopress.errors import PiezopressError
+
+    try:
+        b = Bundle.from_dict(bundle)
+        lo, hi = b.reach()
+    except (PiezopressError, KeyError, TypeError, ValueError):
+        return ""
+    u, rest, s = units.label(b.unit), float(b.hysteresis.y0), b.settings
+    zero = (
+        "references are read on the record's own scale (the bundle was fitted on imported runs)"
+        if b.from_elsewhere
+        else "references are read above it"
+    )
+    return (
+        f"Rest and reach: the model's rest output is {rest:.4g} {u}; {zero}. The drive range {s.drive_min_v:g} to "
+        f"{s.drive_max_v:g} V reaches {rest + lo:.4g} to {rest + hi:.4g} {u} ({lo:.4g} to {hi:.4g} {u} above the rest)."
+    )
+
+
 def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]) -> list[Block]:
     blocks: list[Block] = [
         Heading("Model quality"),
@@ -44,6 +66,7 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     rng, _ = _unit_key(fit, "output_range_")
     unit = units.label(code or key)
     runs = ", ".join(r.get("name", "?") for r in h.get("runs", []))
+    blocks += [Para(_rest_and_reach(bundle))] if _rest_and_reach(bundle) else []
     blocks += [
         Heading("Hysteresis (modified Prandtl-Ishlinskii)", 3),
         Para(
@@ -200,8 +223,11 @@ def _gain_blocks(csv_path: Path, missing: list[str]) -> list[Block]:
     return blocks
 
 
-def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
-    """The diagnosis section: its summary, the findings, what is unexplained, the residuals."""
+def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = None) -> list[Block]:
+    """The diagnosis section: its summary, the findings, what is unexplained, the residuals
+    (refused when its runs came from another press than ``runs``, unless --allow-mixed-rigs)."""
+    import json
+
     path = Path(path)
     doc_path = path / "diagnosis.json"
     from piezopress.pipelines.diagnose import COMPLETE, read_status
@@ -213,6 +239,14 @@ def _diagnosis_blocks(path: str | Path, missing: list[str]) -> list[Block]:
             "is missing (run `piezopress diagnose` again into a new directory)."
         )
         return []
+    if doc_path.is_file() and runs:
+        from piezopress.pipelines.sources import check_same_press
+
+        try:
+            other = json.loads(doc_path.read_text(encoding="utf-8")).get("rigs")
+        except (ValueError, UnicodeDecodeError):
+            other = None
+        check_same_press(runs, other, f"the diagnosis {path}")
     if not doc_path.is_file():
         missing.append(f"{path}: no diagnosis.json; the diagnosis section is missing (run `piezopress diagnose`).")
         return []

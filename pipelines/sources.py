@@ -84,6 +84,23 @@ def group_by_rig(runs: Iterable[runformat.Run]) -> dict[RigIdentity, list[str]]:
     return groups
 
 
+def check_same_press(runs: Iterable[runformat.Run], other: Any, what: str) -> None:
+    """Refuse ``what`` (a diagnosis, a bundle: its recorded presses ``other``, a list of
+    ``{"digest", "label"}``) when it names presses and none is one of the runs' (unless
+    :func:`allow_mixed_rigs`)."""
+    if mixed_rigs_allowed() or not isinstance(other, list):
+        return
+    theirs = {o.get("digest"): o.get("label", o.get("digest")) for o in other if isinstance(o, dict)}
+    ours = group_by_rig(runs)
+    if not theirs or not ours or set(theirs) & {i.digest for i in ours}:
+        return
+    raise MixedRigsError(
+        f"{what} is of another press ({', '.join(map(str, theirs.values()))}) than the runs "
+        f"({', '.join(i.label for i in ours)}); expected one press's: give that press's diagnosis, or pass "
+        "--allow-mixed-rigs to show it anyway"
+    )
+
+
 def check_one_rig(runs: Iterable[runformat.Run], what: str = "the runs") -> None:
     """Refuse runs of more than one known press (unless :func:`allow_mixed_rigs`), naming each."""
     if mixed_rigs_allowed():

@@ -8,6 +8,7 @@ directory with a manifest, exactly like a characterization.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.drive_check import check_drive
 from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
+from piezopress.analysis.compensation import unreached_while_moving
 from piezopress.pipelines.bundle import BundleError, read_bundle
 from piezopress.pipelines.characterize import (
     DEFAULT_RIG,
@@ -24,10 +26,16 @@ from piezopress.pipelines.characterize import (
     execute_plan,
     make_backend,
 )
+from piezopress.pipelines.compensate import ReachError
 from piezopress.pipelines.sources import rig_identity
 from piezopress.resources import shipped
 
 DEFAULT_VALIDATION_PLAN = shipped("protocols", "validate.toml")
+
+
+#: Largest share of a validation reference clipped (the top of a 300 N loop at the range's edge
+#: clips a few %); above it the protocol is refused before anything runs.
+VALIDATE_MAX_CLIP_SHARE = 0.1
 
 
 def validate(
@@ -52,10 +60,20 @@ def validate(
             "validation plan's force references (N above the preload) on a press that measures force, "
             "expected a force bundle (compensate takes references in the bundle's unit)"
         )
-    comp = checked.compensator(use_shaper=use_shaper, use_creep=use_creep)
     backend = backend or make_backend(backend_name, rig_path)
     lim = backend.limits
-    checked.check_drive_range(lim.drive_min_v, lim.drive_max_v, str(rig_path))
+    s = checked.settings
+    # the drive range is the rig's (the press it plays on), said when it differs from the bundle's
+    comp = dataclasses.replace(
+        checked.compensator(use_shaper=use_shaper, use_creep=use_creep),
+        drive_min_v=lim.drive_min_v,
+        drive_max_v=lim.drive_max_v,
+    )
+    if (lim.drive_min_v, lim.drive_max_v) != (s.drive_min_v, s.drive_max_v) and on_warning:
+        on_warning(
+            f"the drive range is the rig's, {lim.drive_min_v:g} to {lim.drive_max_v:g} V ({rig_path}), not the "
+            f"bundle's {s.drive_min_v:g} to {s.drive_max_v:g} V"
+        )
     # references are forces above the preload: bounded by the stack's maximum load
     ref_limits = DriveLimits(
         drive_min_v=0.0,
@@ -81,6 +99,15 @@ def validate(
     def compensated(proto: Protocol) -> Drive:
         t, ref = proto.waveform()
         res = comp.drive(ref, proto.sample_rate_hz)
+        share = unreached_while_moving(res)  # a creep hold at the range's edge is reached as the press creeps
+        if share > VALIDATE_MAX_CLIP_SHARE:
+            raise ReachError(
+                f"{plan_path}: protocol '{proto.name}': {100 * share:.0f} % of its reference moves where it cannot "
+                f"be reached on this rig (drive range {lim.drive_min_v:g} to {lim.drive_max_v:g} V, {rig_path}) "
+                f"with {bundle_path}; "
+                f"expected at most {100 * VALIDATE_MAX_CLIP_SHARE:g} % (its figures would be a clipped drive's): "
+                "lower the plan's references to what the press reaches"
+            )
         check_drive(
             res.command_v, proto.sample_rate_hz, lim, f"{plan_path}: protocol '{proto.name}' through {bundle_path}"
         )

@@ -71,3 +71,23 @@ def needs_datasets(*relative: str):
 @pytest.fixture
 def _datasets_missing_in_ci():
     pytest.fail(f"CI: the shared data sets are not in {DATASETS} (PIEZOPRESS_DATASETS); real-data tests must run in CI")
+
+
+#: How each shared data set is imported (README, "The shared data sets"): the source, then the options.
+IMPORTS = {
+    "smart": (
+        "smarthysteresis/hysteresis_v_150_1hz.csv",
+        "--no-header --kind sine --col t_s=2 --col displacement_um=3 --col command_v=4 --sample-rate-hz 5000",
+    ),
+    "aye": (
+        "aye-ang-2018/Model_Vi_Do.dat",
+        "--no-header --delimiter tab --kind sine --col command_v=1 --col displacement_um=5 --lag displacement_um=1 "
+        "--sample-rate-hz 200",
+    ),
+}
+
+
+def import_args(which: str, out) -> list[str]:
+    """``piezopress import`` arguments for a shared data set into ``out``."""
+    source, options = IMPORTS[which]
+    return ["import", str(DATASETS / source), "--out", str(out), *options.split()]

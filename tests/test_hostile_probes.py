@@ -445,10 +445,10 @@ def test_an_error_after_a_progress_line_starts_a_line_of_its_own(tmp_path, monke
     assert "\nError: rig on fire" in res.output and res.output.rstrip().endswith("Error: rig on fire")
 
 
-def test_validate_refuses_a_bundle_drive_range_outside_the_rig_before_the_directory_is_made(tmp_path):
-    """A rig whose actuator stops at 10 V: the bundle's drive range (-30 to 150 V) is not inside
-    it, so validate refuses in one line, before any drive is made, and creates nothing (the
-    compensator clips to the bundle's range, which the bundle check holds inside the rig's)."""
+def test_validate_refuses_references_a_weaker_rig_cannot_reach_before_the_directory_is_made(tmp_path):
+    """A rig whose actuator stops at 10 V: the compensator works in the rig's range (issue 22),
+    where the 50 N triangle cannot be reached; validate refuses in one line, before any drive
+    is played, and creates nothing."""
     rig = tmp_path / "rig.toml"
     rig.write_text(
         (ROOT / "rigs" / "thesis-press.toml").read_text().replace("drive_max_v = 150.0", "drive_max_v = 10.0")
@@ -461,9 +461,7 @@ def test_validate_refuses_a_bundle_drive_range_outside_the_rig_before_the_direct
     out = tmp_path / "val"
     res = invoke("validate", "--bundle", str(BUNDLE), "--plan", str(plan), "--rig", str(rig), "--out", str(out))
     line = one_error_line(res)
-    assert (
-        line == f"Error: {BUNDLE}: compensation drive range -30 to 150 V; expected inside the rig's -30 to 10 V ({rig})"
-    )
+    assert "protocol 'tri':" in line and "cannot be reached on this rig (drive range -30 to 10 V" in line
     assert not out.exists()
 
 

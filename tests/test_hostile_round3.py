@@ -515,3 +515,30 @@ def test_mixes_of_presses_generated_are_refused_exactly_when_two_presses_meet(se
             allow_mixed_rigs(False)
     else:
         check_one_rig(runs)
+
+
+def test_report_refuses_another_press_diagnosis_unless_allowed(tmp_path):
+    from piezopress import runformat
+    from piezopress.pipelines.sources import rig_identity
+
+    ours = rig_identity(runformat.read_run(CHAR / "triangle-1hz.parquet").meta)
+    for digest, refused in (("0123456789ab", True), (ours.digest, False)):
+        diag = tmp_path / f"diag-{digest}"
+        shutil.copytree(ROOT / "sample_runs" / "diagnosis", diag)
+        doc = json.loads((diag / "diagnosis.json").read_text())
+        doc["rigs"] = [{"digest": digest, "label": f"virtual rig {digest}"}]
+        (diag / "diagnosis.json").write_text(json.dumps(doc))
+        res = invoke("report", "--characterization", CHAR, "--diagnosis", diag, "--out", tmp_path / f"rep-{digest}")
+        if refused:
+            assert res.exit_code == 1 and "is of another press (virtual rig 0123456789ab)" in res.output
+            res = invoke(
+                "report",
+                "--characterization",
+                CHAR,
+                "--diagnosis",
+                diag,
+                "--out",
+                tmp_path / f"rep-{digest}",
+                "--allow-mixed-rigs",
+            )
+        assert res.exit_code == 0, res.output

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
-from conftest import DATASETS, needs_datasets
+from conftest import import_args, needs_datasets
 
 from piezopress.piezocli.main import cli
 
@@ -52,23 +52,7 @@ def _chain(tmp_path: Path, run: Path, ref: Path) -> tuple[dict, pd.DataFrame, st
 @needs_datasets(SMART)
 def test_smarthysteresis_record_to_a_checked_drive_on_its_own_scale(tmp_path):
     run = tmp_path / "smart.parquet"
-    res = invoke(
-        "import",
-        DATASETS / SMART,
-        "--out",
-        run,
-        "--no-header",
-        "--kind",
-        "sine",
-        "--col",
-        "t_s=2",
-        "--col",
-        "displacement_um=3",
-        "--col",
-        "command_v=4",
-        "--sample-rate-hz",
-        "5000",
-    )
+    res = invoke(*import_args("smart", run))
     assert res.exit_code == 0, res.output
     ref = _triangle(tmp_path / "ref.csv", "reference_um", -15.0, 15.0, 5000.0)  # inside the record's -19.7..19.7
     doc, pred, out = _chain(tmp_path, run, ref)
@@ -85,25 +69,7 @@ def test_smarthysteresis_record_to_a_checked_drive_on_its_own_scale(tmp_path):
 @needs_datasets(AYE_MODEL)
 def test_aye_ang_record_to_a_checked_drive(tmp_path):
     run = tmp_path / "aye.parquet"
-    res = invoke(
-        "import",
-        DATASETS / AYE_MODEL,
-        "--out",
-        run,
-        "--no-header",
-        "--delimiter",
-        "tab",
-        "--kind",
-        "sine",
-        "--col",
-        "command_v=1",
-        "--col",
-        "displacement_um=5",
-        "--lag",
-        "displacement_um=1",
-        "--sample-rate-hz",
-        "200",
-    )
+    res = invoke(*import_args("aye", run))
     assert res.exit_code == 0, res.output
     rec = pd.read_parquet(run)["displacement_um"]
     lo, hi = np.quantile(rec, [0.2, 0.8])  # well inside the record's range
@@ -198,8 +164,7 @@ def test_fit_simulate_and_diagnose_judge_one_model_on_the_same_rows(tmp_path, ba
     from piezopress import runformat
 
     run = tmp_path / "smart.parquet"
-    args = ["--no-header", "--kind", "sine", "--col", "t_s=2", "--col", "displacement_um=3", "--col", "command_v=4"]
-    assert invoke("import", DATASETS / SMART, "--out", run, *args, "--sample-rate-hz", "5000").exit_code == 0
+    assert invoke(*import_args("smart", run)).exit_code == 0
     bundle = tmp_path / "b.json"
     res = invoke("fit", run, "--out", bundle, *(["--base"] if base else []))
     assert res.exit_code == 0, res.output
@@ -219,3 +184,30 @@ def test_fit_simulate_and_diagnose_judge_one_model_on_the_same_rows(tmp_path, ba
         assert other == pytest.approx(held_fit, rel=0.05)
     # the headline residual is judged on the same rows (no 3.4 µm from the start's unknown state)
     assert doc["residual_rms_um"] < 3 * held_fit
+
+
+def test_inspect_a_bundle_shows_its_rest_reach_and_error():
+    from piezopress.pipelines.bundle import read_bundle
+
+    b = read_bundle(BUNDLE)
+    lo, hi = b.reach()
+    res = invoke("inspect", BUNDLE)
+    assert res.exit_code == 0, res.output
+    assert f"rest: {b.hysteresis.y0:.4g} N" in res.output and f"({lo:.4g} to {hi:.4g} above the rest)" in res.output
+    held = json.loads(BUNDLE.read_text())["hysteresis"]["fit"]["holdout_rms_n"]
+    assert f"held-out error {held:.4g} N RMS" in res.output
+    # the reach is the model's: driving its inverse to the reach's ends needs the range's ends
+    drive, _ = b.hysteresis.inverse(np.array([b.hysteresis.y0, b.hysteresis.y0 + hi]))
+    assert drive[-1] == pytest.approx(b.settings.drive_max_v, abs=1.0)
+    res = invoke("inspect", BUNDLE, "--json")
+    doc = json.loads(res.stdout)
+    assert doc["runs"][0]["reach_above_rest_n"] == pytest.approx([lo, hi])
+
+
+def test_the_report_says_the_rest_and_the_reach(tmp_path):
+    res = invoke("report", "--bundle", BUNDLE, "--out", tmp_path / "rep")
+    assert res.exit_code == 0, res.output
+    assert (
+        "Rest and reach: the model's rest output is 49.98 N; references are read above it."
+        in (tmp_path / "rep" / "report.md").read_text()
+    )

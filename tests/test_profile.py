@@ -26,7 +26,7 @@ from foreign import foreign_dir, foreign_run  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_CHAR = ROOT / "sample_runs" / "characterization"
-from conftest import DATASETS, needs_datasets  # noqa: E402
+from conftest import DATASETS, import_args, needs_datasets  # noqa: E402
 
 SMART = DATASETS / "smarthysteresis" / "hysteresis_v_150_1hz.csv"
 
@@ -257,7 +257,8 @@ def test_fit_agrees_with_full_and_minimal_metadata_and_custom_kinds(tmp_path):
     for name, res in results.items():
         assert sorted(res.sections) == sorted(ref.sections), name
         h, h0 = res.sections["hysteresis"]["model"], ref.sections["hysteresis"]["model"]
-        assert len(h["r"]) == len(h0["r"]) and len(h.get("dz_thresholds", [])) == len(h0.get("dz_thresholds", [])), name
+        assert len(h["play_thresholds"]) == len(h0["play_thresholds"]), name
+        assert len(h["dead_zone_thresholds"]) == len(h0["dead_zone_thresholds"]), name
         assert res.fits["hysteresis"].holdout_rms == pytest.approx(ref.fits["hysteresis"].holdout_rms, rel=0.02), name
 
 
@@ -345,3 +346,43 @@ def test_without_the_monitor_column_the_second_press_mode_and_no_finding(tmp_pat
     B.write_document(doc, tmp_path / "base.json")
     result, _ = D.diagnose([d], tmp_path / "base.json", tmp_path / "diag")
     assert [f.cause for f in result.findings] == []
+
+
+@needs_datasets("smarthysteresis", "aye-ang-2018")
+@pytest.mark.parametrize("which", ["smart", "aye"])
+def test_the_real_data_sets_fit_and_diagnose_the_same_with_full_and_minimal_metadata(tmp_path, which):
+    """Issue 18 on the third source: each shared data set, imported (its import metadata, kind
+    sine) and cut to the four required fields with kind custom, through fit, diagnose and the
+    report's characterization table: the same sections and structure, held-out errors within
+    2 %, the same findings, the same table."""
+    from click.testing import CliRunner
+
+    from piezopress.piezocli.main import cli
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+    from piezopress.pipelines import summary
+
+    full = tmp_path / "full"
+    full.mkdir()
+    res = CliRunner().invoke(cli, import_args(which, full / f"{which}.parquet"))
+    assert res.exit_code == 0, res.output
+    minimal = foreign_dir(full, tmp_path / "minimal", custom=True)
+    out = {}
+    for name, d in (("full", full), ("minimal", minimal)):
+        fitted = F.fit_bundle([d], base=True)
+        B.write_document(fitted.doc, tmp_path / f"{name}.json")
+        result, _ = D.diagnose([d], tmp_path / f"{name}.json", tmp_path / f"diag-{name}")
+        table = summary.characterization_table(d).drop(columns=["run"], errors="ignore")
+        out[name] = (fitted, result, table)
+    (f_full, d_full, t_full), (f_min, d_min, t_min) = out["full"], out["minimal"]
+    assert sorted(f_full.result.sections) == sorted(f_min.result.sections)
+    h0, h1 = (f.result.sections["hysteresis"]["model"] for f in (f_full, f_min))
+    assert len(h0["play_thresholds"]) == len(h1["play_thresholds"])
+    assert len(h0["dead_zone_thresholds"]) == len(h1["dead_zone_thresholds"])
+    assert f_min.result.fits["hysteresis"].holdout_rms == pytest.approx(
+        f_full.result.fits["hysteresis"].holdout_rms, rel=0.02
+    )
+    assert [f.cause for f in d_full.findings] == [f.cause for f in d_min.findings]
+    numeric = t_full.select_dtypes("number").columns
+    np.testing.assert_allclose(t_min[numeric].to_numpy(float), t_full[numeric].to_numpy(float), rtol=0.02, atol=1e-9)

@@ -237,6 +237,9 @@ class CompensationResult:
     requested_max_v: float
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    #: samples whose reference the drive range cannot deliver, a hold the press creeps up to at
+    #: the range's edge left out (its drive is clipped, its figure is the drift after the step)
+    unreached_samples: int = 0
 
 
 @dataclass(frozen=True)
@@ -434,7 +437,14 @@ class Compensator:
                 f"{lag:.1f} % of its range behind it (RMS); raise max_rate or slow the reference"
             )
         return CompensationResult(
-            np.clip(x, self.drive_min_v, self.drive_max_v), stages, clipped, lo, hi, tuple(warnings), tuple(notes)
+            np.clip(x, self.drive_min_v, self.drive_max_v),
+            stages,
+            clipped,
+            lo,
+            hi,
+            tuple(warnings),
+            tuple(notes),
+            unreached,
         )
 
 
@@ -454,6 +464,21 @@ def _unreached(requested: np.ndarray, delivered: np.ndarray) -> tuple[int, float
     scale = max(float(np.ptp(requested)), float(np.max(np.abs(requested))), 1e-12)
     bad = miss > UNREACHED_RTOL * scale
     return int(np.count_nonzero(bad)), float(np.max(miss[bad])) if bad.any() else 0.0
+
+
+def unreached_while_moving(result: CompensationResult) -> float:
+    """Share of a reference's samples that move (a hold left out: a creep hold at the range's edge
+    is reached only as the press creeps) and whose reference the drive range cannot deliver."""
+    req = next((v for k, v in result.stages.items() if k.startswith("requested_")), None)
+    got = next((v for k, v in result.stages.items() if k.startswith("reachable_")), None)
+    if req is None or got is None or req.size < 2:
+        return 0.0
+    moving = np.abs(np.diff(req, prepend=req[0])) > 0
+    if not moving.any():
+        return 0.0
+    scale = max(float(np.ptp(req)), float(np.max(np.abs(req))), 1e-12)
+    miss = np.abs(np.asarray(got, float) - req) > UNREACHED_RTOL * scale
+    return float(np.count_nonzero(miss & moving)) / float(req.size)
 
 
 def _rate_lag(r: np.ndarray, limited: np.ndarray | None) -> float | None:
