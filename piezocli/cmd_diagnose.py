@@ -210,7 +210,11 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
         files["compensated_gain"] = csv
     nxt = []
     if plan and plan.get("file"):
-        nxt.append(f"piezopress characterize --plan {plan['file']} --out {out.parent / (out.name + '-more')}")
+        own = (plan.get("output_column") or "force_n") != "force_n" and not (plan.get("rig") or {}).get("from_runs")
+        nxt.append(
+            f"piezopress characterize --plan {plan['file']}{' --rig YOUR-PRESS.toml' if own else ''} "
+            f"--out {out.parent / (out.name + '-more')}"
+        )
     first = runs[0] if runs else "RUNS"
     nxt.append(
         f"piezopress report --characterization {first} --bundle {out / 'extended_bundle.json'} --diagnosis {out} "

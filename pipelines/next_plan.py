@@ -316,8 +316,16 @@ def choose(ctx: dg.Context, not_tested: Sequence[str], rig: RigInfo, drive: tupl
     return NextPlan(chosen, serves, unservable, refit_for, rig)
 
 
-def plan_text(plan: NextPlan, checks: dict[str, dg.Testability], run_paths: Sequence[str], preload_n: float) -> str:
-    """``next-plan.toml``: comments saying what it is for and how to run it, then the plan."""
+def plan_text(
+    plan: NextPlan,
+    checks: dict[str, dg.Testability],
+    run_paths: Sequence[str],
+    preload_n: float,
+    output_column: str = "force_n",
+) -> str:
+    """``next-plan.toml``: comments saying what it is for and how to run it, then the plan
+    (for runs that measure displacement: on the press that recorded them, which must record
+    the same output, never on a force press)."""
     rig = plan.rig
     lim = rig.limits
     dirs = " ".join(run_paths) or "runs/"
@@ -338,17 +346,27 @@ def plan_text(plan: NextPlan, checks: dict[str, dg.Testability], run_paths: Sequ
             f"# Rig: {rig.name} (the configuration recorded in the "
             f"runs{', file ' + rig.rig_file if rig.rig_file else ''}):"
         )
+    elif output_column != "force_n":
+        lines += [
+            f"# Rig: the runs measure {output_column} and hold no rig configuration (imported): run this plan on the",
+            f"# press that recorded them, recording {output_column} again (a rig file of its backend, --rig), never",
+            "# on the virtual rig, which measures force_n: its runs would not join these (one output per model).",
+            f"# The drives assume the default rig's limits ({rig.name}); check them against your press:",
+        ]
     else:
         lines += [
             "# Rig: the runs hold no rig configuration (imported), so this plan assumes the default rig",
             f"# rigs/{DEFAULT_RIG.name} ({rig.name}); check its limits against your press before running it:",
         ]
+    rig_option = f" --rig {rig.rig_file}" if rig.rig_file else ""
+    if output_column != "force_n" and not rig.from_runs:
+        rig_option = " --rig YOUR-PRESS.toml"  # the press that recorded them, never the force-measuring default
     lines += [
         f"# drive {lim.drive_min_v:g} to {lim.drive_max_v:g} V, sampling up to {lim.max_sample_rate_hz / 1e3:g} kHz "
         "(the protocols keep to the runs' own drive range within it).",
         "#",
         "# Then:",
-        f"#   piezopress characterize --plan {PLAN_FILE}{' --rig ' + rig.rig_file if rig.rig_file else ''} --out more/",
+        f"#   piezopress characterize --plan {PLAN_FILE}{rig_option} --out more/",
     ]
     if plan.refit_for:
         lines += [
@@ -424,12 +442,14 @@ def next_plan(
         "unservable": plan.unservable,
         "refit_for": plan.refit_for,
         "rig": {"name": rig.name, "file": rig.rig_file, "from_runs": rig.from_runs},
+        "output_column": runs[0].output_column if runs else None,
     }
     if not plan.groups:
         info["file"] = None
         return info
     preloads = [float(r.meta["preload_n"]) for r in runs if isinstance(r.meta.get("preload_n"), (int, float))]
-    text = plan_text(plan, checks, run_paths, preloads[0] if preloads else 50.0)
+    column = runs[0].output_column if runs else "force_n"
+    text = plan_text(plan, checks, run_paths, preloads[0] if preloads else 50.0, column)
     path, checked = write_plan(out_dir, text, rig.limits)
     info.update(
         file=str(path),

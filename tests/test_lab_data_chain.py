@@ -211,3 +211,24 @@ def test_the_report_says_the_rest_and_the_reach(tmp_path):
         "Rest and reach: the model's rest output is 49.98 N; references are read above it."
         in (tmp_path / "rep" / "report.md").read_text()
     )
+
+
+@needs_datasets(SMART)
+def test_diagnose_on_a_displacement_record_warns_nothing_and_plans_for_its_own_press(tmp_path):
+    """No numpy warning on an ordinary diagnose; the next plan for a record that measures
+    displacement is for the press that recorded it, never the virtual rig (which measures force)."""
+    import warnings
+
+    from piezopress.pipelines import bundle as bundle_mod
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    run = tmp_path / "smart.parquet"
+    assert invoke(*import_args("smart", run)).exit_code == 0
+    bundle_mod.write_document(F.fit_bundle([run], base=True).doc, tmp_path / "base.json")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        D.diagnose([run], tmp_path / "base.json", tmp_path / "diag")
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in caught]
+    plan = (tmp_path / "diag" / "next-plan.toml").read_text()
+    assert "--rig YOUR-PRESS.toml" in plan and "never" in plan and "thesis-press.toml --out" not in plan
