@@ -76,10 +76,12 @@ def rig_identity(meta: Any) -> RigIdentity | None:
 
 def group_by_rig(runs: Iterable[runformat.Run]) -> dict[RigIdentity, list[str]]:
     """The runs' names by the press they name (runs naming none left out)."""
+    by_digest: dict[str, RigIdentity] = {}  # one press, one digest: the first label names it (files may differ)
     groups: dict[RigIdentity, list[str]] = {}
     for r in runs:
         ident = rig_identity(r.meta)
         if ident is not None:
+            ident = by_digest.setdefault(ident.digest, ident)
             groups.setdefault(ident, []).append(r.path.name if r.path is not None else r.name)
     return groups
 

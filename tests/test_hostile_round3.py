@@ -542,3 +542,19 @@ def test_report_refuses_another_press_diagnosis_unless_allowed(tmp_path):
                 "--allow-mixed-rigs",
             )
         assert res.exit_code == 0, res.output
+
+
+def test_one_press_recorded_from_two_rig_files_is_one_press():
+    """The same configuration read from the rig file and rebuilt from the runs' metadata (as
+    validate on the runs' virtual rig does): one press, whatever the source's name."""
+    import copy
+
+    from piezopress import runformat
+    from piezopress.pipelines.sources import check_one_rig, group_by_rig
+
+    run = runformat.read_run(CHAR / "triangle-1hz.parquet")
+    other = copy.deepcopy(run.meta)
+    other["rig"]["source"] = "the runs' metadata"
+    runs = [run, runformat.Run(run.data, other)]
+    check_one_rig(runs)
+    assert len(group_by_rig(runs)) == 1
