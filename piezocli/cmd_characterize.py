@@ -170,7 +170,8 @@ def protocols_cmd(copy_dir: Path | None) -> None:
     type=click.Choice(char.BACKENDS),
     default="virtual",
     show_default=True,
-    help="With --template: a virtual press (thesis-press.toml) or an NI-DAQmx press (nidaq-example.toml).",
+    help="With --template: a virtual press (thesis-press.toml), an NI-DAQmx press (nidaq-example.toml), or none: "
+    "an actuator-only rig file (drive range, slew, sampling; for compensate --rig with a lab's own controller).",
 )
 @reports_errors
 def rig_keys_cmd(template: Path | None, backend_name: str) -> None:
@@ -181,6 +182,7 @@ def rig_keys_cmd(template: Path | None, backend_name: str) -> None:
     Example:
       piezopress rig-keys
       piezopress rig-keys --template my-press.toml --backend nidaq
+      piezopress rig-keys --template my-actuator.toml --backend none
     """
     from piezopress.acquisition.rig_config import describe_keys
 
@@ -189,11 +191,18 @@ def rig_keys_cmd(template: Path | None, backend_name: str) -> None:
 
         if template.exists():
             raise OutputExistsError(f"{template}: already exists; expected a new file name for the rig file")
-        src = Path(char.DEFAULT_RIG).parent / (
-            "thesis-press.toml" if backend_name == "virtual" else "nidaq-example.toml"
-        )
+        src = Path(char.DEFAULT_RIG).parent / {
+            "virtual": "thesis-press.toml",
+            "nidaq": "nidaq-example.toml",
+            "none": "actuator-only.toml",
+        }.get(backend_name, "thesis-press.toml")
         template.parent.mkdir(parents=True, exist_ok=True)
         template.write_bytes(src.read_bytes())
-        click.echo(f"Wrote {template} (from {src.name}; edit it, then: piezopress check-rig --rig {template})")
+        then = (
+            f"piezopress compensate --bundle BUNDLE --reference REF.csv --rig {template} --out drive.csv"
+            if backend_name == "none"
+            else f"piezopress check-rig --rig {template}"
+        )
+        click.echo(f"Wrote {template} (from {src.name}; edit it, then: {then})")
         return
     click.echo(describe_keys())

@@ -324,7 +324,8 @@ def tracking_stairs(
     if stairs:
         x = np.arange(len(stairs))
         mean = np.array([s.mean for s in stairs])
-        err = np.array([[s.mean - s.low for s in stairs], [s.high - s.mean for s in stairs]])
+        # a stair read on one code has mean == min == max, but for the mean's last bit: never a negative whisker
+        err = np.clip(np.array([[s.mean - s.low for s in stairs], [s.high - s.mean for s in stairs]]), 0.0, None)
         ax_e.bar(x, mean, width=0.6, color=AFTER_COLOURS[0], alpha=0.8, label="mean error on the stair")
         ax_e.errorbar(x, mean, yerr=err, fmt="none", ecolor="k", capsize=3, lw=0.8, label="min to max")
         ax_e.set_xticks(x, [f"{s.level:.0f}" for s in stairs], fontsize=8)

@@ -190,3 +190,17 @@ def test_the_fleet_report_flags_a_press_with_a_hidden_effect_among_clean_ones(tm
     md = rep.markdown.read_text()
     assert "odd" in md and "second_resonance" in md and "broken" in md and "x.parquet: cannot be read" in md
     assert (tmp_path / "fleet_strips.png").is_file()
+
+
+def test_a_stair_read_on_one_code_draws_without_a_negative_whisker():
+    """Found by the fleet bench: 3 of 12 presses' reports failed ('yerr' must not contain negative
+    values) where a stair's error sat on one ADC code and its mean rounded a last bit above it."""
+    from piezopress import plotting
+
+    e = np.full(7, 0.1)
+    mean = float(np.mean(np.full(3, 0.1)))  # 0.10000000000000002: a last bit above min and max
+    assert mean > 0.1
+    stairs = [plotting.Stair(50.0, mean, 0.1, 0.1), plotting.Stair(100.0, 0.2, 0.1, 0.3)]
+    t = np.arange(e.size) / 10.0
+    fig = plotting.tracking_stairs(t, e, e, stairs)
+    assert plotting.to_png(fig)[:4] == b"\x89PNG"

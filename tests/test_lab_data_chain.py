@@ -232,3 +232,29 @@ def test_diagnose_on_a_displacement_record_warns_nothing_and_plans_for_its_own_p
     assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in caught]
     plan = (tmp_path / "diag" / "next-plan.toml").read_text()
     assert "--rig YOUR-PRESS.toml" in plan and "never" in plan and "thesis-press.toml --out" not in plan
+
+
+def test_an_actuator_only_rig_file_sets_the_range_compensate_uses_and_runs_nothing(tmp_path):
+    from piezopress.errors import BackendError, ConfigError
+    from piezopress.pipelines import characterize as char
+
+    rig = tmp_path / "act.toml"
+    res = invoke("rig-keys", "--template", rig, "--backend", "none")
+    assert res.exit_code == 0 and "piezopress compensate" in res.output, res.output
+    text = rig.read_text().replace("drive_min_v = -30.0", "drive_min_v = 0.0")
+    rig.write_text(text.replace("slew_v_per_ms = 0.0", "slew_v_per_ms = 50.0"))
+    lim = char.rig_limits(rig)
+    assert (lim.drive_min_v, lim.drive_max_v, lim.slew_limit_v_per_s) == (0.0, 150.0, 50000.0)
+    ref = _triangle(tmp_path / "ref.csv", "reference_n", 30.0, 100.0, 1000.0, freq=0.5, cycles=1)
+    res = invoke("compensate", "--bundle", BUNDLE, "--reference", ref, "--out", tmp_path / "d.csv", "--rig", rig)
+    assert res.exit_code == 0, res.output
+    assert "the drive range is the rig's, 0 to 150 V" in res.output
+    with pytest.raises(BackendError, match="has no board to play a drive on"):
+        char.make_backend(None, rig).run(np.zeros(10), 1000.0, preload_n=50.0, label="t")
+    rig.write_text(rig.read_text().replace("slew_v_per_ms = 50.0", "slew_v_per_ms = 0.0"))  # the plan's steps pass
+    res = invoke("characterize", "--rig", rig, "--out", tmp_path / "runs")
+    assert res.exit_code == 1 and "has no board" in res.output
+    rig.write_text('[rig]\nbackend = "none"\n[actuator]\ndrive_min_v = 200.0\ndrive_max_v = 150.0\ncolour = 3\n')
+    with pytest.raises(ConfigError) as err:
+        char.rig_limits(rig)
+    assert "drive_min_v = 200" in str(err.value) and "[actuator] colour is unknown" in str(err.value)

@@ -135,6 +135,7 @@ ENTRY_POINT_GROUP = "piezopress.backends"
 BUILTIN_BACKENDS = {
     "virtual": "piezopress.acquisition.virtual_rig:VirtualRig",
     "nidaq": "piezopress.acquisition.nidaq:NidaqBackend",
+    "none": "piezopress.acquisition.actuator_only:ActuatorOnly",
 }
 
 
