@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -77,7 +78,9 @@ def demo_cmd(out_dir: Path | None) -> None:
         raise OutputExistsError(f"{d}: exists and is not empty; expected a new directory for the demo")
     d.mkdir(parents=True, exist_ok=True)
     steps = demo_steps(d)
+    started = time.monotonic()
     for i, (title, args) in enumerate(steps, start=1):
         click.echo(f"\n== {i}/{len(steps)} {title}: piezopress {' '.join(args)}")
         cli.main(args, prog_name="piezopress", standalone_mode=False)
-    click.echo(f"\nReport: {d / 'report' / 'report.html'}")
+    # the report step printed its path ("Report: ..."), the last line a person reads
+    click.echo(f"\nThe demo took {time.monotonic() - started:.0f} s; open {d / 'report' / 'report.html'}")

@@ -38,3 +38,5 @@ def test_demo_runs_the_whole_chain_to_a_report(tmp_path):
     ):
         assert (tmp_path / "d" / part).is_file(), part
     assert res.output.count("\n== ") == 6 and f"Report: {tmp_path / 'd' / 'report' / 'report.html'}" in res.output
+    assert res.output.count("Report: ") == 1  # once, not twice
+    assert res.output.rstrip().splitlines()[-1].startswith("The demo took ")
