@@ -334,7 +334,8 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
                 tuple(
                     f"Unexplained: {u['run']}, {u[f'rms_{k}']:.3g} {un} RMS ({u['ratio']:.1f} x the noise floor), "
                     "largest at "
-                    f"{u['where_s']:.4g} s, dominant frequency {u['dominant_freq_hz']:.4g} Hz"
+                    f"{u['where_s']:.4g} s, "
+                    + (f"dominant frequency {u['dominant_freq_hz']:.4g} Hz" if u["dominant_freq_hz"] else "no tone")
                     for u in d["unexplained"]
                 )
             )

@@ -6,6 +6,7 @@ model's held-out error. The same on our own force bundle (references above the r
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from piezopress.piezocli.main import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLE = ROOT / "sample_runs" / "bundle.json"
+CHAR_SWEEP = ROOT / "sample_runs" / "characterization" / "triangle-0.1hz.parquet"
 SMART = "smarthysteresis/hysteresis_v_150_1hz.csv"
 AYE_MODEL = "aye-ang-2018/Model_Vi_Do.dat"
 
@@ -258,3 +260,31 @@ def test_an_actuator_only_rig_file_sets_the_range_compensate_uses_and_runs_nothi
     with pytest.raises(ConfigError) as err:
         char.rig_limits(rig)
     assert "drive_min_v = 200" in str(err.value) and "[actuator] colour is unknown" in str(err.value)
+
+
+def test_help_shows_the_whole_path_and_fit_says_each_stage_with_its_time(tmp_path):
+    res = invoke("--help")
+    text = res.output
+    order = ["piezopress import", "piezopress fit run.parquet", "piezopress compensate", "piezopress simulate"]
+    order += ["piezopress diagnose run.parquet", "piezopress report --characterization run.parquet"]
+    at = [text.find(s) for s in order]
+    assert all(i >= 0 for i in at) and at == sorted(at), at
+    res = invoke("fit", CHAR_SWEEP, "--out", tmp_path / "b.json")
+    assert res.exit_code == 0, res.output
+    assert re.search(r"fitting hysteresis.* \.\.\. \(\d+\.\d s so far\)", res.output)
+    assert re.search(r"fitted in \d+\.\d s", res.output)
+    assert "Next:" in res.output and f"piezopress validate --bundle {tmp_path / 'b.json'}" in res.output
+
+
+def test_a_residuals_dominant_frequency_is_a_tone_never_the_runs_length():
+    from piezopress.analysis import diagnosis as dg
+
+    fs, n = 20000.0, 3200  # a 0.16 s step run: 1 / length = 6.25 Hz
+    t = np.arange(n) / fs
+    run = dg.RunData("step", "step", t, np.where(t > 0.01, 100.0, 0.0), np.zeros(n), fs)
+    rng = np.random.default_rng(0)
+    drift = 0.5 * t / t[-1] + rng.normal(0, 0.01, n)
+    tone = np.sin(2 * np.pi * 500.0 * t) + rng.normal(0, 0.01, n)
+    assert dg.residual_stats(run, drift, 0.01).dominant_freq_hz == 0.0  # a drift is no 6.25 Hz tone
+    assert dg.residual_stats(run, rng.normal(0, 0.01, n), 0.01).dominant_freq_hz == 0.0  # nor is noise
+    assert dg.residual_stats(run, tone, 0.01).dominant_freq_hz == pytest.approx(500.0, abs=fs / n)

@@ -312,6 +312,11 @@ class ResidualStats:
         return {**self.__dict__, "ratio": self.ratio}
 
 
+#: A residual's dominant frequency is reported only where its periodogram's peak is this many
+#: times the spectrum's median (else 0: no tone).
+TONE_OVER_MEDIAN = 20.0
+
+
 def judged(run: RunData, a: np.ndarray) -> np.ndarray:
     """``a`` (a run-long array) from the row the run is judged from (the start its fit skipped left out)."""
     return a[min(run.judged_from, max(a.size - 2, 0)) :]
@@ -327,8 +332,12 @@ def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> Residual
     idx = np.where(big, np.arange(x.size), 0)
     since = t - t[np.maximum.accumulate(idx)]
     f, p = signal.periodogram(r, run.fs_hz, window="hann")
-    # a tone needs at least two periods in the run: the lowest bins are the run's length, not a frequency
+    # a tone needs at least two periods in the run (the lowest bins are the run's length, not a
+    # frequency) and to stand out of the spectrum (20x its median: white noise's largest bin is ~10x)
     k = int(np.argmax(p[2:])) + 2 if p.size > 2 else 0
+    # ... and be a peak, not the tail of the lowest bins (a drift's spectrum falls from bin 1 on)
+    if k and not (p[k] > TONE_OVER_MEDIAN * float(np.median(p[1:])) and p[k] > p[k - 1]):
+        k = 0
     return ResidualStats(
         run.name,
         rms(residual),
@@ -338,7 +347,7 @@ def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> Residual
         _corr(r, rate),
         _corr(r, np.abs(rate)),
         _corr(r, np.log1p(since * 1e3)),
-        float(f[k]) if p.size > 2 else 0.0,
+        float(f[k]) if k else 0.0,
         float(t[int(np.argmax(np.abs(r)))]),
     )
 
