@@ -734,7 +734,7 @@ def test_make_backend_follows_the_rig_file_and_refuses_a_mismatch(tmp_path):
         char.make_backend("nidaq", char.DEFAULT_RIG)
     odd = tmp_path / "odd.toml"
     odd.write_text('[rig]\nbackend = "labjack"\n')
-    unknown = "backend = 'labjack': no backend of that name; expected one of nidaq, virtual"
+    unknown = "backend = 'labjack': no backend of that name; expected one of nidaq, none, virtual"
     with pytest.raises(ConfigError, match=unknown):
         char.make_backend(None, odd)
 
