@@ -146,14 +146,16 @@ def _accept_incomplete(ctx: click.Context, param: click.Parameter, value: bool) 
     ctx.call_on_close(close)
 
 
+def _eager_flag(name: str, callback, help: str) -> click.Option:
+    """A flag set before the command runs (its callback sets the pipelines' switch and undoes it at the end)."""
+    return click.Option([name], is_flag=True, expose_value=False, is_eager=True, callback=callback, help=help)
+
+
 def accept_incomplete_option() -> click.Option:
-    return click.Option(
-        ["--accept-incomplete"],
-        is_flag=True,
-        expose_value=False,
-        is_eager=True,
-        callback=_accept_incomplete,
-        help="Use the complete runs of a run directory whose manifest says interrupted, failed or running "
+    return _eager_flag(
+        "--accept-incomplete",
+        _accept_incomplete,
+        "Use the complete runs of a run directory whose manifest says interrupted, failed or running "
         "(the output says so); without it such a directory is refused.",
     )
 
@@ -173,13 +175,10 @@ def _trust_metadata(ctx: click.Context, param: click.Parameter, value: bool) -> 
 
 
 def trust_metadata_option() -> click.Option:
-    return click.Option(
-        ["--trust-metadata"],
-        is_flag=True,
-        expose_value=False,
-        is_eager=True,
-        callback=_trust_metadata,
-        help="Where a run's recorded kind disagrees with what its signals show, use the record "
+    return _eager_flag(
+        "--trust-metadata",
+        _trust_metadata,
+        "Where a run's recorded kind disagrees with what its signals show, use the record "
         "(default: the measured kind; every disagreement is named on stderr).",
     )
 
@@ -192,13 +191,10 @@ def _allow_mixed_rigs(ctx: click.Context, param: click.Parameter, value: bool) -
 
 
 def allow_mixed_rigs_option() -> click.Option:
-    return click.Option(
-        ["--allow-mixed-rigs"],
-        is_flag=True,
-        expose_value=False,
-        is_eager=True,
-        callback=_allow_mixed_rigs,
-        help="Join runs recorded on different presses (their rig configurations differ); without it they are "
+    return _eager_flag(
+        "--allow-mixed-rigs",
+        _allow_mixed_rigs,
+        "Join runs recorded on different presses (their rig configurations differ); without it they are "
         "refused, naming which run comes from which press.",
     )
 
