@@ -12,7 +12,7 @@ import pandas as pd
 from piezopress import units
 from piezopress.acquisition.drive_check import check_drive, check_sample_rate
 from piezopress.analysis.bundle import MAX_OUTPUT, Bundle, BundleError
-from piezopress.analysis.compensation import UNREACHED_RTOL, CompensationResult
+from piezopress.analysis.compensation import CompensationResult, clipped_mask
 from piezopress.errors import ImportFormatError
 from piezopress.pipelines.bundle import read_bundle
 from piezopress.pipelines.characterize import DEFAULT_RIG
@@ -26,19 +26,6 @@ MAX_CLIP_SHARE = 0.01
 
 class ReachError(ImportFormatError):
     """A reference the bundle's drive range cannot reach on more than :data:`MAX_CLIP_SHARE` of it."""
-
-
-def _clipped_mask(result: CompensationResult) -> np.ndarray:
-    """1 where the drive was clipped or the reference is out of reach, else 0 (the output's ``clipped`` column)."""
-    x = result.stages.get("unclipped_v", result.command_v)
-    mask = (x < result.command_v - 1e-12) | (x > result.command_v + 1e-12)
-    req = next((v for k, v in result.stages.items() if k.startswith("requested_")), None)
-    got = next((v for k, v in result.stages.items() if k.startswith("reachable_")), None)
-    if req is not None and got is not None and req.size == mask.size:
-        miss = np.abs(got - req)
-        scale = max(float(np.ptp(req)), float(np.max(np.abs(req))), 1e-12)
-        mask |= miss > UNREACHED_RTOL * scale
-    return mask.astype(np.int8)
 
 
 REST, ABSOLUTE = "rest", "absolute"
@@ -188,6 +175,6 @@ def compensate_file(
     if zero == ABSOLUTE:  # the reference on the record's scale: its zero written beside it (simulate reads it)
         frame[f"rest_{units.key(bundle.unit)}"] = rest
     if result.clipped_samples:
-        frame["clipped"] = _clipped_mask(result)
+        frame["clipped"] = clipped_mask(result)
     previous = write_output(out, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"), replace=replace)
     return result, previous

@@ -34,12 +34,15 @@ def fitted_run_names(bundle: dict[str, Any]) -> list[str]:
     return sorted({r["name"] for sec in ("hysteresis", "creep", "shaper") for r in bundle.get(sec, {}).get("runs", [])})
 
 
-def run_data(run: runformat.Run, bundle: Bundle | None = None) -> dg.RunData:
+def run_data(run: runformat.Run, bundle: Bundle | None = None, sha256: str | None = None) -> dg.RunData:
     """The run as the diagnosis sees it; with the bundle it was fitted on, judged from the row
-    ``fit`` judged it from (the start before it, a rest of unknown state, is not misfit)."""
+    ``fit`` judged it from (the start before it, a rest of unknown state, is not misfit).
+    ``sha256``: the run file's, when the caller has it already."""
     judged, held = 0, None
     if bundle is not None:
-        rows = bundle.judged_rows(runformat.sha256_file(run.path) if run.path is not None else None, run.name)
+        if sha256 is None and run.path is not None:
+            sha256 = runformat.sha256_file(run.path)
+        rows = bundle.judged_rows(sha256, run.name)
         if rows is not None:
             judged, held = rows[0], (rows[1], rows[2])
     return dg.RunData(
@@ -170,13 +173,13 @@ def fitted_run_keys(bundle: dict[str, Any]) -> list[str]:
 def diagnosis_runs(loaded: list[runformat.Run], bundle: Bundle | None = None) -> list[dg.RunData]:
     """The runs as the diagnosis sees them, each keyed by its file's sha256; a name that
     repeats (two imports of one source, or two directories) is told apart by its file."""
-    runs = [run_data(r, bundle) for r in loaded]
+    keys = [runformat.sha256_file(r.path) if r.path is not None else "" for r in loaded]  # each file read once
+    runs = [run_data(r, bundle, k or None) for r, k in zip(loaded, keys)]
     count: dict[str, int] = {}
     for r in runs:
         count[r.name] = count.get(r.name, 0) + 1
     out = []
-    for r, src in zip(runs, loaded):
-        key = runformat.sha256_file(src.path) if src.path is not None else ""
+    for r, src, key in zip(runs, loaded, keys):
         name = r.name
         if count[name] > 1 and src.path is not None:
             name = f"{name} [{src.path.parent.name}/{src.path.name}]"

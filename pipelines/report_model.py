@@ -66,7 +66,8 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     rng, _ = _unit_key(fit, "output_range_")
     unit = units.label(code or key)
     runs = ", ".join(r.get("name", "?") for r in h.get("runs", []))
-    blocks += [Para(_rest_and_reach(bundle))] if _rest_and_reach(bundle) else []
+    rest_reach = _rest_and_reach(bundle)  # a forward run of the model: once
+    blocks += [Para(rest_reach)] if rest_reach else []
     blocks += [
         Heading("Hysteresis (modified Prandtl-Ishlinskii)", 3),
         Para(

@@ -457,28 +457,47 @@ RATE_LAG_PCT = 5.0
 than this RMS share of its range."""
 
 
+def unreached_mask(requested: np.ndarray, delivered: np.ndarray) -> np.ndarray:
+    """True where what the clipped drive delivers misses the requested reference by more than
+    :data:`UNREACHED_RTOL` of the reference's range (or level, for a constant one)."""
+    requested = np.asarray(requested, float)
+    scale = max(float(np.ptp(requested)), float(np.max(np.abs(requested))), 1e-12) if requested.size else 1.0
+    return np.abs(np.asarray(delivered, float) - requested) > UNREACHED_RTOL * scale
+
+
 def _unreached(requested: np.ndarray, delivered: np.ndarray) -> tuple[int, float]:
     """Samples where the reachable reference misses the requested one, and the largest miss."""
-    requested = np.asarray(requested, float)
-    miss = np.abs(np.asarray(delivered, float) - requested)
-    scale = max(float(np.ptp(requested)), float(np.max(np.abs(requested))), 1e-12)
-    bad = miss > UNREACHED_RTOL * scale
+    bad = unreached_mask(requested, delivered)
+    miss = np.abs(np.asarray(delivered, float) - np.asarray(requested, float))
     return int(np.count_nonzero(bad)), float(np.max(miss[bad])) if bad.any() else 0.0
+
+
+def _reference_stages(result: CompensationResult) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The requested reference and the reachable one of a result (``None`` where a stage is missing)."""
+    req = next((v for k, v in result.stages.items() if k.startswith("requested_")), None)
+    got = next((v for k, v in result.stages.items() if k.startswith("reachable_")), None)
+    return req, got
+
+
+def clipped_mask(result: CompensationResult) -> np.ndarray:
+    """1 where the drive was clipped or the reference is out of reach, else 0 (``compensate``'s
+    ``clipped`` column)."""
+    x = result.stages.get("unclipped_v", result.command_v)
+    mask = (x < result.command_v - 1e-12) | (x > result.command_v + 1e-12)
+    req, got = _reference_stages(result)
+    if req is not None and got is not None and req.size == mask.size:
+        mask |= unreached_mask(req, got)
+    return mask.astype(np.int8)
 
 
 def unreached_while_moving(result: CompensationResult) -> float:
     """Share of a reference's samples that move (a hold left out: a creep hold at the range's edge
     is reached only as the press creeps) and whose reference the drive range cannot deliver."""
-    req = next((v for k, v in result.stages.items() if k.startswith("requested_")), None)
-    got = next((v for k, v in result.stages.items() if k.startswith("reachable_")), None)
+    req, got = _reference_stages(result)
     if req is None or got is None or req.size < 2:
         return 0.0
     moving = np.abs(np.diff(req, prepend=req[0])) > 0
-    if not moving.any():
-        return 0.0
-    scale = max(float(np.ptp(req)), float(np.max(np.abs(req))), 1e-12)
-    miss = np.abs(np.asarray(got, float) - req) > UNREACHED_RTOL * scale
-    return float(np.count_nonzero(miss & moving)) / float(req.size)
+    return float(np.count_nonzero(unreached_mask(req, got) & moving)) / float(req.size)
 
 
 def _rate_lag(r: np.ndarray, limited: np.ndarray | None) -> float | None:
