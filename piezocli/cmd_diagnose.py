@@ -8,9 +8,34 @@ from pathlib import Path
 import click
 
 from piezopress import units
-from piezopress.piezocli.main import cli, emit_json, json_option, next_command, reports_errors
+from piezopress.piezocli.main import ROWS, cli, emit_json, json_option, next_command, reports_errors
 from piezopress.pipelines import diagnose as diag
 from piezopress.pipelines.files import kept_note
+
+
+def _judged_opts(verb: str):
+    """``--skip-s`` and ``--rows``: the rows judged in every run, instead of the bundle's record."""
+
+    def add(f):
+        f = click.option(
+            "--rows",
+            type=ROWS,
+            default=None,
+            help=f"{verb} only rows START to STOP-1 of each run (from 0); earlier rows still carry the model's "
+            "state, later rows are dropped. Default: the rows fit judged (recorded in the bundle), else all.",
+        )(f)
+        return click.option(
+            "--skip-s",
+            "skip_s",
+            type=click.FloatRange(min=0.0),
+            default=None,
+            metavar="SECONDS",
+            help=f"Do not {verb.lower()} the first SECONDS of each run (a rest of unknown state, a start-up "
+            "transient); they still carry the model's state and are reported apart. Default: as fit skipped them "
+            "(recorded in the bundle), else none.",
+        )(f)
+
+    return add
 
 
 @cli.command("simulate")
@@ -28,8 +53,9 @@ from piezopress.pipelines.files import kept_note
 @click.option(
     "--replace", is_flag=True, help="Replace an existing output (the old one is kept as <name>.replaced-<UTC time>)."
 )
+@_judged_opts("Judge")
 @reports_errors
-def simulate_cmd(run, bundle_path, out, replace) -> None:
+def simulate_cmd(run, bundle_path, out, replace, skip_s, rows) -> None:
     """Run the bundle's model on a run's measured drive, beside the measurement; or on a
     drive file before it goes to the press.
 
@@ -43,8 +69,14 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
       piezopress simulate runs/char/step-100v.parquet --bundle build/bundle.json --out sim.parquet
       piezopress compensate --bundle build/bundle.json --reference ramp.csv --out drive.csv
       piezopress simulate drive.csv --bundle build/bundle.json --out predicted.csv
+      piezopress simulate smart.parquet --bundle build/smart.json --skip-s 3.3 --out sim.parquet
     """
+    judged = diag.JudgedRows(skip_s, rows)
     if run.suffix.lower() in (".csv", ".txt", ".tsv"):  # a drive file: compensate's output, or any t_s, command_v
+        if judged.given:
+            raise click.UsageError(
+                "--skip-s/--rows judge a measured run; a drive file has no measurement to judge (leave them out)"
+            )
         ds, previous = diag.simulate_drive_file(bundle_path, run, out, replace=replace)
         u = units.label(ds.unit)
         pred = ds.frame.iloc[:, list(ds.frame.columns).index(f"predicted_{units.key(ds.unit)}")]
@@ -59,17 +91,20 @@ def simulate_cmd(run, bundle_path, out, replace) -> None:
             line += f"; against the reference: {ds.error_rms:.3g} {u} RMS, {ds.error_max:.3g} {u} max{held}"
         click.echo(line + kept_note(previous))
         return
-    sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace)
+    sim, previous = diag.simulate_file(bundle_path, run, out, replace=replace, judged=judged)
     res = sim.data["residual"].to_numpy()
     u = units.label(sim.output_unit)
-    judged = sim.meta["simulated_with"].get("judged_rows")
-    if judged:  # a run the bundle was fitted on: judged on the rows fit judged it on, the start apart
-        a, h, b = judged["fitted_from"], judged["held_out_from"], judged["stop"]
+    rows_done = sim.meta["simulated_with"].get("judged_rows")
+    if rows_done:  # judged on the rows fit judged (or the user's --skip-s/--rows), the start apart
+        a, h, b = rows_done["fitted_from"], rows_done["held_out_from"], rows_done["stop"]
         held, fitted = res[h:b], res[a:b]
-        line = (
-            f"Wrote {out}: residual on the held-out rows {h}:{b} (as fit judged them) {(held**2).mean() ** 0.5:.3g} "
-            f"{u} RMS; on rows {a}:{b} {(fitted**2).mean() ** 0.5:.3g} {u} RMS, {abs(fitted).max():.3g} {u} max"
-        )
+        how = "as given" if judged.given else "as fit judged them"
+        line = f"Wrote {out}: "
+        if h < b and (h > a or not judged.given):
+            line += f"residual on the held-out rows {h}:{b} ({how}) {(held**2).mean() ** 0.5:.3g} {u} RMS; "
+        line += f"on rows {a}:{b} {(fitted**2).mean() ** 0.5:.3g} {u} RMS, {abs(fitted).max():.3g} {u} max"
+        if b < res.size:
+            line += f"; rows {b}: on not judged"
         if a:
             start = res[:a]
             line += (
@@ -150,9 +185,10 @@ def _progress_printer(err: bool):
     show_default=True,
     help="With --gain: passes of the whole chain (the runs', and more with other noise seeds) for each row's noise.",
 )
+@_judged_opts("Judge")
 @json_option
 @reports_errors
-def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) -> None:
+def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, skip_s, rows, as_json) -> None:
     """Find what the model gets wrong, name the physical cause, extend the model, measure the gain.
 
     Every run is simulated with the bundle's model; the residuals are analysed against the
@@ -184,7 +220,14 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, as_json) 
 
         gain_mod.rig_of_runs(runs)
     with stop_signals_interrupt():  # SIGTERM/SIGHUP as Ctrl-C: the directory is marked interrupted
-        result, out = diag.diagnose(runs, bundle_path, out_dir, causes or None, on_progress=_progress_printer(as_json))
+        result, out = diag.diagnose(
+            runs,
+            bundle_path,
+            out_dir,
+            causes or None,
+            on_progress=_progress_printer(as_json),
+            judged=diag.JudgedRows(skip_s, rows),
+        )
     plan = diag.next_plan_info(out)
     say(diag.format_summary(result, plan))
     files = {

@@ -34,37 +34,75 @@ def fitted_run_names(bundle: dict[str, Any]) -> list[str]:
     return sorted({r["name"] for sec in ("hysteresis", "creep", "shaper") for r in bundle.get(sec, {}).get("runs", [])})
 
 
-def run_data(run: runformat.Run, bundle: Bundle | None = None, sha256: str | None = None) -> dg.RunData:
+@dataclass(frozen=True)
+class JudgedRows:
+    """The rows a command judges, given by the user (``--skip-s``/``--rows``) instead of the
+    bundle's record: ``skip_s`` seconds, or rows ``start`` to ``stop - 1``, of every run."""
+
+    skip_s: float | None = None
+    rows: tuple[int | None, int | None] | None = None
+
+    @property
+    def given(self) -> bool:
+        return self.skip_s is not None or self.rows is not None
+
+    def of(self, run: runformat.Run) -> tuple[int, int]:
+        """``(judged_from, stop)`` for the run, checked as ``fit`` checks them (the error names
+        the value and the run's length)."""
+        from piezopress.pipelines.fit import fitted_rows
+
+        stops, skips = fitted_rows([run], self.skip_s, self.rows)
+        return (skips[0] if skips else None) or 0, stops[0]
+
+
+def run_data(
+    run: runformat.Run, bundle: Bundle | None = None, sha256: str | None = None, judged: JudgedRows | None = None
+) -> dg.RunData:
     """The run as the diagnosis sees it; with the bundle it was fitted on, judged from the row
     ``fit`` judged it from (the start before it, a rest of unknown state, is not misfit).
-    ``sha256``: the run file's, when the caller has it already."""
-    judged, held = 0, None
+    ``judged`` (the user's ``--skip-s``/``--rows``) overrides the bundle's record: rows from its
+    stop on are dropped, rows before its start carry the state and are not judged; the bundle's
+    held-out rows are kept where they lie inside. ``sha256``: the run file's, when the caller has it already."""
+    start, held = 0, None
     if bundle is not None:
         if sha256 is None and run.path is not None:
             sha256 = runformat.sha256_file(run.path)
         rows = bundle.judged_rows(sha256, run.name)
         if rows is not None:
-            judged, held = rows[0], (rows[1], rows[2])
+            start, held = rows[0], (rows[1], rows[2])
+    stop = run.t_s.size
+    if judged is not None and judged.given:
+        start, stop = judged.of(run)
+        if held is not None:
+            held = (max(held[0], start), min(held[1], stop))
+            held = held if held[1] - held[0] >= 2 else None
+    monitor = run.column("monitor_v")
     return dg.RunData(
         run.name,
         run.kind,
-        run.t_s,
-        run.command_v,
-        run.output,
+        run.t_s[:stop],
+        run.command_v[:stop],
+        run.output[:stop],
         run.sample_rate_hz,
-        run.column("monitor_v"),
+        None if monitor is None else monitor[:stop],
         dict(run.meta),
-        judged_from=judged,
+        judged_from=start,
         held_out=held,
     )
 
 
 def simulate_file(
-    bundle_path: str | Path, run_path: str | Path, out: str | Path, *, replace: bool = False
+    bundle_path: str | Path,
+    run_path: str | Path,
+    out: str | Path,
+    *,
+    replace: bool = False,
+    judged: JudgedRows | None = None,
 ) -> tuple[runformat.Run, Path | None]:
     """The bundle's model on a run's measured drive, written beside the measurement
     (columns ``predicted`` and ``residual`` added, in the run's output unit); returns the
-    run and where a replaced file was kept."""
+    run and where a replaced file was kept. The rows judged (``simulated_with.judged_rows``
+    in the metadata): the user's ``judged`` when given, else the bundle's record of the run."""
     check_output(out, replace=replace)
     bundle = read_bundle(bundle_path)
     run = read_measured(run_path)
@@ -74,6 +112,10 @@ def simulate_file(
     cols["predicted"] = pred
     cols["residual"] = run.output - pred
     rows = bundle.judged_rows(runformat.sha256_file(run.path) if run.path is not None else None, run.name)
+    if judged is not None and judged.given:
+        start, stop = judged.of(run)
+        held = None if rows is None else (max(rows[1], start), min(rows[2], stop))
+        rows = (start, held[0] if held and held[1] - held[0] >= 2 else stop, stop)
     meta = {**run.meta, "simulated_with": {"bundle": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)}}
     if rows is not None:
         meta["simulated_with"]["judged_rows"] = {"fitted_from": rows[0], "held_out_from": rows[1], "stop": rows[2]}
@@ -170,11 +212,14 @@ def fitted_run_keys(bundle: dict[str, Any]) -> list[str]:
     )
 
 
-def diagnosis_runs(loaded: list[runformat.Run], bundle: Bundle | None = None) -> list[dg.RunData]:
+def diagnosis_runs(
+    loaded: list[runformat.Run], bundle: Bundle | None = None, judged: JudgedRows | None = None
+) -> list[dg.RunData]:
     """The runs as the diagnosis sees them, each keyed by its file's sha256; a name that
-    repeats (two imports of one source, or two directories) is told apart by its file."""
+    repeats (two imports of one source, or two directories) is told apart by its file.
+    ``judged``: the user's rows (:class:`JudgedRows`), else the bundle's record."""
     keys = [runformat.sha256_file(r.path) if r.path is not None else "" for r in loaded]  # each file read once
-    runs = [run_data(r, bundle, k or None) for r, k in zip(loaded, keys)]
+    runs = [run_data(r, bundle, k or None, judged) for r, k in zip(loaded, keys)]
     count: dict[str, int] = {}
     for r in runs:
         count[r.name] = count.get(r.name, 0) + 1
@@ -208,11 +253,13 @@ def diagnose(
     out_dir: str | Path,
     causes: Iterable[str] | None = None,
     on_progress: Callable[[dg.CauseProgress], None] | None = None,
+    judged: JudgedRows | None = None,
 ) -> tuple[dg.Diagnosis, Path]:
     """Diagnose the runs (files or run directories, several at once) against the bundle;
     write ``diagnosis.json``, ``extended_bundle.json``, the residual figures and, when some
     causes could not be tested, ``next-plan.toml``: the experiment that would test them.
-    ``on_progress`` hears of every cause tried (:class:`~piezopress.analysis.diagnosis.CauseProgress`)."""
+    ``on_progress`` hears of every cause tried (:class:`~piezopress.analysis.diagnosis.CauseProgress`);
+    ``judged``: the rows judged in every run (``--skip-s``/``--rows``) instead of the bundle's record."""
     causes = check_causes(causes)
     paths = list(paths)
     checked = read_bundle(bundle_path)
@@ -220,7 +267,7 @@ def diagnose(
     loaded = collect_runs(paths)
     for r in loaded:  # one unit: a displacement run is not judged by a force model
         checked.check_unit(r.output_unit, f"{r.path} ({r.output_column})")
-    runs = diagnosis_runs(loaded, checked)
+    runs = diagnosis_runs(loaded, checked, judged)
     if not runs:
         raise dg.H.HysteresisFitError("no runs to diagnose")
     short = [f"{r.name} ({r.y.size} samples)" for r in runs if r.y.size < MIN_RUN_SAMPLES]
@@ -297,6 +344,10 @@ def _diagnose_into(
     doc = {
         "bundle": {"file": str(bundle_path), "sha256": runformat.sha256_file(bundle_path)},
         "rigs": [ident.as_dict() for ident in group_by_rig(loaded)],
+        "judged_rows": {
+            r.name: {"judged_from": r.judged_from, "stop": int(r.y.size), "held_out": list(r.held_out or []) or None}
+            for r in runs
+        },
         "causes": {
             c.id: {
                 "physics": c.physics,

@@ -288,3 +288,47 @@ def test_a_residuals_dominant_frequency_is_a_tone_never_the_runs_length():
     assert dg.residual_stats(run, drift, 0.01).dominant_freq_hz == 0.0  # a drift is no 6.25 Hz tone
     assert dg.residual_stats(run, rng.normal(0, 0.01, n), 0.01).dominant_freq_hz == 0.0  # nor is noise
     assert dg.residual_stats(run, tone, 0.01).dominant_freq_hz == pytest.approx(500.0, abs=fs / n)
+
+
+@needs_datasets(SMART)
+def test_skip_s_and_rows_judge_the_same_rows_on_simulate_and_diagnose(tmp_path):
+    """``--skip-s``/``--rows`` on every command that judges: given to simulate and diagnose, the
+    rows judged are the user's (recorded in their outputs), checked as fit checks them, and a
+    start skipped on all three gives one held-out error."""
+    from piezopress import runformat
+
+    run = tmp_path / "smart.parquet"
+    assert invoke(*import_args("smart", run)).exit_code == 0
+    bundle = tmp_path / "b.json"
+    assert invoke("fit", run, "--base", "--skip-s", "4", "--out", bundle).exit_code == 0
+    fit = json.loads(bundle.read_text())["hysteresis"]["fit"]
+    src = runformat.read_run(run)
+    start = int(round(4 * src.sample_rate_hz))
+    assert fit["fitted_from_row"] == [start]
+    res = invoke("simulate", run, "--bundle", bundle, "--skip-s", "4", "--out", tmp_path / "sim.parquet")
+    assert res.exit_code == 0, res.output
+    rows = runformat.read_run(tmp_path / "sim.parquet").meta["simulated_with"]["judged_rows"]
+    assert rows["fitted_from"] == start and rows["held_out_from"] == fit["held_out_from_row"][0]
+    # rows: the stop drops the end; the start is the user's
+    stop = src.t_s.size - 1000
+    res = invoke(
+        "simulate", run, "--bundle", bundle, "--rows", f"{start + 100}:{stop}", "--out", tmp_path / "s2.parquet"
+    )
+    assert res.exit_code == 0, res.output
+    rows = runformat.read_run(tmp_path / "s2.parquet").meta["simulated_with"]["judged_rows"]
+    assert (rows["fitted_from"], rows["stop"]) == (start + 100, stop)
+    assert f"rows {stop}: on not judged" in res.output
+    res = invoke("diagnose", run, "--bundle", bundle, "--skip-s", "4", "--out", tmp_path / "diag")
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    (judged,) = doc["judged_rows"].values()
+    assert judged["judged_from"] == start and judged["stop"] == src.t_s.size
+    assert doc["base_fit"]["holdout_rms_um"] == pytest.approx(fit["holdout_rms_um"], rel=0.05)
+    # checked as fit checks them: the value and the run's length named
+    res = invoke("diagnose", run, "--bundle", bundle, "--skip-s", "1e6", "--out", tmp_path / "d2")
+    assert res.exit_code != 0 and "--skip-s 1e+06 s; expected 0 to" in res.output
+    assert not (tmp_path / "d2").exists()
+    drive = tmp_path / "d.csv"
+    pd.DataFrame({"t_s": np.arange(100) / 1000.0, "command_v": np.zeros(100)}).to_csv(drive, index=False)
+    res = invoke("simulate", drive, "--bundle", bundle, "--rows", "1:5", "--out", tmp_path / "x.csv")
+    assert res.exit_code == 2 and "a drive file has no measurement to judge" in res.output, res.output
