@@ -120,6 +120,14 @@ def test_a_reference_beyond_reach_is_refused_unless_allowed_and_the_clipped_samp
     top = drive["command_v"] >= drive["command_v"].max() - 0.5
     assert (drive["clipped"].astype(bool) & top).sum() >= 0.9 * drive["clipped"].sum()
     assert f"{int(drive['clipped'].sum())} clipped" in res.output
+    # a requested range is printed only when it lies beyond the allowed one (never -5.7 to 150 against -30 to 150)
+    import re
+
+    m = re.search(r"outside (-?[\d.]+) to (-?[\d.]+) V(?: \(requested (-?[\d.]+) to (-?[\d.]+) V\))?", res.output)
+    assert m, res.output
+    lo, hi = float(m[1]), float(m[2])
+    if m[3] is not None:
+        assert float(m[3]) < lo or float(m[4]) > hi, res.output
 
 
 def test_a_reference_within_reach_has_no_clipped_column(tmp_path):
