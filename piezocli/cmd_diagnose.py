@@ -175,20 +175,44 @@ def _progress_printer(err: bool):
     "--gain",
     "gain",
     is_flag=True,
-    help="Also measure the gain on the press: validate the base and the extended bundle on "
-    "the virtual rig the runs came from; writes compensated_gain.csv (virtual-rig runs only; takes minutes).",
+    help="Also measure the gain on the press the runs came from (--rig; virtual-rig runs: their rig): the base "
+    "bundle, each extension alone and the extended bundle played there, interleaved and repeated (compare); "
+    "writes gain-on-press/compare.csv and recommended_bundle.json (only what wins). Takes minutes.",
+)
+@click.option(
+    "--rig",
+    "rig_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="With --gain: the press's rig file (any backend); default: the virtual rig the runs' metadata names.",
+)
+@click.option(
+    "--backend",
+    "backend_name",
+    default=None,
+    help="With --gain --rig: a registered backend name or module:ClassName (default: the rig file's).",
+)
+@click.option(
+    "--gain-repeats",
+    type=click.IntRange(1, 20),
+    default=3,
+    show_default=True,
+    help="With --gain: times each bundle is played on the press (the spread the verdicts are judged against).",
 )
 @click.option(
     "--gain-seeds",
     type=click.IntRange(1, 10),
     default=2,
     show_default=True,
-    help="With --gain: passes of the whole chain (the runs', and more with other noise seeds) for each row's noise.",
+    help="With --gain on virtual-rig runs without --rig: also the simulator's gain, the whole chain this many times "
+    "with other noise seeds (compensated_gain.csv).",
 )
 @_judged_opts("Judge")
 @json_option
 @reports_errors
-def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, skip_s, rows, as_json) -> None:
+def diagnose_cmd(
+    runs, bundle_path, out_dir, causes, gain, rig_path, backend_name, gain_repeats, gain_seeds, skip_s, rows, as_json
+) -> None:
     """Find what the model gets wrong, name the physical cause, extend the model, measure the gain.
 
     Every run is simulated with the bundle's model; the residuals are analysed against the
@@ -208,6 +232,7 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, skip_s, r
       piezopress characterize --plan runs/diagnosis/next-plan.toml --out runs/more
       piezopress diagnose runs/char runs/more --bundle build/base.json --out runs/diagnosis-2
       piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis-3 --gain
+      piezopress diagnose lab/char --bundle build/base.json --out lab/diag --gain --rig my-press.toml
     """
 
     def say(text: str) -> None:
@@ -215,10 +240,19 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, skip_s, r
 
     from piezopress.acquisition.backend import stop_signals_interrupt
 
-    if gain:  # checked before the diagnosis's minutes of work, not after
+    press = None
+    if (rig_path or backend_name) and not gain:
+        raise click.UsageError("--rig and --backend say where --gain measures; give --gain too (or leave them out)")
+    if gain:  # the press checked (and made) before the diagnosis's minutes of work, not after
+        from piezopress.pipelines import characterize as char
         from piezopress.pipelines import gain as gain_mod
 
-        gain_mod.rig_of_runs(runs)
+        if rig_path is not None:
+            press = char.make_backend(backend_name, rig_path)
+        else:
+            from piezopress.acquisition.virtual_rig import VirtualRig
+
+            press = VirtualRig(gain_mod.rig_of_runs(runs)[0])
     with stop_signals_interrupt():  # SIGTERM/SIGHUP as Ctrl-C: the directory is marked interrupted
         result, out = diag.diagnose(
             runs,
@@ -240,17 +274,51 @@ def diagnose_cmd(runs, bundle_path, out_dir, causes, gain, gain_seeds, skip_s, r
         files["next_plan"] = Path(plan["file"])
     say(f"\nWrote {', '.join(str(f) for f in files.values())}")
     gain_rows = None
+    adoption = None
     if gain:
+        from piezopress.pipelines import adopt
+        from piezopress.pipelines import compare as cmp
         from piezopress.pipelines import gain as gain_mod
 
-        _, csv = gain_mod.gain_for_runs(
-            runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None
+        where = str(rig_path) if rig_path is not None else "the virtual rig the runs came from"
+
+        def on_play(p: cmp.Play) -> None:
+            if p.done:
+                say(f"  [{p.index}/{p.total}] repeat {p.repeat}, {p.plan}, {p.label}: played")
+
+        say(f"\nMeasuring the gain on the press ({where}), {gain_repeats} repeat(s) of each bundle:")
+        adoption = adopt.measure_on_press(
+            out,
+            bundle_path,
+            result.findings,
+            backend=press,
+            rig_path=rig_path,
+            repeats=gain_repeats,
+            press_label=where,
+            on_play=on_play,
+            on_warning=lambda w: click.echo(f"  warning: {w}", err=True),
         )
-        gain_rows = gain_mod.read_csv(csv)
-        say("\nThe gain on the press (validation on the runs' virtual rig, base bundle against extended):\n")
-        say(gain_mod.format_table(gain_rows, {f.cause: f.gain_pct for f in result.findings}))
-        say(f"\nWrote {csv}")
-        files["compensated_gain"] = csv
+        if adoption.comparison is not None:
+            say(
+                f"\nThe gain on the press ({where}; mean ± standard deviation over {gain_repeats} repeat(s), each "
+                "bundle against the base):\n"
+            )
+            say(cmp.format_table(adoption.comparison.table, adoption.comparison.labels))
+            files["gain_on_press"] = adoption.comparison.out_dir / cmp.COMPARE_CSV
+        say("\n" + adopt.format_adoption(adoption))
+        files["recommended_bundle"] = adoption.recommended_path
+        if rig_path is None:  # virtual-rig runs: the simulator's ground truth too (the whole chain reseeded)
+            _, csv = gain_mod.gain_for_runs(
+                runs, bundle_path, out / "extended_bundle.json", out, seeds=gain_seeds, causes=causes or None
+            )
+            gain_rows = gain_mod.read_csv(csv)
+            say(
+                "\nThe simulator's gain (the virtual rig, the whole chain with other noise seeds, base against "
+                "extended):\n"
+            )
+            say(gain_mod.format_table(gain_rows, {f.cause: f.gain_pct for f in result.findings}))
+            files["compensated_gain"] = csv
+        say(f"\nWrote {', '.join(str(files[k]) for k in ('gain_on_press', 'recommended_bundle') if k in files)}")
     nxt = []
     if plan and plan.get("file"):
         own = (plan.get("output_column") or "force_n") != "force_n" and not (plan.get("rig") or {}).get("from_runs")

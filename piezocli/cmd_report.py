@@ -36,6 +36,12 @@ from piezopress.pipelines import report as rep
     help="Diagnosis directory (from `piezopress diagnose`).",
 )
 @click.option(
+    "--comparison",
+    "cmp_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Comparison directory (from `piezopress compare`).",
+)
+@click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False, path_type=Path),
@@ -48,7 +54,7 @@ from piezopress.pipelines import report as rep
     help="Replace an existing report in --out (the old one is kept as <out>.replaced-<UTC time>).",
 )
 @reports_errors
-def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> None:
+def report_cmd(char_dir, val_dir, bundle_path, diag_dir, cmp_dir, out_dir, replace) -> None:
     """Write the report: Table 6.13 beside the thesis, the detailed tables, model quality, figures.
 
     Every input is optional; what is missing is said in the report. The output directory
@@ -62,7 +68,13 @@ def report_cmd(char_dir, val_dir, bundle_path, diag_dir, out_dir, replace) -> No
           --bundle build/bundle.json --out build/report
     """
     result = rep.generate(
-        out_dir, characterization=char_dir, validation=val_dir, bundle=bundle_path, diagnosis=diag_dir, replace=replace
+        out_dir,
+        characterization=char_dir,
+        validation=val_dir,
+        bundle=bundle_path,
+        diagnosis=diag_dir,
+        comparison=cmp_dir,
+        replace=replace,
     )
     report = result.report
     if report.verdict is not None:

@@ -110,6 +110,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bundle": ("cmd_fit", "Join fitted sections into a parameter bundle."),
     "characterize": ("cmd_characterize", "Run the characterization protocols through a backend into runs."),
     "check-rig": ("cmd_check_rig", "Drive a small, safe signal and say whether the force follows."),
+    "compare": ("cmd_compare", "Play two or more bundles on one press, repeated, and judge each row."),
     "compensate": ("cmd_fit", "Turn a reference trajectory into the compensated drive."),
     "demo": ("cmd_demo", "Run the whole chain on the virtual rig, as make demo does."),
     "diagnose": ("cmd_diagnose", "Find what the model gets wrong, name the cause, measure the gain."),

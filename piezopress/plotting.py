@@ -506,3 +506,34 @@ def fleet_strips(
                 ax.annotate(p, (v, j), textcoords="offset points", xytext=(4, 4), fontsize=8, color="#c0392b")
         ax.set_ylim(-0.6, 0.6)
     return fig
+
+
+def compare_dots(
+    rows: Sequence[tuple[str, Sequence[tuple[str, Sequence[float]]]]],
+    verdicts: dict[tuple[str, str], str] | None = None,
+) -> Figure:
+    """One panel per row of a comparison on the press: each bundle a line of dots (one per
+    repeat) and its mean a bar, lower is better; a bundle judged better than the first drawn
+    green, worse red (``verdicts``: ``(row title, bundle)`` -> ``"better"``/``"worse"``)."""
+    verdicts = verdicts or {}
+    colour = {"better": "#27ae60", "worse": "#c0392b"}
+    n = max(len(rows), 1)
+    fig = _figure(0.9 + 0.85 * n)
+    axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+    for ax, (title, bundles) in zip(axes, rows):
+        ax.set_title(title, fontsize=9, loc="left")
+        labels = [b for b, _ in bundles]
+        if not labels:
+            _no_data(ax, "not measured")
+            continue
+        for i, (label, values) in enumerate(bundles):
+            v = np.asarray(values, float)
+            v = v[np.isfinite(v)]
+            c = colour.get(verdicts.get((title, label), ""), "#34495e")
+            if v.size:
+                ax.plot(v, np.full(v.size, i), "o", ms=4, color=c, alpha=0.8)
+                ax.plot([v.mean(), v.mean()], [i - 0.3, i + 0.3], color=c, lw=2)
+        ax.set_yticks(range(len(labels)))
+        ax.set_yticklabels(labels, fontsize=8)
+        ax.set_ylim(len(labels) - 0.5, -0.5)
+    return fig

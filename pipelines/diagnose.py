@@ -361,7 +361,11 @@ def _diagnose_into(
         "next_plan": plan,
     }
     write_json_atomic(out / "diagnosis.json", doc, null_nonfinite=True)  # strict JSON: an unmeasured figure is null
-    write_document(checked.extended(result.findings, result.model).to_dict(), out / "extended_bundle.json")
+    from piezopress.pipelines.adopt import unverified_note
+
+    extended = checked.extended(result.findings, result.model).to_dict()
+    extended["gain_on_press"] = unverified_note()  # until diagnose --gain (or compare) measures it on the press
+    write_document(extended, out / "extended_bundle.json")
     before = {s.run: s for s in result.before}
     after = {s.run: s for s in result.after}
     names = [r.name for r in runs]
@@ -475,6 +479,11 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
             )
             lines.append(f"    why: {dg.CAUSES[f.cause].physics}; evidence: {f.evidence}")
             lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension)")
+        lines.append("")
+        lines.append(
+            "The extended bundle predicts these runs better; whether it compensates better is "
+            "unverified on the press until measured there (diagnose --gain --rig YOUR-PRESS.toml, or compare)."
+        )
     elif result.tested:
         lines.append(
             f"None of the {len(result.tested)} causes tried improves the prediction of held-out data beyond the "

@@ -532,8 +532,9 @@ def rig_of_runs(paths: Sequence[str | Path]) -> tuple[RigConfig, Path | None]:
     rigs = [r.meta.get("rig") if isinstance(r.meta.get("rig"), dict) else {} for r in runs]
     if not runs or any(g.get("backend") != "virtual" or not isinstance(g.get("config"), dict) for g in rigs):
         raise PiezopressError(
-            "the compensated gain is measured on the virtual rig the runs came from; these runs do not all come "
-            "from the virtual rig (their metadata names no virtual rig configuration)"
+            "these runs do not all come from the virtual rig (their metadata names no virtual rig configuration), "
+            "so the press they came from is not known: give it, --rig YOUR-PRESS.toml (its rig file, any backend), "
+            "and the gain is measured there"
         )
     cfg = parse_rig(rigs[0]["config"], source="the runs' metadata")
     plan = None

@@ -119,11 +119,13 @@ def build_report(
     validation: str | Path | None = None,
     bundle: str | Path | None = None,
     diagnosis: str | Path | None = None,
+    compared: str | Path | None = None,
 ) -> Report:
     """Read the inputs given and lay out the report (nothing is written)."""
-    if characterization is None and validation is None and bundle is None and diagnosis is None:
+    if all(x is None for x in (characterization, validation, bundle, diagnosis, compared)):
         raise ReportError(
-            "nothing to report: give at least one of --characterization, --validation, --bundle, --diagnosis"
+            "nothing to report: give at least one of --characterization, --validation, --bundle, --diagnosis, "
+            "--comparison"
         )
     missing: list[str] = []
     char = (
@@ -232,6 +234,10 @@ def build_report(
     if diagnosis is not None:
         runs = [r for s in (char, val) if s is not None for r in s.runs.values()]
         blocks += _diagnosis_blocks(diagnosis, missing, runs)
+    if compared is not None:
+        from piezopress.pipelines.report_compare import comparison_blocks
+
+        blocks += [Heading("Comparison on the press")] + comparison_blocks(compared, missing)
     blocks += [Heading("Missing pieces"), Bullets(tuple(missing)) if missing else Para("Nothing missing.")]
     return Report(metrics_table(char, val), comparison, blocks, missing, verdict)
 
@@ -352,11 +358,14 @@ def generate(
     validation: str | Path | None = None,
     bundle: str | Path | None = None,
     diagnosis: str | Path | None = None,
+    comparison: str | Path | None = None,
     replace: bool = False,
 ) -> ReportResult:
     """Check the output directory, build the report and write it."""
     check_output_dir(out_dir, replace)
-    return write_report(build_report(characterization, validation, bundle, diagnosis), out_dir, replace=replace)
+    return write_report(
+        build_report(characterization, validation, bundle, diagnosis, comparison), out_dir, replace=replace
+    )
 
 
 __all__ = [

@@ -206,9 +206,10 @@ def _gain_blocks(csv_path: Path, missing: list[str]) -> list[Block]:
         missing.append(f"{csv_path}: unreadable ({exc}); the compensated-gain table is missing.")
         return []
     blocks: list[Block] = [
-        Heading("The gain on the press: compensated performance, base bundle against extended", 3),
+        Heading("The simulator's gain: compensated performance on the virtual rig, base bundle against extended", 3),
         Para(
-            "Each row validated on the virtual rig with the effect on (lower is better): the base bundle, the "
+            "The simulator's, not the press's: each row validated on the virtual rig with the effect on (lower is "
+            "better): the base bundle, the "
             "extended one, the base pipeline without the effect (clean), and the row's noise (its range over "
             "repeated passes with other noise seeds). * marks the rows the extension is for."
         ),
@@ -341,6 +342,9 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
                 )
             )
         )
+    from piezopress.pipelines.report_compare import recommendation_blocks
+
+    blocks += recommendation_blocks(path, missing)
     blocks += _gain_blocks(path / "compensated_gain.csv", missing)
     png = path / "residuals.png"
     if png.is_file():

@@ -11,11 +11,12 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from piezopress import runformat, units
 from piezopress.acquisition.backend import Backend
 from piezopress.acquisition.drive_check import check_drive
-from piezopress.acquisition.plan import DriveLimits, Protocol, load_plan
+from piezopress.acquisition.plan import DriveLimits, Plan, Protocol, load_plan
 from piezopress.analysis.compensation import unreached_while_moving
 from piezopress.pipelines.bundle import BundleError, read_bundle
 from piezopress.pipelines.characterize import (
@@ -38,6 +39,39 @@ DEFAULT_VALIDATION_PLAN = shipped("protocols", "validate.toml")
 VALIDATE_MAX_CLIP_SHARE = 0.1
 
 
+@dataclasses.dataclass(frozen=True)
+class PreparedValidation:
+    """A validation plan with every drive computed through the bundle and checked against the
+    press, nothing played yet (:func:`prepare_validation`); :meth:`play` plays it."""
+
+    plan: Plan
+    plan_path: Path
+    drives: dict[str, Drive]
+    manifest_extra: dict[str, Any]
+
+    def play(
+        self,
+        out_dir: str | Path,
+        backend: Backend,
+        on_progress: Callable[[ProgressEvent], None] | None = None,
+    ) -> CharacterizeResult:
+        """Play every compensated drive on ``backend`` into a new run directory."""
+
+        def drive_for(proto: Protocol) -> Drive:
+            return self.drives[proto.name]
+
+        return execute_plan(
+            out_dir,
+            self.plan,
+            self.plan_path,
+            backend,
+            kind="validation",
+            drive_for=drive_for,
+            manifest_extra=self.manifest_extra,
+            on_progress=on_progress,
+        )
+
+
 def validate(
     out_dir: str | Path,
     bundle_path: str | Path,
@@ -52,6 +86,31 @@ def validate(
     on_warning: Callable[[str], None] | None = None,
 ) -> CharacterizeResult:
     """Compensate every reference of the validation plan and run it; see the module docstring."""
+    backend = backend or make_backend(backend_name, rig_path)
+    prepared = prepare_validation(
+        bundle_path,
+        backend,
+        plan_path=plan_path,
+        rig_path=rig_path,
+        use_shaper=use_shaper,
+        use_creep=use_creep,
+        on_warning=on_warning,
+    )
+    return prepared.play(out_dir, backend, on_progress)
+
+
+def prepare_validation(
+    bundle_path: str | Path,
+    backend: Backend,
+    *,
+    plan_path: str | Path = DEFAULT_VALIDATION_PLAN,
+    rig_path: str | Path | None = DEFAULT_RIG,
+    use_shaper: bool = True,
+    use_creep: bool = True,
+    on_warning: Callable[[str], None] | None = None,
+) -> PreparedValidation:
+    """Every reference of the plan compensated with the bundle and checked against the press's
+    limits (its reach, its drive range and slew), before anything is played or written."""
     checked = read_bundle(bundle_path)
     unit = checked.unit
     if not units.is_force(unit):
@@ -60,7 +119,6 @@ def validate(
             "validation plan's force references (N above the preload) on a press that measures force, "
             "expected a force bundle (compensate takes references in the bundle's unit)"
         )
-    backend = backend or make_backend(backend_name, rig_path)
     lim = backend.limits
     s = checked.settings
     # the drive range is the rig's (the press it plays on), said when it differs from the bundle's
@@ -128,24 +186,11 @@ def validate(
 
     # every drive computed and checked before the directory is made or the rig touched
     drives = {proto.name: compensated(proto) for proto in plan.protocols}
-
-    def drive_for(proto: Protocol) -> Drive:
-        return drives[proto.name]
-
     extra = {
         "bundle": {"file": str(bundle_path), "sha256": bundle_sha},
         "compensation_options": {"shaper": use_shaper, "creep": use_creep},
     }
-    return execute_plan(
-        out_dir,
-        plan,
-        Path(plan_path),
-        backend,
-        kind="validation",
-        drive_for=drive_for,
-        manifest_extra=extra,
-        on_progress=on_progress,
-    )
+    return PreparedValidation(plan, Path(plan_path), drives, extra)
 
 
 def other_press_note(bundle: dict, backend: Backend, bundle_label: str) -> str:
@@ -174,4 +219,4 @@ def other_press_note(bundle: dict, backend: Backend, bundle_label: str) -> str:
     )
 
 
-__all__ = ["validate", "DEFAULT_VALIDATION_PLAN", "other_press_note"]
+__all__ = ["validate", "prepare_validation", "PreparedValidation", "DEFAULT_VALIDATION_PLAN", "other_press_note"]

@@ -4,12 +4,14 @@ file, made from the whole rig document, checked by the conformance kit
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 import textwrap
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from click.testing import CliRunner
 
@@ -226,6 +228,31 @@ def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
     ok("characterize", "--rig", rig, "--out", tmp_path / "char")
     ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
     ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
+    ok("fit", tmp_path / "char", "--rig", rig, "--base", "--out", tmp_path / "base.json")
+    out = ok("compare", tmp_path / "base.json", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "cmp")
+    assert "b vs base" in out and (tmp_path / "cmp" / "compare.csv").is_file()
+    out = ok(
+        "diagnose",
+        tmp_path / "char",
+        "--bundle",
+        tmp_path / "base.json",
+        "--gain",
+        "--rig",
+        rig,
+        "--out",
+        tmp_path / "diag",
+    )
+    assert "Recommended:" in out
+    rec = json.loads((tmp_path / "diag" / "recommended_bundle.json").read_text())["recommendation"]
+    found = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())["findings"]
+    if found:  # measured on the press; never worse than the base on any row beyond the spread
+        assert "The gain on the press" in out
+        assert rec["measured"] is True and rec["press"] == str(rig)
+        table = pd.read_csv(tmp_path / "diag" / "gain-on-press" / "compare.csv")
+        if rec["bundle"] != "base":
+            assert "worse" not in set(table[table["bundle"] == rec["bundle"]]["verdict"])
+    else:
+        assert rec["measured"] is False and rec["bundle"] == "base" and "nothing to extend" in out
     out = ok(
         "report",
         "--characterization",
@@ -234,7 +261,13 @@ def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
         tmp_path / "val",
         "--bundle",
         tmp_path / "b.json",
+        "--diagnosis",
+        tmp_path / "diag",
+        "--comparison",
+        tmp_path / "cmp",
         "--out",
         tmp_path / "rep",
     )
     assert (tmp_path / "rep" / "report.html").is_file(), out
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "## Comparison on the press" in md

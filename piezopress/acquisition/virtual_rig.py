@@ -3,7 +3,9 @@
 It implements :class:`piezopress.acquisition.backend.Backend` with exactly the signature a
 hardware backend has. It is deterministic: the noise of a run is drawn from a generator
 seeded by the rig's seed and the run's label, so the same plan on the same rig file gives
-the same data, whatever the order of the protocols. It never sleeps.
+the same data, whatever the order of the protocols. A label played again on the same rig
+object (a repeat, as ``compare`` plays) draws new noise, as a real press would: its n-th
+repeat adds n to the seed. It never sleeps.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ class VirtualRig:
         # a parsed rig file (``VirtualRig(document)``, as every plug-in backend is made) or a RigConfig
         self.config = parse_rig(config, source="rig file") if isinstance(config, Mapping) else (config or RigConfig())
         self.output_v = 0.0
+        self._plays: dict[str, int] = {}  # label -> times played on this rig object (a repeat's new noise)
 
     @classmethod
     def limits_of(cls, document: Mapping[str, Any]) -> DriveLimits:
@@ -73,6 +76,10 @@ class VirtualRig:
         self.check_drive(command_v, sample_rate_hz, label)
         command_v = np.asarray(command_v, dtype=np.float64)
         seed = [self.config.rig.seed, _label_seed(label)]
+        repeat = self._plays.get(label, 0)
+        self._plays[label] = repeat + 1
+        if repeat:
+            seed.append(repeat)
         rng = np.random.default_rng(np.random.SeedSequence(seed))
         try:
             self.output_v = float(command_v[0])

@@ -1,0 +1,191 @@
+"""Adopt only what wins on the press: a diagnosis's extensions measured with ``compare`` on the
+press the runs came from, and the recommended bundle.
+
+The base bundle, each finding's extension alone (when there are several) and the extended
+bundle (every finding) are played on the press, interleaved and repeated
+(:func:`piezopress.pipelines.compare.compare`); the recommended bundle is the measured one
+that wins the most rows against the base and loses none beyond the spread
+(:func:`piezopress.analysis.ab.recommend`), the base itself when no extension does. A
+combination that was not played is never recommended.
+
+Files, in the diagnosis's directory: ``gain-on-press/`` (the comparison: its runs,
+``compare.csv``), ``gain-on-press-bundles/`` (each finding's bundle alone),
+``recommended_bundle.json`` (with a ``recommendation`` section: what went in and why), and
+``extended_bundle.json``'s ``gain_on_press`` section (measured or not, and the verdicts).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from piezopress import runformat
+from piezopress.acquisition.backend import Backend
+from piezopress.analysis import ab
+from piezopress.pipelines.bundle import read_bundle, read_document, write_document
+from piezopress.pipelines.compare import Comparison, Play, compare
+from piezopress.pipelines.files import write_json_atomic
+
+__all__ = [
+    "GAIN_DIR",
+    "BUNDLES_DIR",
+    "RECOMMENDED",
+    "UNVERIFIED",
+    "Adoption",
+    "measure_on_press",
+    "unverified_note",
+]
+
+GAIN_DIR = "gain-on-press"
+BUNDLES_DIR = "gain-on-press-bundles"
+RECOMMENDED = "recommended_bundle.json"
+BASE_LABEL = "base"
+EXTENDED_LABEL = "extended"
+
+#: What an extended bundle whose gain was not measured on the press says of itself.
+UNVERIFIED = (
+    "unverified on the press: its gain was not measured there (piezopress diagnose --gain --rig YOUR-PRESS.toml, or "
+    "piezopress compare BASE.json extended_bundle.json --rig YOUR-PRESS.toml); a gain shown for the virtual rig is the "
+    "simulator's, not the press's"
+)
+
+
+def unverified_note() -> dict[str, Any]:
+    """``extended_bundle.json``'s ``gain_on_press`` section before anything was measured."""
+    return {"measured": False, "note": UNVERIFIED}
+
+
+@dataclass(frozen=True)
+class Adoption:
+    """What the press said: the comparison, the recommendation and where it was written."""
+
+    comparison: Comparison | None  # None: no finding, nothing to measure
+    recommendation: ab.Recommendation
+    recommended_path: Path
+    candidates: tuple[ab.Candidate, ...]
+
+
+def measure_on_press(
+    diag_dir: str | Path,
+    base_path: str | Path,
+    findings: Sequence[Any],
+    *,
+    rig_path: str | Path | None = None,
+    backend: Backend | None = None,
+    backend_name: str | None = None,
+    repeats: int = 3,
+    press_label: str = "",
+    on_play: Callable[[Play], None] | None = None,
+    on_warning: Callable[[str], None] | None = None,
+) -> Adoption:
+    """Measure the diagnosis's extensions on the press and write the recommended bundle; see the module."""
+    diag = Path(diag_dir)
+    ext_path = diag / "extended_bundle.json"
+    base = read_bundle(base_path)
+    bundles: list[Path] = [Path(base_path)]
+    labels = [BASE_LABEL]
+    causes: list[tuple[str, ...]] = [()]
+    if len(findings) > 1:  # each extension alone, to adopt the ones that win and leave the others
+        single_dir = diag / BUNDLES_DIR
+        single_dir.mkdir(exist_ok=True)
+        for f in findings:
+            path = single_dir / f"{f.cause}.json"
+            write_document(base.extended([f], f.model).to_dict(), path, replace=True)
+            bundles.append(path)
+            labels.append(f"+{f.cause}")
+            causes.append((f.cause,))
+    if not findings:  # nothing to measure: the base is the recommendation, said so
+        doc = read_document(base_path, "bundle")
+        doc["recommendation"] = {
+            "measured": False,
+            "bundle": BASE_LABEL,
+            "from_file": str(base_path),
+            "sha256": runformat.sha256_file(base_path),
+            "adopted": [],
+            "reasons": {},
+            "better_on": [],
+            "note": "the diagnosis found nothing to extend: the base bundle, nothing played",
+        }
+        out = diag / RECOMMENDED
+        write_document(doc, out, replace=True)
+        return Adoption(None, ab.Recommendation(None, (), {}), out, ())
+    bundles.append(ext_path)
+    labels.append(EXTENDED_LABEL)
+    causes.append(tuple(f.cause for f in findings))
+    comparison = compare(
+        bundles,
+        diag / GAIN_DIR,
+        rig_path=rig_path,
+        backend=backend,
+        backend_name=backend_name,
+        repeats=repeats,
+        labels=labels,
+        on_play=on_play,
+        on_warning=on_warning,
+    )
+    candidates = tuple(ab.Candidate(lbl, c, comparison.verdicts(lbl)) for lbl, c in zip(labels[1:], causes[1:]))
+    rec = ab.recommend(candidates)
+    chosen = bundles[labels.index(rec.label)] if rec.label else Path(base_path)
+    doc = read_document(chosen, "bundle")
+    by_label = {c.label: c for c in candidates}
+    measured = {
+        "measured": True,
+        "press": press_label or str(rig_path or "the runs' virtual rig"),
+        "comparison": str(comparison.out_dir),
+        "repeats": comparison.repeats,
+        "rule": (
+            "better/worse: every repeat of one beats every repeat of the other, Welch's p < "
+            f"{ab.ALPHA:g} and a change of at least {ab.MIN_CHANGE_PCT:g} %"
+        ),
+    }
+    doc["recommendation"] = {
+        **measured,
+        "bundle": rec.label or BASE_LABEL,
+        "from_file": str(chosen),
+        "sha256": runformat.sha256_file(chosen),
+        "adopted": list(rec.causes),
+        "reasons": rec.reasons,
+        "better_on": list(by_label[rec.label].wins) if rec.label else [],
+    }
+    out = diag / RECOMMENDED
+    write_document(doc, out, replace=True)
+    # the extended bundle says what the press said of it
+    ext = read_document(ext_path, "bundle")
+    c = by_label[EXTENDED_LABEL]
+    ext["gain_on_press"] = {
+        **measured,
+        "verdicts": c.verdicts,
+        "better_on": list(c.wins),
+        "worse_on": list(c.losses),
+    }
+    write_json_atomic(ext_path, ext, null_nonfinite=True)
+    return Adoption(comparison, rec, out, candidates)
+
+
+def format_adoption(a: Adoption) -> str:
+    """What the press said, for the terminal: the recommendation and every extension's reason."""
+    rec = a.recommendation
+    lines = []
+    if a.comparison is None:
+        return (
+            f"Recommended: {a.recommended_path} = the base bundle: the diagnosis found nothing to extend, nothing "
+            "played."
+        )
+    if rec.label:
+        lines.append(
+            f"Recommended: {a.recommended_path} = the {rec.label} bundle ({', '.join(rec.causes)}), better on the "
+            f"press on {', '.join(next(c for c in a.candidates if c.label == rec.label).wins)} and worse on none."
+        )
+    else:
+        lines.append(
+            f"Recommended: {a.recommended_path} = the base bundle: no extension won a row on the press without losing "
+            "another beyond the spread."
+        )
+    for cause, why in rec.reasons.items():
+        lines.append(f"  {cause}: {why}")
+    return "\n".join(lines)
+
+
+__all__ += ["format_adoption"]
