@@ -193,6 +193,14 @@ def _progress_printer(err: bool):
     help="With --gain --rig: a registered backend name or module:ClassName (default: the rig file's).",
 )
 @click.option(
+    "--fitted",
+    "fitted_path",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=None,
+    help="With --gain: the bundle in use (from fit): played too, with each extension on it; the recommended bundle "
+    "is then never worse than it on any row beyond the spread.",
+)
+@click.option(
     "--gain-repeats",
     type=click.IntRange(1, 20),
     default=3,
@@ -211,7 +219,19 @@ def _progress_printer(err: bool):
 @json_option
 @reports_errors
 def diagnose_cmd(
-    runs, bundle_path, out_dir, causes, gain, rig_path, backend_name, gain_repeats, gain_seeds, skip_s, rows, as_json
+    runs,
+    bundle_path,
+    out_dir,
+    causes,
+    gain,
+    rig_path,
+    backend_name,
+    fitted_path,
+    gain_repeats,
+    gain_seeds,
+    skip_s,
+    rows,
+    as_json,
 ) -> None:
     """Find what the model gets wrong, name the physical cause, extend the model, measure the gain.
 
@@ -232,7 +252,8 @@ def diagnose_cmd(
       piezopress characterize --plan runs/diagnosis/next-plan.toml --out runs/more
       piezopress diagnose runs/char runs/more --bundle build/base.json --out runs/diagnosis-2
       piezopress diagnose runs/char --bundle build/base.json --out runs/diagnosis-3 --gain
-      piezopress diagnose lab/char --bundle build/base.json --out lab/diag --gain --rig my-press.toml
+      piezopress diagnose lab/char --bundle build/base.json --out lab/diag --gain --rig my-press.toml \\
+          --fitted build/bundle.json
     """
 
     def say(text: str) -> None:
@@ -241,8 +262,11 @@ def diagnose_cmd(
     from piezopress.acquisition.backend import stop_signals_interrupt
 
     press = None
-    if (rig_path or backend_name) and not gain:
-        raise click.UsageError("--rig and --backend say where --gain measures; give --gain too (or leave them out)")
+    if (rig_path or backend_name or fitted_path) and not gain:
+        raise click.UsageError(
+            "--rig, --backend and --fitted say where and against what --gain measures; give --gain too (or leave them "
+            "out)"
+        )
     if gain:  # the press checked (and made) before the diagnosis's minutes of work, not after
         from piezopress.pipelines import characterize as char
         from piezopress.pipelines import gain as gain_mod
@@ -295,6 +319,7 @@ def diagnose_cmd(
             rig_path=rig_path,
             repeats=gain_repeats,
             press_label=where,
+            fitted_path=fitted_path,
             on_play=on_play,
             on_warning=lambda w: click.echo(f"  warning: {w}", err=True),
         )

@@ -43,6 +43,7 @@ BUNDLES_DIR = "gain-on-press-bundles"
 RECOMMENDED = "recommended_bundle.json"
 BASE_LABEL = "base"
 EXTENDED_LABEL = "extended"
+FITTED_LABEL = "fitted"
 
 #: What an extended bundle whose gain was not measured on the press says of itself.
 UNVERIFIED = (
@@ -65,6 +66,7 @@ class Adoption:
     recommendation: ab.Recommendation
     recommended_path: Path
     candidates: tuple[ab.Candidate, ...]
+    reference: str = BASE_LABEL  # what the candidates were judged against: the bundle in use
 
 
 def measure_on_press(
@@ -77,18 +79,21 @@ def measure_on_press(
     backend_name: str | None = None,
     repeats: int = 3,
     press_label: str = "",
+    fitted_path: str | Path | None = None,
     on_play: Callable[[Play], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
 ) -> Adoption:
-    """Measure the diagnosis's extensions on the press and write the recommended bundle; see the module."""
+    """Measure the diagnosis's extensions on the press and write the recommended bundle; see the
+    module. ``fitted_path``: the bundle in use (``fit``'s): it is played too, with each extension
+    on it, and the recommendation is never worse than it on any row beyond the spread."""
     diag = Path(diag_dir)
     ext_path = diag / "extended_bundle.json"
     base = read_bundle(base_path)
     bundles: list[Path] = [Path(base_path)]
     labels = [BASE_LABEL]
     causes: list[tuple[str, ...]] = [()]
+    single_dir = diag / BUNDLES_DIR
     if len(findings) > 1:  # each extension alone, to adopt the ones that win and leave the others
-        single_dir = diag / BUNDLES_DIR
         single_dir.mkdir(exist_ok=True)
         for f in findings:
             path = single_dir / f"{f.cause}.json"
@@ -96,21 +101,38 @@ def measure_on_press(
             bundles.append(path)
             labels.append(f"+{f.cause}")
             causes.append((f.cause,))
-    if not findings:  # nothing to measure: the base is the recommendation, said so
-        doc = read_document(base_path, "bundle")
+    reference, reference_path = BASE_LABEL, Path(base_path)
+    if fitted_path is not None:  # the bundle in use, and the extensions on it
+        reference, reference_path = FITTED_LABEL, Path(fitted_path)
+        fitted = read_bundle(fitted_path)
+        bundles.append(Path(fitted_path))
+        labels.append(FITTED_LABEL)
+        causes.append(())
+        if findings:
+            single_dir.mkdir(exist_ok=True)
+            sets = [[f] for f in findings] + ([list(findings)] if len(findings) > 1 else [])
+            for fs in sets:
+                name = fs[0].cause if len(fs) == 1 else "all"
+                path = single_dir / f"fitted+{name}.json"
+                write_document(fitted.extended(fs, fs[-1].model).to_dict(), path, replace=True)
+                bundles.append(path)
+                labels.append(f"{FITTED_LABEL}+{name}")
+                causes.append(tuple(f.cause for f in fs))
+    if not findings:  # nothing to measure: the bundle in use is the recommendation, said so
+        doc = read_document(reference_path, "bundle")
         doc["recommendation"] = {
             "measured": False,
-            "bundle": BASE_LABEL,
-            "from_file": str(base_path),
-            "sha256": runformat.sha256_file(base_path),
+            "bundle": reference,
+            "from_file": str(reference_path),
+            "sha256": runformat.sha256_file(reference_path),
             "adopted": [],
             "reasons": {},
             "better_on": [],
-            "note": "the diagnosis found nothing to extend: the base bundle, nothing played",
+            "note": f"the diagnosis found nothing to extend: the {reference} bundle, nothing played",
         }
         out = diag / RECOMMENDED
         write_document(doc, out, replace=True)
-        return Adoption(None, ab.Recommendation(None, (), {}), out, ())
+        return Adoption(None, ab.Recommendation(None, (), {}), out, (), reference)
     bundles.append(ext_path)
     labels.append(EXTENDED_LABEL)
     causes.append(tuple(f.cause for f in findings))
@@ -125,9 +147,11 @@ def measure_on_press(
         on_play=on_play,
         on_warning=on_warning,
     )
-    candidates = tuple(ab.Candidate(lbl, c, comparison.verdicts(lbl)) for lbl, c in zip(labels[1:], causes[1:]))
-    rec = ab.recommend(candidates)
-    chosen = bundles[labels.index(rec.label)] if rec.label else Path(base_path)
+    candidates = tuple(
+        ab.Candidate(lbl, c, comparison.verdicts(lbl, reference)) for lbl, c in zip(labels, causes) if lbl != reference
+    )
+    rec = ab.recommend(candidates, f"the {reference} bundle")
+    chosen = bundles[labels.index(rec.label)] if rec.label else reference_path
     doc = read_document(chosen, "bundle")
     by_label = {c.label: c for c in candidates}
     measured = {
@@ -142,7 +166,8 @@ def measure_on_press(
     }
     doc["recommendation"] = {
         **measured,
-        "bundle": rec.label or BASE_LABEL,
+        "against": reference,
+        "bundle": rec.label or reference,
         "from_file": str(chosen),
         "sha256": runformat.sha256_file(chosen),
         "adopted": list(rec.causes),
@@ -153,7 +178,7 @@ def measure_on_press(
     write_document(doc, out, replace=True)
     # the extended bundle says what the press said of it
     ext = read_document(ext_path, "bundle")
-    c = by_label[EXTENDED_LABEL]
+    c = ab.Candidate(EXTENDED_LABEL, (), comparison.verdicts(EXTENDED_LABEL))  # against the base it extends
     ext["gain_on_press"] = {
         **measured,
         "verdicts": c.verdicts,
@@ -161,7 +186,7 @@ def measure_on_press(
         "worse_on": list(c.losses),
     }
     write_json_atomic(ext_path, ext, null_nonfinite=True)
-    return Adoption(comparison, rec, out, candidates)
+    return Adoption(comparison, rec, out, candidates, reference)
 
 
 def format_adoption(a: Adoption) -> str:
@@ -170,18 +195,20 @@ def format_adoption(a: Adoption) -> str:
     lines = []
     if a.comparison is None:
         return (
-            f"Recommended: {a.recommended_path} = the base bundle: the diagnosis found nothing to extend, nothing "
-            "played."
+            f"Recommended: {a.recommended_path} = the {a.reference} bundle: the diagnosis found nothing to extend, "
+            "nothing played."
         )
     if rec.label:
         lines.append(
-            f"Recommended: {a.recommended_path} = the {rec.label} bundle ({', '.join(rec.causes)}), better on the "
-            f"press on {', '.join(next(c for c in a.candidates if c.label == rec.label).wins)} and worse on none."
+            f"Recommended: {a.recommended_path} = the {rec.label} bundle"
+            + (f" ({', '.join(rec.causes)})" if rec.causes else "")
+            + f", better than the {a.reference} bundle on the press on "
+            f"{', '.join(next(c for c in a.candidates if c.label == rec.label).wins)} and worse on none."
         )
     else:
         lines.append(
-            f"Recommended: {a.recommended_path} = the base bundle: no extension won a row on the press without losing "
-            "another beyond the spread."
+            f"Recommended: {a.recommended_path} = the {a.reference} bundle: no other bundle won a row on the press "
+            "without losing another beyond the spread."
         )
     for cause, why in rec.reasons.items():
         lines.append(f"  {cause}: {why}")

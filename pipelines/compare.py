@@ -83,10 +83,19 @@ class Comparison:
     values: pd.DataFrame  # repeats.csv
     warnings: list[str] = field(default_factory=list)
 
-    def verdicts(self, label: str) -> dict[str, str]:
-        """Each row's verdict for ``label`` against the first bundle."""
-        t = self.table[self.table["bundle"] == label]
-        return dict(zip(t["row"], t["verdict"]))
+    def verdicts(self, label: str, against: str | None = None) -> dict[str, str]:
+        """Each row's verdict for ``label`` against the first bundle (or ``against``, judged
+        from the same repeats by the same rule)."""
+        if against is None or against == self.labels[0]:
+            t = self.table[self.table["bundle"] == label]
+            return dict(zip(t["row"], t["verdict"]))
+        out = {}
+        for row, of in self.values.groupby("row", sort=False):
+            a = of[of["bundle"] == against]["value"].tolist()
+            b = of[of["bundle"] == label]["value"].tolist()
+            if a and b:
+                out[str(row)] = ab.judge(a, b).verdict
+        return out
 
 
 def _labels(bundles: Sequence[Path], labels: Sequence[str] | None) -> list[str]:

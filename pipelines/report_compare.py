@@ -105,12 +105,14 @@ def recommendation_blocks(diag_dir: str | Path, missing: list[str]) -> list[Bloc
         missing.append(f"{diag / RECOMMENDED}: unreadable ({exc}); the recommendation is missing.")
         return blocks
     adopted = rec.get("adopted") or []
+    ref = rec.get("against", "base")
     head = (
         f"Recommended bundle: `{diag / RECOMMENDED}`, the {rec.get('bundle', '?')} bundle"
-        + (f" (adopts {', '.join(adopted)}; better on {', '.join(rec.get('better_on') or [])})" if adopted else "")
-        + ": it loses no row against the base beyond the spread."
-        if adopted
-        else f"Recommended bundle: `{diag / RECOMMENDED}` = the base bundle: no extension won a row on the press "
+        + (f" (adopts {', '.join(adopted)})" if adopted else "")
+        + f": better than the {ref} bundle on {', '.join(rec.get('better_on') or [])}, worse on no row beyond the "
+        "spread."
+        if rec.get("bundle") != ref
+        else f"Recommended bundle: `{diag / RECOMMENDED}` = the {ref} bundle: no other bundle won a row on the press "
         "without losing another beyond the spread."
     )
     blocks.append(Para(head))

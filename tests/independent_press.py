@@ -170,6 +170,7 @@ class IndependentPress:
         capacitance_uf: float = 5.5,
     ):
         self.seed = int(seed)
+        self._plays: dict[str, int] = {}  # a label played again draws new noise, as on a real press
         self.input_delay_s = float(input_delay_s)
         self.rate_dependence = float(rate_dependence)
         self.rate_saturation_v_per_s = float(rate_saturation_v_per_s)
@@ -243,7 +244,9 @@ class IndependentPress:
             )
         if not 0.0 < sample_rate_hz <= lim.max_sample_rate_hz:
             raise BackendError(f"{self.name}: sample rate {sample_rate_hz:g} Hz outside the board's range")
-        rng = np.random.default_rng([self.seed, _label_seed(label)])
+        again = self._plays.get(label, 0)
+        self._plays[label] = again + 1
+        rng = np.random.default_rng([self.seed, _label_seed(label)] + ([again] if again else []))
         try:
             self.output_v = float(u[0])
             channels = self.simulate(u, float(sample_rate_hz), float(preload_n), rng)

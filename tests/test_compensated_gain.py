@@ -319,7 +319,7 @@ def test_the_report_shows_the_table_when_the_diagnosis_directory_holds_it(tmp_pa
     tables = [b for b in blocks if isinstance(b, report.Table) and b.header == G.HEADER]
     assert len(tables) == 1 and [r[1] for r in tables[0].rows] == ["step overshoot (worst step)*", "hysteresis, 50 Hz*"]
     md = report.render_markdown(blocks)
-    assert "The gain on the press" in md and "verdict: met" in md and not missing
+    assert "The simulator's gain" in md and "verdict: met" in md and not missing
 
 
 @pytest.mark.slow

@@ -125,43 +125,32 @@ class Recommendation:
     reasons: dict[str, str]
 
 
-def recommend(candidates: Sequence[Candidate]) -> Recommendation:
-    """Among the measured bundles, the one that wins the most rows against the base and loses
-    none beyond the spread (fewer extensions on a tie); the base when none does. Only a
-    measured bundle is ever recommended: a combination nobody played is not.
+def recommend(candidates: Sequence[Candidate], reference: str = "the base") -> Recommendation:
+    """Among the measured bundles, the one that wins the most rows against the reference (the
+    bundle in use) and loses none beyond the spread (fewer extensions on a tie); the reference
+    itself when none does. Only a measured bundle is ever recommended: a combination nobody
+    played is not. ``reasons``: for every candidate, by its label, why it was or was not.
 
     >>> a = Candidate("+delay", ("input_delay",), {"tracking_random": BETTER, "creep": SAME})
     >>> b = Candidate("+slew", ("amplifier_slew_limit",), {"overshoot": BETTER, "creep": WORSE})
     >>> r = recommend([a, b])
     >>> r.label, r.causes
     ('+delay', ('input_delay',))
-    >>> r.reasons["amplifier_slew_limit"]
-    'left out: worse on creep'
+    >>> r.reasons["+slew"]
+    'left out: worse than the base on creep'
     """
     ok = [c for c in candidates if c.wins and not c.losses]
     best = max(ok, key=lambda c: (len(c.wins), -len(c.causes)), default=None)
     reasons: dict[str, str] = {}
     for c in candidates:
-        if len(c.causes) != 1:  # several extensions together: what they did, by the candidate's label
-            chosen = best is not None and c.label == best.label
-            did = f"better on {', '.join(c.wins) or 'no row'}" + (
-                f", worse on {', '.join(c.losses)}" if c.losses else ", worse on none"
-            )
-            reasons[c.label] = f"{'adopted' if chosen else 'not adopted'} ({', '.join(c.causes)} together): {did}"
-            continue
-        (cause,) = c.causes
-        if best is not None and cause in best.causes:
-            reasons[cause] = f"adopted: better on {', '.join(c.wins) or ', '.join(best.wins)}"
+        if best is not None and c.label == best.label:
+            reasons[c.label] = f"adopted: better than {reference} on {', '.join(c.wins)}, worse on none"
         elif c.losses:
-            reasons[cause] = f"left out: worse on {', '.join(c.losses)}"
+            reasons[c.label] = f"left out: worse than {reference} on {', '.join(c.losses)}"
         elif not c.wins:
-            reasons[cause] = "left out: no row better beyond the spread"
+            reasons[c.label] = f"left out: no row better than {reference} beyond the spread"
         else:
-            reasons[cause] = f"left out: better on {', '.join(c.wins)}, but {best.label if best else '?'} wins more"
-    for cause in (x for c in candidates for x in c.causes):  # causes measured only together (all at once)
-        if cause not in reasons:
-            inside = best is not None and cause in best.causes
-            reasons[cause] = f"adopted with {best.label}" if inside and best else "left out (measured only together)"
+            reasons[c.label] = f"left out: better on {', '.join(c.wins)}, but {best.label if best else '?'} wins more"
     return Recommendation(best.label if best else None, best.causes if best else (), reasons)
 
 
