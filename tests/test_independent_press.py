@@ -47,11 +47,14 @@ def test_the_press_is_a_deterministic_backend():
     t = np.arange(0, 20, 1 / fs)
     tri = 150.0 * (1 - np.abs((t * 0.1) % 1 * 2 - 1))
     a = press.run(tri, fs, preload_n=50.0, label="tri")
-    b = press.run(tri, fs, preload_n=50.0, label="tri")
+    b = IndependentPress().run(tri, fs, preload_n=50.0, label="tri")  # the same run on the same press, anew
     c = press.run(tri, fs, preload_n=50.0, label="other")
+    again = press.run(tri, fs, preload_n=50.0, label="tri")  # a repeat on this press: new noise, as on a real one
     assert set(a.channels) == {"force_n", "monitor_v"} and a.channels["force_n"].size == tri.size
     np.testing.assert_array_equal(a.channels["force_n"], b.channels["force_n"])
     assert not np.array_equal(a.channels["force_n"], c.channels["force_n"])
+    assert not np.array_equal(a.channels["force_n"], again.channels["force_n"])
+    assert np.std(a.channels["force_n"] - again.channels["force_n"]) < 3 * press.noise_n  # only the noise differs
     f = a.channels["force_n"]
     assert abs(f[0] - 50.0) < 2.0 and 320.0 < f.max() < 380.0  # ~300 N above a 50 N preload at 150 V
     assert 5.0 <= metrics.max_hysteresis(tri, f).percent <= 12.0

@@ -1,0 +1,140 @@
+"""The third test press (``tests/third_press.py``): written apart from the virtual rig and the
+second press, a Preisach loop (outside the Prandtl-Ishlinskii family), creep over decades on the
+irreversible part, a second-order amplifier, a sensor chain with its own lag, and every hidden
+effect in a form of its own. These tests check the press itself; what the chain makes of it is
+measured by ``bench/bench_foreign.py --rig third`` and ``bench/bench_adopt.py --rig third``."""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from piezopress.acquisition.backend import Backend
+from piezopress.analysis import metrics
+from piezopress.testing import RULES, check_backend
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import third_press as tp  # noqa: E402
+
+FORBIDDEN = ("rig_physics", "virtual_rig", "rig_config", "independent_press")
+
+
+def _tri(fs: float, seconds: float, lo: float, hi: float, freq: float) -> np.ndarray:
+    t = np.arange(0, seconds, 1 / fs)
+    return lo + (hi - lo) * (1 - np.abs((t * freq) % 1 * 2 - 1))
+
+
+def test_the_press_is_written_apart_from_the_other_two():
+    tree = ast.parse((HERE / "third_press.py").read_text(encoding="utf-8"))
+    names = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            names += [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+    bad = [n for n in names if any(f in n.split(".") for f in FORBIDDEN)]
+    assert not bad, bad
+    ours = {n.split(".")[1] for n in names if n.startswith("piezopress.")}
+    assert ours <= {"acquisition", "errors"}  # the Backend protocol's types and errors, nothing of the models
+
+
+def test_the_preisach_plane_is_evaluated_exactly():
+    """On the grid's own levels the staircase evaluation equals switching every relay."""
+    press = tp.ThirdPress()
+    ev = press._everett
+    g = ev.g
+    A, B = np.meshgrid(g, g, indexing="ij")
+    inside = B <= A
+    mu = np.where(inside, press._density(A, B), 0.0) * ev.step**2
+    rng = np.random.default_rng(3)
+    v = 60 + 55 * np.sin(np.linspace(0, 14, 600)) + np.cumsum(rng.normal(0, 1.5, 600))
+    v = g[np.clip(np.searchsorted(g, np.clip(v, -30, 150)), 0, g.size - 1)]
+    state = -np.ones_like(mu)
+    brute = []
+    for u in v:
+        state[(A <= u) & inside] = 1.0
+        state[(B >= u) & inside] = -1.0
+        brute.append(float((state * mu).sum()))
+    np.testing.assert_allclose(tp.preisach(v, ev), brute, atol=1e-9 * np.ptp(brute))
+
+
+def test_return_point_memory_and_minor_loops_that_change_shape_with_where_they_sit():
+    """A minor loop closes where it began (wiping out); two 30 V minor loops, low and high on
+    the branch, differ in width by more than a fifth: no play superposition draws that."""
+    press = tp.ThirdPress()
+    ev = press._everett
+    up = np.linspace(0, 150, 301)
+    down = np.linspace(150, 0, 301)
+    widths = []
+    for lo in (20.0, 100.0):
+        hi = lo + 30.0
+        down_m, up_m = np.linspace(hi, lo, 100), np.linspace(lo, hi, 100)
+        minor = np.concatenate([np.linspace(0, hi, 200), down_m, up_m])
+        y = tp.preisach(minor, ev)
+        assert y[-1] == pytest.approx(y[199], abs=1e-9 * np.ptp(y))  # back at the reversal: the same output
+        mid = lo + 15.0
+        gap = np.interp(mid, down_m[::-1], y[200:300][::-1]) - np.interp(mid, up_m, y[300:400])
+        widths.append(gap / (y[199] - y[299]))  # the loop's opening relative to its own height
+    assert abs(widths[0] - widths[1]) > 0.2 * max(widths)
+    major = tp.preisach(np.concatenate([up, down]), ev)
+    assert major[300] > major[0] and major[-1] > major[0]  # a remanence: the loop does not close at 0 V
+
+
+def test_it_is_a_backend_the_conformance_kit_passes():
+    press = tp.ThirdPress()
+    assert isinstance(press, Backend)
+    assert check_backend(press) == list(RULES)
+    fs = 500.0
+    tri = _tri(fs, 20, 0, 150, 0.1)
+    a = press.run(tri, fs, preload_n=50.0, label="tri").channels["force_n"]
+    b = tp.ThirdPress().run(tri, fs, preload_n=50.0, label="tri").channels["force_n"]
+    again = press.run(tri, fs, preload_n=50.0, label="tri").channels["force_n"]
+    np.testing.assert_array_equal(a, b)  # the same run on the same press, anew: the same data
+    assert not np.array_equal(a, again) and np.std(a - again) < 1.0  # a repeat: new noise, nothing else
+    assert 330.0 < a.max() < 420.0 and 6.0 < metrics.max_hysteresis(tri, a).percent < 15.0
+
+
+def _response(press: tp.ThirdPress, kind: str) -> np.ndarray:
+    if kind == "step":
+        fs = 20000.0
+        u = np.concatenate([np.zeros(400), np.full(3000, 100.0), np.zeros(1000)])
+    elif kind == "fast":
+        fs = 5000.0
+        u = _tri(fs, 0.4, 0, 150, 50.0)
+    else:
+        fs = 1000.0
+        u = np.concatenate([np.zeros(1000), np.full(int(200 * fs), 150.0)])
+    return press.run(u, fs, preload_n=50.0, label=kind).channels["force_n"]
+
+
+@pytest.mark.parametrize(
+    ("effect", "kind"),
+    [
+        ("rate_dependent_hysteresis", "fast"),
+        ("amplifier_slew_limit", "step"),
+        ("drive_coupled_interference", "step"),
+        ("logarithmic_creep", "hold"),
+        ("second_resonance", "step"),
+        ("sensor_offset_drift", "hold"),
+        ("input_delay", "step"),
+        ("hysteresis_order", "fast"),
+        ("mains_pickup", "hold"),
+        ("sensitivity_drift", "hold"),
+    ],
+)
+def test_every_hidden_effect_changes_what_the_press_measures(effect, kind):
+    rng = np.random.default_rng(5)
+    hidden = tp.hidden_press(effect, rng)
+    clean = tp.ThirdPress(**{k: getattr(hidden, k) for k in ("seed", "mode_hz", "mode_damping")})
+    if effect == "sensitivity_drift":  # a gain that drifts over hours: the press has run for an hour first
+        hidden.clock_s = clean.clock_s = 3600.0
+    a, b = _response(clean, kind), _response(hidden, kind)
+    # both presses draw the same noise: what differs is the effect's alone
+    assert np.sqrt(np.mean((a - b) ** 2)) > clean.noise_n, effect
+    assert set(tp.EFFECTS) == set(tp.DETECTABLE)
