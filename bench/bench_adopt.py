@@ -12,7 +12,8 @@ what left out (and why), the extended bundle's rows better and worse than the ba
 recommended bundle's rows better and worse than the fitted one (the acceptance: never worse
 beyond the spread). ``--table CASE`` also prints the whole comparison of one case.
 
-Run: .venv/bin/python bench/bench_adopt.py [--cases none,input_delay,...] [--seeds 3] [--repeats 3] [--workers 2]
+Run: .venv/bin/python bench/bench_adopt.py [--rig second|third] [--cases none,input_delay,...] [--seeds 3]
+         [--repeats 3] [--workers 2]
 """
 
 from __future__ import annotations
@@ -43,9 +44,10 @@ CASES = (
 )
 
 
-def one(args: tuple[str, int, int, str]) -> dict:
-    effect, seed, repeats, work = args
+def one(args: tuple[str, int, int, str, str]) -> dict:
+    effect, seed, repeats, work, rig = args
     import independent_press as ip
+    import third_press as tp
 
     from piezopress.pipelines import adopt, compare
     from piezopress.pipelines import bundle as B
@@ -54,10 +56,11 @@ def one(args: tuple[str, int, int, str]) -> dict:
     from piezopress.pipelines import fit as F
 
     t0 = time.perf_counter()
-    rng = np.random.default_rng([seed, 98])
-    press = ip.clean_press(rng) if effect == "none" else ip.hidden_press(effect, rng)
+    mod = tp if rig == "third" else ip
+    rng = np.random.default_rng([seed, 97 if rig == "third" else 98])
+    press = mod.clean_press(rng) if effect == "none" else mod.hidden_press(effect, rng)
     w = Path(work) / f"{effect}-{seed}"
-    plan = ip.plan_for(effect) if effect != "none" else None
+    plan = ip.plan_for(effect) if effect != "none" and rig == "second" else None
     char.characterize(w / "char", plan_path=plan or char.DEFAULT_PLAN, backend=press)
     B.write_document(F.fit_bundle([w / "char"], press.limits).doc, w / "fitted.json")
     B.write_document(F.fit_bundle([w / "char"], press.limits, base=True).doc, w / "base.json")
@@ -93,6 +96,7 @@ def one(args: tuple[str, int, int, str]) -> dict:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--rig", choices=("second", "third"), default="second")
     p.add_argument("--cases", default=",".join(CASES))
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--repeats", type=int, default=3)
@@ -105,11 +109,11 @@ def main() -> None:
         raise SystemExit(f"unknown case {', '.join(bad)}; expected some of {', '.join(CASES)}")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench-adopt-") as work:
-        jobs = [(c, s, a.repeats, work) for c in cases for s in range(a.seeds)]
+        jobs = [(c, s, a.repeats, work, a.rig) for c in cases for s in range(a.seeds)]
         with ProcessPoolExecutor(max_workers=a.workers) as pool:
             results = list(pool.map(one, jobs))
     print(
-        f"Second test press, {a.seeds} seed(s) per case, {a.repeats} repeats per bundle on the press "
+        f"{a.rig.capitalize()} test press, {a.seeds} seed(s) per case, {a.repeats} repeats per bundle on the press "
         f"({time.perf_counter() - t0:.0f} s on {a.workers} worker(s))\n"
     )
     head = ("case", "findings", "adopted", "extended vs base: better / worse", "recommended vs fitted: better / worse")

@@ -18,7 +18,8 @@ compensator (``pipelines/gain.py``): the table per cause, base bundle against ex
 validation row, with each row's noise, beside the finding's prediction gain; ``--gain-out``
 writes it as ``compensated_gain.csv``.
 
-Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second] [--seeds 20] [--workers 2] [--record results.jsonl]
+Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2]
+         [--record results.jsonl]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
@@ -52,6 +53,15 @@ def _second_press(effect: str, seed: int):
     return press, (None if effect == "none" else ip.plan_for(effect))
 
 
+def _third_press(effect: str, seed: int):
+    """The third test press (tests/third_press.py) with ``effect`` hidden (``none``: clean); the default plan."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    import third_press as tp
+
+    rng = np.random.default_rng([seed, 97])
+    return (tp.clean_press(rng) if effect == "none" else tp.hidden_press(effect, rng)), None
+
+
 def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
     from piezopress.acquisition.rig_config import RigConfig, hidden_effect
     from piezopress.acquisition.virtual_rig import VirtualRig
@@ -64,6 +74,8 @@ def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
     plan = None
     if rig == "second":
         backend, plan = _second_press(effect, seed)
+    elif rig == "third":
+        backend, plan = _third_press(effect, seed)
     else:
         rng = np.random.default_rng([seed, 99])
         backend = VirtualRig(
@@ -90,9 +102,10 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument(
         "--rig",
-        choices=("ours", "second"),
+        choices=("ours", "second", "third"),
         default="ours",
-        help="ours: the virtual rig; second: tests/independent_press.py, written apart from it",
+        help="ours: the virtual rig; second: tests/independent_press.py, third: tests/third_press.py (each written "
+        "apart from the others; the third's effects: its own EFFECTS, mains pickup and sensitivity drift among them)",
     )
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
@@ -129,6 +142,11 @@ def main() -> None:
     a = ap.parse_args()
     if a.gain:
         return gain_main(a)
+    if a.rig == "third":
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+        import third_press as tp
+
+        EFFECTS = tp.EFFECTS  # noqa: N806 - the third press's catalogue: the new causes too
     hidden = a.effects or (list(EFFECTS) + ["none"])
     if a.matrix_from:  # the matrix of results recorded earlier (a run stopped part way, or several joined)
         results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig]
@@ -187,7 +205,11 @@ def print_matrix(rig_id: str, hidden: list[str], results: list[tuple], over: str
         key=lambda n: (n not in hidden, hidden.index(n) if n in hidden else 0, n),
     )
     width = max(len(n) for n in named)
-    rig = "the virtual rig" if rig_id == "ours" else "the second test press (tests/independent_press.py)"
+    rig = {
+        "ours": "the virtual rig",
+        "second": "the second test press (tests/independent_press.py)",
+        "third": "the third test press (tests/third_press.py)",
+    }[rig_id]
     print(
         f"Confusion matrix on {rig} over {over}: hidden effect (rows) against the causes named "
         f"(columns; a seed counts in every column it names, 'none': no finding). 'alone %': the hidden cause named "

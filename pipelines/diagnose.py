@@ -510,6 +510,11 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
         for t in result.not_tested:
             lines.append(f"    {t.cause}: needs {t.needs}")
             lines.append(f"        have: {t.have}")
+    if result.signatures:
+        lines.append("")
+        lines.append("Structure no cause in the catalogue explains, by its signature:")
+        for sig in result.signatures:
+            lines.append(f"    {sig['text']}")
     if result.unexplained:
         lines.append("")
         lines.append(

@@ -330,6 +330,10 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
                 f"{plan.get('duration_s', math.nan):.0f} s) makes testable {', '.join(plan.get('serves', []))}."
             )
         )
+    if d.get("signatures"):
+        blocks.append(
+            Bullets(tuple(f"Signature (no catalogue cause): {sig.get('text', '?')}" for sig in d["signatures"]))
+        )
     if d.get("unexplained"):
         blocks.append(
             Bullets(

@@ -1782,6 +1782,7 @@ class Diagnosis:
     tested: list[dict[str, Any]] = field(default_factory=list)  # {cause, runs, result, gain_pct, heldout}
     not_tested: list[Testability] = field(default_factory=list)  # each with needs and have
     base_fit: dict[str, Any] = field(default_factory=dict)  # the base model on the slow sweeps it was fitted on
+    signatures: list[dict[str, Any]] = field(default_factory=list)  # structure no cause explains, in its own terms
 
     @property
     def unit(self) -> str:
@@ -1800,6 +1801,7 @@ class Diagnosis:
             "tested": self.tested,
             "not_tested": [t.as_dict() for t in self.not_tested],
             "unexplained": self.unexplained,
+            "signatures": self.signatures,
             "considered_not_found": [f.as_dict() for f in self.considered],
             "runs_before": [s.as_dict() for s in self.before],
             "runs_after": [s.as_dict() for s in self.after],
@@ -1956,6 +1958,24 @@ def diagnose(
         for s in after
         if s.ratio > UNEXPLAINED_RATIO
     ]
+    from piezopress.analysis.signatures import drive_independent_lines
+
+    lines = drive_independent_lines(
+        [(judged(r, r.t_s), judged(r, r.x), judged(r, r.y - ctx.pred(r)), r.fs_hz, r.name) for r in runs]
+    )
+    signatures = [
+        {
+            "kind": "drive_independent_line",
+            "freq_hz": ln.freq_hz,
+            f"amplitude_{k}": ln.amplitude,
+            "quiet_runs": list(ln.quiet_runs),
+            "driven_runs": list(ln.driven_runs),
+            "driven_tried": ln.driven_tried,
+            "mains": ln.mains,
+            "text": ln.text(u),
+        }
+        for ln in lines
+    ]
     found = {f.cause: f for f in findings}
     tested: list[dict[str, Any]] = []
     for cid in asked:
@@ -2002,6 +2022,8 @@ def diagnose(
         head = f"None of the {len(names)} causes tried ({', '.join(names)}) explains the residual ({numbers})"
     if unexplained:
         head += "; unexplained structure in " + ", ".join(u_["run"] for u_ in unexplained)
+    for sig in signatures:
+        head += f"; {sig['text']}"
     if not_tested:
         head += f"; not tested ({len(not_tested)}, the runs do not allow it): " + ", ".join(t.cause for t in not_tested)
     if base_fit.get("poor"):
@@ -2022,4 +2044,5 @@ def diagnose(
         tested,
         not_tested,
         base_fit,
+        signatures,
     )

@@ -1,0 +1,162 @@
+"""Signatures of structure no catalogue cause explains, said in the press's own terms.
+
+A **line independent of the drive** (mains pickup, a pump, a fan): a spectral line in the
+residual where the drive does nothing (a rest run, the hold of a creep step, the flat parts of
+any run, once the press has settled), found again at the same frequency, with a similar size, in
+the runs that move. It is told apart from the press's own ringing (which follows the drive's
+changes and has died out in the quiet stretches) and from the drive's harmonics (absent where
+the drive is constant).
+
+>>> import numpy as np
+>>> fs = 1000.0
+>>> t = np.arange(0, 20, 1 / fs)
+>>> rng = np.random.default_rng(0)
+>>> hum = 0.5 * np.sin(2 * np.pi * 50.0 * t + 1.0)
+>>> rest = (t, np.zeros_like(t), hum + 0.2 * rng.standard_normal(t.size), fs, "rest")
+>>> x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
+>>> moving = (t, x, hum + 0.2 * rng.standard_normal(t.size), fs, "sweep")
+>>> [(round(s.freq_hz, 1), round(s.amplitude, 2), s.mains) for s in drive_independent_lines([rest, moving])]
+[(50.0, 0.5, True)]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Line", "drive_independent_lines", "QUIET_MIN_S", "SETTLE_S", "PEAK_OVER_MEDIAN", "MAINS_HZ"]
+
+#: A quiet stretch (drive constant) counts from this long after the drive last changed (the
+#: press's ringing and the sensor's filter have died out)...
+SETTLE_S = 0.05
+#: ... and when it lasts at least this long after that.
+QUIET_MIN_S = 0.5
+#: A line stands this many times above the spectrum's median around it.
+PEAK_OVER_MEDIAN = 12.0
+#: The mains frequencies a line is checked against (and their harmonics to the 5th).
+MAINS_HZ = (50.0, 60.0)
+
+Run = tuple[np.ndarray, np.ndarray, np.ndarray, float, str]  # t_s, drive, residual, fs_hz, name
+
+
+@dataclass(frozen=True)
+class Line:
+    """A line in the residual where the drive does nothing, and how far it reaches."""
+
+    freq_hz: float
+    amplitude: float  # in the residual's unit, at rest (median over the quiet stretches)
+    quiet_runs: tuple[str, ...]  # runs whose quiet stretches show it
+    driven_runs: tuple[str, ...]  # runs under drive that show it with a similar size
+    driven_tried: int  # runs under drive it could be looked for in
+    mains: bool  # at a mains frequency or one of its harmonics
+
+    def text(self, unit_label: str) -> str:
+        where = f"present where the drive is constant ({', '.join(self.quiet_runs[:4])}"
+        where += ", ...)" if len(self.quiet_runs) > 4 else ")"
+        if self.driven_tried:
+            where += f" and in {len(self.driven_runs)} of {self.driven_tried} runs under drive"
+        guess = " (at the mains frequency: mains pickup on the reading?)" if self.mains else ""
+        return (
+            f"a {self.freq_hz:.1f} Hz component of {self.amplitude:.3g} {unit_label} in the reading, {where}: it "
+            f"does not come from the drive{guess}"
+        )
+
+
+def _quiet_stretches(t: np.ndarray, x: np.ndarray, fs: float) -> list[slice]:
+    """Stretches where the drive is constant, from ``SETTLE_S`` after it last changed, at least ``QUIET_MIN_S`` long."""
+    moving = np.abs(np.diff(x, prepend=x[0])) > 1e-9 * max(1.0, float(np.ptp(x)))
+    moving[0] = True  # a run's start: the state before it is unknown
+    settle = int(math.ceil(SETTLE_S * fs))
+    need = int(math.ceil(QUIET_MIN_S * fs))
+    out = []
+    starts = np.flatnonzero(moving)
+    ends = np.append(starts[1:], x.size)
+    for s, e in zip(starts, ends):
+        a = s + 1 + settle
+        if e - a >= need:
+            out.append(slice(int(a), int(e)))
+    return out
+
+
+def _spectrum(e: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude spectrum (a sine of amplitude A reads A at its bin) of a detrended stretch."""
+    n = e.size
+    k = np.arange(n)
+    e = e - np.polyval(np.polyfit(k, e, 1), k)  # a creep's or a drift's slope is no line
+    w = np.hanning(n)
+    amp = 2.0 * np.abs(np.fft.rfft(e * w)) / w.sum()
+    return np.fft.rfftfreq(n, 1.0 / fs), amp
+
+
+def _sine_amplitude(t: np.ndarray, e: np.ndarray, f: float) -> float:
+    """Least-squares amplitude of a sine at ``f`` (with an offset and a slope) in ``e``."""
+    a = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t), t - t.mean()])
+    c, *_ = np.linalg.lstsq(a, e, rcond=None)
+    return float(math.hypot(c[0], c[1]))
+
+
+def _is_mains(f: float) -> bool:
+    return any(abs(f - k * m) <= 0.01 * k * m for m in MAINS_HZ for k in range(1, 6))
+
+
+def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list[Line]:
+    """Lines in the residuals where the drive is constant, each checked in the runs that move
+    (see the module). ``runs``: ``(t_s, drive, residual, fs_hz, name)``; lines below
+    ``min_hz`` (a drift's, a creep's) are not looked for."""
+    peaks: list[tuple[float, float, str, float]] = []  # freq, amplitude, run, resolution
+    quiet_runs: set[str] = set()
+    for t, x, e, fs, name in runs:
+        for sl in _quiet_stretches(np.asarray(t), np.asarray(x), fs):
+            seg_t, seg_e = np.asarray(t, float)[sl], np.asarray(e, float)[sl]
+            f, amp = _spectrum(seg_e, fs)
+            if f.size < 16:
+                continue
+            quiet_runs.add(name)
+            res = f[1]
+            ok = (f >= max(min_hz, 4 * res)) & (f <= fs / 2.5)
+            idx = np.flatnonzero(ok)
+            if idx.size < 8:
+                continue
+            med = float(np.median(amp[idx]))
+            for i in idx[1:-1]:
+                if amp[i] > PEAK_OVER_MEDIAN * med and amp[i] >= amp[i - 1] and amp[i] >= amp[i + 1]:
+                    # the peak's frequency refined between its neighbours (a parabola through the bins)
+                    a0, a1, a2 = amp[i - 1], amp[i], amp[i + 1]
+                    den = a0 - 2 * a1 + a2
+                    shift = 0.5 * (a0 - a2) / den if den else 0.0
+                    fr = float(f[i] + shift * res)
+                    peaks.append((fr, _sine_amplitude(seg_t, seg_e, fr), name, float(res)))
+    if not peaks:
+        return []
+    peaks.sort()
+    groups: list[list[tuple[float, float, str, float]]] = [[peaks[0]]]
+    for p in peaks[1:]:
+        last = groups[-1][-1]
+        if p[0] - last[0] <= 1.5 * max(p[3], last[3]):
+            groups[-1].append(p)
+        else:
+            groups.append([p])
+    lines = []
+    for g in groups:
+        names = sorted({p[2] for p in g})
+        freq = float(np.median([p[0] for p in g]))
+        amp = float(np.median([p[1] for p in g]))
+        # seen in more than one quiet stretch (two runs, or one run's two stretches), or in the one quiet run there is
+        if len(g) < 2 and len(quiet_runs) > 1:
+            continue
+        driven, tried = [], 0
+        for t, x, e, fs, name in runs:
+            t, x, e = np.asarray(t, float), np.asarray(x, float), np.asarray(e, float)
+            if np.ptp(x) == 0 or fs < 2.5 * freq or t[-1] - t[0] < 20.0 / freq:
+                continue
+            tried += 1
+            if 0.5 * amp <= _sine_amplitude(t, e, freq) <= 2.0 * amp:
+                driven.append(name)
+        if tried and len(driven) < 0.5 * tried:
+            continue  # where the drive moves it is not there: the quiet stretches' own structure
+        lines.append(Line(freq, amp, tuple(names), tuple(driven), tried, _is_mains(freq)))
+    lines.sort(key=lambda line: -line.amplitude)
+    return lines
