@@ -25,8 +25,11 @@ def test_shipped_rig_file_equals_defaults():
 def test_same_seed_same_data_and_label_changes_noise():
     rig = VirtualRig()
     v = np.full(2000, 40.0)
-    a, b = run(rig, v, 20_000.0, "x"), run(rig, v, 20_000.0, "x")
-    np.testing.assert_array_equal(a["force_n"], b["force_n"])
+    a, b = run(rig, v, 20_000.0, "x"), run(VirtualRig(), v, 20_000.0, "x")
+    np.testing.assert_array_equal(a["force_n"], b["force_n"])  # the same plan on the same rig file: the same data
+    again = run(rig, v, 20_000.0, "x")  # a repeat on the same rig: new noise, as on a real press
+    assert not np.array_equal(a["force_n"], again["force_n"])
+    assert abs(np.mean(again["force_n"]) - np.mean(a["force_n"])) < 0.1
     c = run(rig, v, 20_000.0, "y")
     assert not np.array_equal(a["force_n"], c["force_n"])
     other_seed = VirtualRig(RigConfig().replace(rig={"seed": 1}))
