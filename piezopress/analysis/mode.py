@@ -83,12 +83,14 @@ def mode_foh(wn: float, zeta: float, fs_hz: float) -> tuple[np.ndarray, np.ndarr
     alpha, beta = math.exp(-sigma * dt), wd * dt
     cb, sb = math.cos(beta), math.sin(beta)
     c0, c1 = 2.0 * zeta / wn, (2.0 * zeta * zeta - 1.0) / wd
-    a = np.array([1.0, -2.0 * alpha * cb, alpha * alpha])
-    num = np.polyadd(
-        np.polymul(a, [-c0 / dt, 1.0 + c0 / dt]),
-        np.polymul([1.0, -2.0, 1.0], [c0 / dt, (c1 * alpha * sb - c0 * alpha * cb) / dt]),
-    )
-    return num[1:], a  # num[0] == 0 up to rounding
+    a1, a2 = -2.0 * alpha * cb, alpha * alpha
+    # the numerator's products written out (np.polymul on 3-term polynomials costs more than
+    # the filter it feeds): a (m - k z) + (z - 1)^2 (k z + q), whose z^3 terms cancel
+    k = c0 / dt
+    m = 1.0 + k
+    q = (c1 * alpha * sb - c0 * alpha * cb) / dt
+    b = np.array([m - k * a1 + q - 2.0 * k, m * a1 - k * a2 - 2.0 * q + k, m * a2 + q])
+    return b, np.array([1.0, a1, a2])
 
 
 #: The drive between samples -> its exact discretisation.
