@@ -122,7 +122,8 @@ def main() -> None:
     for r in results:
         worse_cases += bool(r["rec_worse"])
         print(
-            f"{r['effect']}-{r['seed']} | {', '.join(r['findings']) or '-'} | {', '.join(r['adopted']) or 'base'} | "
+            f"{r['effect']}-{r['seed']} | {', '.join(r['findings']) or '-'} | "
+            f"{', '.join(r['adopted']) or 'none (fitted)'} | "
             f"{', '.join(r['ext_better']) or '-'} / {', '.join(r['ext_worse']) or '-'} | "
             f"{', '.join(r['rec_better']) or '-'} / {', '.join(r['rec_worse']) or '-'}  ({r['s']:.0f} s)"
         )

@@ -250,6 +250,9 @@ def cli() -> None:
       piezopress validate --bundle build/bundle.json --out runs/val
       piezopress fit runs/char --base --out build/base.json   # the thesis's model, for diagnose
       piezopress diagnose runs/char --bundle build/base.json --out runs/diag
+      piezopress diagnose runs/char --bundle build/base.json --out runs/diag-gain --gain \\
+          --fitted build/bundle.json                          # the extensions measured on the press
+      piezopress compare build/bundle.json runs/diag-gain/recommended_bundle.json --out runs/compare
       piezopress report --characterization runs/char --validation runs/val --bundle build/bundle.json \\
           --diagnosis runs/diag --out build/report
     \b
