@@ -156,3 +156,19 @@ def test_fit_on_the_third_press_keeps_its_creep_and_finds_its_mode(tmp_path):
     assert doc["hysteresis"]["fit"]["holdout_rms_pct_of_range"] < 0.6
     wn = doc["shaper"]["shaper"]["natural_freq_rad_s"]
     assert wn == pytest.approx(2 * np.pi * press.mode_hz, rel=0.10)
+
+
+@pytest.mark.parametrize("effect", ["input_delay", "hysteresis_order"])
+def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
+    """The thesis's creep form fitted two poles cancelling each other (a gain of 4.3e6) on a
+    delayed or S-shaped press, which the bundle then refused: ``fit --base`` failed. Now an
+    implausible element is no fit, and the creep is kept in the simplest stable form, said."""
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import fit as F
+
+    press = tp.hidden_press(effect, np.random.default_rng([0, 97]))
+    char.characterize(tmp_path / "char", backend=press)
+    doc = F.fit_bundle([tmp_path / "char"], base=True).doc
+    creep = doc["creep"]
+    assert creep["model"]["form"] == "spectrum" and max(abs(g) for g in creep["model"]["gains"]) <= 1.0
+    assert "could not be fitted" in creep["fit"]["reason"] and "plausible elements" in creep["fit"]["reason"]

@@ -925,7 +925,17 @@ def _stable(model: CreepModel, fs_hz: float) -> bool:
         model.check_stable(fs_hz)
     except CompensatorUnstableError:
         return False
-    return True
+    return _plausible(model)
+
+
+#: The largest creep element a fit may keep, relative to the instantaneous response: a stack
+#: creeps by a few per cent; elements beyond this are two poles cancelling each other into a
+#: fit of the step's edge (a delayed press's edge, say), never creep.
+MAX_PLAUSIBLE_ELEMENT_GAIN = 1.0
+
+
+def _plausible(model: CreepModel) -> bool:
+    return all(math.isfinite(g) and abs(g) <= MAX_PLAUSIBLE_ELEMENT_GAIN for g in model.gains)
 
 
 #: Shortest time constant the thesis form may take, in samples: faster poles only fit what is
@@ -1074,7 +1084,9 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
     usable = [c for c in candidates if _stable(c.model, fs)]
     if not usable:
         raise FitError(
-            f"{where}: no creep form gives a stable compensator ({'; '.join(c.model.describe() for c in candidates)})"
+            f"{where}: no creep form gives a stable compensator with plausible elements (each within "
+            f"+/-{MAX_PLAUSIBLE_ELEMENT_GAIN:g} of the instantaneous response): "
+            f"{'; '.join(c.model.describe() for c in candidates)}"
         )
     chosen = min(usable, key=lambda c: c.holdout_rms)
     others = "; ".join(
@@ -1090,8 +1102,8 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
     model = FITTERS[chosen.form](t, u, y, **options[chosen.form])
     if not _stable(model, fs):  # refitted on everything: check again
         raise FitError(
-            f"{where}: the {chosen.form} form refitted on the whole record gives an unstable compensator "
-            f"({model.describe()})"
+            f"{where}: the {chosen.form} form refitted on the whole record gives an unstable compensator or "
+            f"implausible elements ({model.describe()})"
         )
     rms = _rms(y - model.response(u, fs)[0])
     return CreepFit(model, chosen.form, rms, tuple(candidates), reason, split_s, fs)
