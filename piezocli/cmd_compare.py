@@ -7,8 +7,7 @@ from pathlib import Path
 
 import click
 
-from piezopress.piezocli.main import cli, emit_json, json_option, next_command, reports_errors
-from piezopress.pipelines import characterize as char
+from piezopress.piezocli.main import cli, emit_json, json_option, next_command, press_options, reports_errors
 from piezopress.pipelines import compare as cmp
 
 
@@ -21,20 +20,7 @@ from piezopress.pipelines import compare as cmp
     required=True,
     help="New directory: the runs of every play, compare.csv, repeats.csv, compare.json.",
 )
-@click.option(
-    "--rig",
-    "rig_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=char.DEFAULT_RIG,
-    show_default="rigs/thesis-press.toml",
-    help="The press to play on (its rig file).",
-)
-@click.option(
-    "--backend",
-    "backend_name",
-    default=None,
-    help="Which rig runs the plans: a registered name or module:ClassName (default: the rig file's [rig] backend).",
-)
+@press_options("plays the bundles")
 @click.option(
     "--repeats",
     type=click.IntRange(1, cmp.MAX_REPEATS),

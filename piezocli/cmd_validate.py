@@ -7,8 +7,7 @@ from pathlib import Path
 import click
 
 from piezopress.piezocli.cmd_characterize import _print_progress
-from piezopress.piezocli.main import cli, emit_json, json_option, next_command, reports_errors
-from piezopress.pipelines import characterize as char
+from piezopress.piezocli.main import cli, emit_json, json_option, next_command, press_options, reports_errors
 from piezopress.pipelines import summary
 from piezopress.pipelines import validate as val
 
@@ -36,20 +35,7 @@ from piezopress.pipelines import validate as val
     show_default="protocols/validate.toml",
     help="Reference plan (forces in N above the preload).",
 )
-@click.option(
-    "--rig",
-    "rig_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=char.DEFAULT_RIG,
-    show_default="rigs/thesis-press.toml",
-    help="Rig configuration.",
-)
-@click.option(
-    "--backend",
-    "backend_name",
-    default=None,
-    help="Which rig runs the plan: a registered name or module:ClassName (default: the rig file's [rig] backend).",
-)
+@press_options("runs the plan")
 @click.option("--no-shaper", is_flag=True, help="Run without the input shaper (Table 6.12's comparison).")
 @click.option("--no-creep", is_flag=True, help="Run without the creep compensator.")
 @json_option

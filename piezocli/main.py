@@ -54,6 +54,33 @@ def json_option(func):
     )(func)
 
 
+def press_options(what: str):
+    """``--rig`` (the press's rig file, default the thesis press) and ``--backend`` (a registered
+    name or ``module:ClassName``), as every command that plays on a press takes them; ``what``
+    ends the backend's help ("Which rig runs the plan")."""
+    from pathlib import Path
+
+    from piezopress.resources import shipped
+
+    def add(func):
+        func = click.option(
+            "--backend",
+            "backend_name",
+            default=None,
+            help=f"Which rig {what}: a registered name or module:ClassName (default: the rig file's [rig] backend).",
+        )(func)
+        return click.option(
+            "--rig",
+            "rig_path",
+            type=click.Path(dir_okay=False, path_type=Path),
+            default=shipped("rigs", "thesis-press.toml"),
+            show_default="rigs/thesis-press.toml",
+            help="The press's rig file.",
+        )(func)
+
+    return add
+
+
 def emit_json(doc) -> None:
     """The ``--json`` document: numbers as numbers, non-finite values as null, paths as text."""
     import json
