@@ -124,22 +124,28 @@ class _Everett:
         )
 
 
-def preisach(v: np.ndarray, everett: _Everett) -> np.ndarray:
-    """The Preisach output (relays +/-1 weighted by the density) for the drive ``v``, from the
-    state every relay down (the drive came up from below the plane), through the memory
-    staircase ``S`` of dominant extrema (``S[0]`` the plane's bottom, then maxima and minima
-    alternating): rising from its last minimum ``m``, ``y = P(S) + 2 E(u, m)``; falling from its
+class PreisachMemory:
+    """The state of a Preisach plane and its output for drives played one after another: the
+    memory staircase ``S`` of dominant extrema (``S[0]`` the plane's bottom, then maxima and
+    minima alternating), the last drive and its direction. A stack keeps its state between
+    runs (its remanence): the next run starts where the last one left the plane.
+
+    Rising from the staircase's last minimum ``m``, ``y = P(S) + 2 E(u, m)``; falling from its
     last maximum ``M`` above ``m``, ``y = P(S[:-1]) + 2 (E(M, m) - E(M, u))``, where
     ``P(S) = -E_total + 2 sum_k (E(M_k, m_(k-1)) - E(M_k, m_k))``. Passing an older extreme
     wipes out the pair it closes. Each monotone stretch is evaluated at once; a change below
-    1 nV is no reversal."""
-    v = np.asarray(v, float)
-    E = everett
-    total = E.scalar(_HI_V, _LO_V)
-    S = [_LO_V]
-    P = [-total]  # P[i] = P(S[: i + 1]) where S[i] is a minimum (even i); None at maxima
+    1 nV is no reversal. A new plane has every relay down (the drive came up from below it)."""
 
-    def push(value: float) -> None:
+    def __init__(self, everett: _Everett):
+        self.E = everett
+        self.total = everett.scalar(_HI_V, _LO_V)
+        self.S = [_LO_V]
+        self.P: list[float | None] = [-self.total]  # P(S[: i + 1]) where S[i] is a minimum; None at maxima
+        self.last = _LO_V
+        self.rising = True
+
+    def _push(self, value: float) -> None:
+        S, P, E = self.S, self.P, self.E
         S.append(value)
         if len(S) % 2 == 1:  # a minimum closes the pair (M, m) above the previous minimum
             M = S[-2]
@@ -147,46 +153,56 @@ def preisach(v: np.ndarray, everett: _Everett) -> np.ndarray:
         else:
             P.append(None)
 
-    def pop2() -> None:
-        del S[-2:]
-        del P[-2:]
+    def _pop2(self) -> None:
+        del self.S[-2:]
+        del self.P[-2:]
 
-    x = np.concatenate([[_LO_V], np.clip(v, _LO_V, _HI_V)])  # rising from the bottom to v[0] first
-    d = np.diff(x)
-    d[np.abs(d) < 1e-9] = 0.0
-    direction = np.sign(d)
-    nz = np.flatnonzero(direction)
-    if nz.size:  # a flat stretch keeps the direction before it
-        idx = np.maximum.accumulate(np.where(direction != 0, np.arange(direction.size), 0))
-        direction = direction[idx]
-    direction[direction == 0] = 1.0
-    turns = (np.flatnonzero(direction[1:] != direction[:-1]) + 1).tolist()
-    out = np.empty(v.size)
-    for s, e in zip([0] + turns, turns + [direction.size]):
-        seg = x[s + 1 : e + 1]  # samples s+1..e of x are v[s..e-1]
-        rising = direction[s] > 0
-        if s > 0:  # a reversal at x[s]: the extreme it closes goes on the staircase
-            push(float(x[s]))
-        pos = 0
-        while pos < seg.size:
-            if rising:  # S ends with a minimum
-                limit = S[-2] if len(S) >= 3 else math.inf
-                k = seg.size - pos if not math.isfinite(limit) else int(np.searchsorted(seg[pos:], limit, "left"))
-                if k:
-                    out[s + pos : s + pos + k] = P[-1] + 2.0 * E(seg[pos : pos + k], S[-1])
-                pos += k
-                if pos < seg.size:
-                    pop2()
-            else:  # S ends with a maximum
-                limit = S[-2] if len(S) >= 4 else -math.inf
-                k = seg.size - pos if not math.isfinite(limit) else int(np.searchsorted(-seg[pos:], -limit, "left"))
-                if k:
-                    M, m = S[-1], S[-2]
-                    out[s + pos : s + pos + k] = P[-2] + 2.0 * (E.scalar(M, m) - E(M, seg[pos : pos + k]))
-                pos += k
-                if pos < seg.size:
-                    pop2()
-    return out
+    def run(self, v: np.ndarray) -> np.ndarray:
+        """The output for the drive ``v``, continuing from the state the last drive left."""
+        v = np.asarray(v, float)
+        E, S = self.E, self.S
+        x = np.concatenate([[self.last], np.clip(v, _LO_V, _HI_V)])
+        d = np.diff(x)
+        d[np.abs(d) < 1e-9] = 0.0
+        direction = np.sign(d)
+        if np.any(direction):  # a flat stretch keeps the direction before it
+            idx = np.maximum.accumulate(np.where(direction != 0, np.arange(direction.size), 0))
+            direction = direction[idx]
+        direction[direction == 0] = 1.0 if self.rising else -1.0
+        turns = (np.flatnonzero(direction[1:] != direction[:-1]) + 1).tolist()
+        out = np.empty(v.size)
+        for s, e in zip([0] + turns, turns + [direction.size]):
+            seg = x[s + 1 : e + 1]  # samples s+1..e of x are v[s..e-1]
+            rising = direction[s] > 0
+            if s > 0 or rising != self.rising:  # a reversal at x[s]: its extreme goes on the staircase
+                self._push(float(x[s]))
+            pos = 0
+            while pos < seg.size:
+                if rising:  # S ends with a minimum
+                    limit = S[-2] if len(S) >= 3 else math.inf
+                    k = seg.size - pos if not math.isfinite(limit) else int(np.searchsorted(seg[pos:], limit, "left"))
+                    if k:
+                        out[s + pos : s + pos + k] = self.P[-1] + 2.0 * E(seg[pos : pos + k], S[-1])
+                    pos += k
+                    if pos < seg.size:
+                        self._pop2()
+                else:  # S ends with a maximum
+                    limit = S[-2] if len(S) >= 4 else -math.inf
+                    k = seg.size - pos if not math.isfinite(limit) else int(np.searchsorted(-seg[pos:], -limit, "left"))
+                    if k:
+                        M, m = S[-1], S[-2]
+                        out[s + pos : s + pos + k] = self.P[-2] + 2.0 * (E.scalar(M, m) - E(M, seg[pos : pos + k]))
+                    pos += k
+                    if pos < seg.size:
+                        self._pop2()
+        self.last = float(x[-1])
+        self.rising = bool(direction[-1] > 0)
+        return out
+
+
+def preisach(v: np.ndarray, everett: _Everett) -> np.ndarray:
+    """The output of a new Preisach plane (every relay down) for the drive ``v`` (:class:`PreisachMemory`)."""
+    return PreisachMemory(everett).run(v)
 
 
 def _first_order(x: np.ndarray, tau_s: float, fs: float, x0: float) -> np.ndarray:
@@ -259,6 +275,7 @@ class ThirdPress:
         self.clock_s = 0.0  # the press's own clock: every run and a pause between runs
         self._plays: dict[str, int] = {}
         self._everett = _Everett(self._density)
+        self._memory = PreisachMemory(self._everett)  # the stack's state, kept from run to run
         self._phase = np.random.default_rng([self.seed, 1]).uniform(0, 2 * math.pi, 2)
         ramp = np.linspace(0.0, 150.0, 1501)
         self.stiffness_n = 1.0
@@ -333,9 +350,10 @@ class ThirdPress:
         irr, rev = self._parts(v)
         return self.stiffness_n * (rev + irr)
 
-    def _parts(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The irreversible (Preisach, scaled to volts) and reversible parts of the stroke."""
-        p = preisach(v, self._everett)
+    def _parts(self, v: np.ndarray, memory: PreisachMemory | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The irreversible (Preisach, scaled to volts) and reversible parts of the stroke
+        (``memory``: the plane's state to continue from; a new plane when None)."""
+        p = (memory or PreisachMemory(self._everett)).run(v)
         total = float(self._everett(_HI_V, _LO_V))
         p0 = -total  # every relay down
         irr = (p - p0) / (2.0 * total) * (_HI_V - _LO_V) * (1.0 - self.reversible_share) * 0.62
@@ -427,7 +445,7 @@ class ThirdPress:
         if self.viscous_v:
             rate = _first_order(np.diff(v, prepend=v[0]) * fs, 1e-3, fs, 0.0)
             seen = v - self.viscous_v * np.sign(rate) * np.sqrt(np.abs(rate))
-        irr, rev = self._parts(seen)
+        irr, rev = self._parts(seen, self._memory)
         x = self._creep(irr, rev, fs)
         f = self._press(self.stiffness_n * x, fs)
         force = np.maximum(preload_n + f, 0.0)
