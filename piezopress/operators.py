@@ -230,3 +230,156 @@ def dead_zone(y: np.ndarray, d: np.ndarray | float) -> np.ndarray:
     upper = np.where(d < 0, 0.0, np.inf)
     out = y - d
     return np.clip(out, lower, upper, out=out)
+
+
+# --------------------------------------------------------------------------- Krasnosel'skii-Pokrovskii hysterons
+#
+# A KP hysteron (Krasnosel'skii & Pokrovskii, "Systems with Hysteresis", 1989; Banks, Kurdila &
+# Webb, "Identification of hysteretic control influence operators representing smart actuators",
+# 1997) is a relay with ramps instead of jumps: its state ``s`` in [0, 1] follows
+#
+#     s[k] = clip(s[k-1], a(x[k]), b(x[k])),  a(x) = clip((x - alpha) / h, 0, 1),
+#                                              b(x) = clip((x - beta) / h, 0, 1),
+#
+# rising along the ramp from ``alpha`` to ``alpha + h`` and falling along the one from ``beta + h``
+# down to ``beta`` (``beta <= alpha``). Weighted over a grid of the Preisach half-plane it is a
+# discretised Preisach model whose output is continuous in the input, so its inverse is too. The
+# update is a clamp like the play's (whose bounds are ``x -+ r``), so the same two algorithms
+# evaluate it exactly: monotone runs (the bounds move with ``x``) and the clamp scan.
+
+#: Samples per chunk when evaluating hysterons (bounds are ``chunk x cells`` arrays).
+_KP_CHUNK = 16_384
+
+
+def kp_bounds(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The clamp bounds ``a(x)``, ``b(x)`` of hysterons ``(alpha, beta)`` of ramp width ``h``: ``(n, m)`` each."""
+    x = np.asarray(x, dtype=np.float64)[:, None]
+    lo = np.clip((x - alpha) / h, 0.0, 1.0)
+    hi = np.clip((x - beta) / h, 0.0, 1.0)
+    return lo, hi
+
+
+def kp_initial_state(
+    x0: float, alpha: np.ndarray, beta: np.ndarray, h: float, s0: np.ndarray | float = 0.0
+) -> np.ndarray:
+    """The hysterons' state after the first sample ``x0`` from the state ``s0`` (0: every relay down)."""
+    lo, hi = kp_bounds(np.array([x0]), alpha, beta, h)
+    s = np.broadcast_to(np.asarray(s0, dtype=np.float64), lo[0].shape)
+    return np.minimum(np.maximum(s, lo[0]), hi[0])
+
+
+def _check_kp(alpha: np.ndarray, beta: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    alpha = np.atleast_1d(np.asarray(alpha, dtype=np.float64))
+    beta = np.atleast_1d(np.asarray(beta, dtype=np.float64))
+    if alpha.shape != beta.shape or alpha.ndim != 1:
+        raise ValueError(f"alpha and beta must be 1-D of one length, got shapes {alpha.shape} and {beta.shape}")
+    if not (np.all(np.isfinite(alpha)) and np.all(np.isfinite(beta)) and np.all(beta <= alpha)):
+        raise ValueError("hysteron thresholds must be finite with beta <= alpha")
+    if not (np.isfinite(h) and h > 0):
+        raise ValueError(f"the ramp width must be finite and positive, got {h}")
+    return alpha, beta
+
+
+def _kp_start(x, alpha, beta, h, s0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Checked inputs and the output array with its first row (the state after the first sample) set."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"x must be 1-D, got shape {x.shape}")
+    alpha, beta = _check_kp(alpha, beta, h)
+    out = np.empty((x.size, alpha.size))
+    if x.size:
+        out[0] = kp_initial_state(x[0], alpha, beta, h, s0)
+    return x, alpha, beta, out
+
+
+def kp(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, s0: np.ndarray | float = 0.0) -> np.ndarray:
+    """KP hysterons ``(alpha, beta)`` of ramp width ``h`` driven by ``x``: states ``(n, m)`` in [0, 1].
+
+    ``s0`` is the state before the first sample (carry ``s[-1]`` of one chunk as ``s0`` of
+    the next to evaluate a signal in chunks).
+
+    Examples
+    --------
+    >>> kp(np.array([0.0, 1.0, 2.0, 1.0, 0.0]), 1.0, 0.0, 1.0)[:, 0].tolist()
+    [0.0, 0.0, 1.0, 1.0, 0.0]
+    """
+    x, alpha, beta, out = _kp_start(x, alpha, beta, h, s0)
+    if x.size == 0:
+        return out
+    # chunks overlap by one sample: each chunk starts from the state at its first sample
+    for a in range(0, x.size - 1, _KP_CHUNK):
+        seg = x[a : a + _KP_CHUNK + 1]
+        lo, hi = kp_bounds(seg, alpha, beta, h)
+        starts = monotone_runs(seg)
+        if starts.size <= max(8, _SCAN_ABOVE_RUN_FRACTION * seg.size):
+            y = _clamp_runs(seg, lo, hi, out[a], starts)
+        else:
+            y = _clamp_scan(lo, hi, out[a])
+        out[a + 1 : a + seg.size] = y[1:]
+    return out
+
+
+def _clamp_runs(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, start: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    # bounds that rise (fall) with x: on a rising run the state is the running max of lo from
+    # the run's first clamp (lo is monotone, so a plain max), the upper bound never binds
+    n = x.size
+    y = np.empty_like(lo)
+    y[0] = start
+    bounds = np.append(starts, n)
+    prev = start
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        a1 = a if a > 0 else 1
+        if a1 >= b:
+            continue
+        first = np.minimum(np.maximum(prev, lo[a1]), hi[a1])
+        if x[b - 1] >= x[a1 - 1]:
+            seg = np.maximum(first, lo[a1:b])
+        else:
+            seg = np.minimum(first, hi[a1:b])
+        y[a1:b] = seg
+        prev = seg[-1]
+    return y
+
+
+def _clamp_scan(lo: np.ndarray, hi: np.ndarray, start: np.ndarray) -> np.ndarray:
+    # the two-level clamp scan of _play_scan over explicit bounds (rows 1.. of lo/hi)
+    n, m = lo.shape
+    steps = n - 1
+    y = np.empty((n, m))
+    y[0] = start
+    if steps == 0:
+        return y
+    L = max(1, int(np.ceil(np.sqrt(steps))))
+    B = -(-steps // L)
+    pad = B * L - steps
+    los = np.concatenate([lo[1:], np.full((pad, m), -np.inf)]).reshape(B, L, m)
+    his = np.concatenate([hi[1:], np.full((pad, m), np.inf)]).reshape(B, L, m)
+    comp_lo = np.full((B, m), -np.inf)
+    comp_hi = np.full((B, m), np.inf)
+    for j in range(L):
+        comp_lo = _clamp(comp_lo, los[:, j], his[:, j])
+        comp_hi = _clamp(comp_hi, los[:, j], his[:, j])
+    state = np.empty((B, m))
+    s = start
+    for b in range(B):
+        state[b] = s
+        s = _clamp(s, comp_lo[b], comp_hi[b])
+    out = np.empty((B, L, m))
+    for j in range(L):
+        state = _clamp(state, los[:, j], his[:, j])
+        out[:, j] = state
+    y[1:] = out.reshape(B * L, m)[:steps]
+    return y
+
+
+def kp_loop(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, s0: np.ndarray | float = 0.0) -> np.ndarray:
+    """Reference implementation: the per-sample clamp loop (slow; for tests)."""
+    x, alpha, beta, out = _kp_start(x, alpha, beta, h, s0)
+    if x.size == 0:
+        return out
+    state = out[0]
+    for k in range(1, x.size):
+        lo, hi = kp_bounds(x[k : k + 1], alpha, beta, h)
+        state = np.minimum(np.maximum(state, lo[0]), hi[0])
+        out[k] = state
+    return out

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -140,9 +140,11 @@ def fit_hysteresis_section(
     fit = H.fit_hysteresis(data, grid)
     unit = units.unit_of_column(out_col)  # "N" or "um": keys below are train_rms_n / train_rms_um
     final = fit.final_model or fit.model
-    model = H.PIModel(final.r, final.w, final.d, final.s, final.x0, final.y0, "V", unit)
+    model = replace(final, input_unit="V", output_unit=unit)
     figures = {
         "chosen": fit.chosen,
+        "family": model.family,
+        "family_reason": fit.family_reason,
         "reason": fit.reason,
         f"train_rms_{unit.lower()}": fit.train_rms,
         f"holdout_rms_{unit.lower()}": fit.holdout_rms,
@@ -186,10 +188,12 @@ def fit_sweep_sections(
     )
     unit = units.unit_of_column(out_col)
     final = found.model
-    model = H.PIModel(final.r, final.w, final.d, final.s, final.x0, final.y0, "V", unit)
+    model = replace(final, input_unit="V", output_unit=unit)
     k = unit.lower()
     figures = {
         "chosen": found.hysteresis.chosen,
+        "family": model.family,
+        "family_reason": found.hysteresis.family_reason,
         "reason": found.reason,
         f"train_rms_{k}": found.train_rms,
         f"holdout_rms_{k}": found.holdout_rms,

@@ -68,11 +68,16 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     runs = ", ".join(r.get("name", "?") for r in h.get("runs", []))
     rest_reach = _rest_and_reach(bundle)  # a forward run of the model: once
     blocks += [Para(rest_reach)] if rest_reach else []
+    plane = model.get("preisach_plane") or {}
+    family = model.get("family", "modified_pi")
+    title = {"modified_pi": "modified Prandtl-Ishlinskii", "pi_preisach_plane": "Prandtl-Ishlinskii + Preisach plane"}
+    cells = f", a Preisach plane of {len(plane.get('weights', []))} KP hysterons" if plane else ""
     blocks += [
-        Heading("Hysteresis (modified Prandtl-Ishlinskii)", 3),
+        Heading(f"Hysteresis ({title.get(family, family)})", 3),
         Para(
             f"Model `{fit.get('chosen', '?')}`: {len(model.get('play_thresholds', []))} play operators, "
-            f"{len(model.get('dead_zone_thresholds', []))} dead zones; fitted on {runs or 'no run named'}, the last "
+            f"{len(model.get('dead_zone_thresholds', []))} dead zones{cells}; fitted on {runs or 'no run named'}, "
+            "the last "
             f"{100 * float(fit.get('holdout_fraction', math.nan)):g} % of each run held out"
             + ("; creep removed from the sweeps first." if h.get("creep_removed") else ".")
         ),
@@ -86,6 +91,8 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
         ),
         Para(f"Output range {_num(rng, 1)} {unit}. Why this model: {fit.get('reason', 'not recorded')}."),
     ]
+    if fit.get("family_reason"):
+        blocks.append(Para(f"Model family: {fit['family_reason']}."))
     if "creep" in bundle:
         c = bundle["creep"]
         cf = c.get("fit", {})

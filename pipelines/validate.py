@@ -154,9 +154,26 @@ def prepare_validation(
     if other and on_warning:
         on_warning(other)
 
+    rest = float(comp.hysteresis.y0)
+
     def compensated(proto: Protocol) -> Drive:
         t, ref = proto.waveform()
-        res = comp.drive(ref, proto.sample_rate_hz)
+        # the reference is the force above the plan's preload: aimed at preload + reference on the
+        # model's own scale, not above the model's rest (a stack whose remanence makes it rest
+        # above the preload, or a rest the fit estimates a little off, would put that offset
+        # into every figure); where that asks for a drive below the range, above the rest
+        res = comp.drive(ref + (proto.preload_n - rest), proto.sample_rate_hz)
+        if unreached_while_moving(res) > VALIDATE_MAX_CLIP_SHARE and proto.preload_n < rest:
+            res = comp.drive(ref, proto.sample_rate_hz)
+            res = dataclasses.replace(
+                res,
+                warnings=(
+                    *res.warnings,
+                    f"the model rests at {rest:.4g} N, {rest - proto.preload_n:.3g} N above the plan's preload "
+                    f"{proto.preload_n:g} N, and the drive range cannot pull the press down to it: the reference is "
+                    "aimed above the rest instead, so every figure carries that offset",
+                ),
+            )
         share = unreached_while_moving(res)  # a creep hold at the range's edge is reached as the press creeps
         if share > VALIDATE_MAX_CLIP_SHARE:
             raise ReachError(

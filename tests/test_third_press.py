@@ -177,3 +177,37 @@ def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
     creep = doc["creep"]
     assert creep["model"]["form"] == "spectrum" and max(abs(g) for g in creep["model"]["gains"]) <= 1.0
     assert "could not be fitted" in creep["fit"]["reason"] and "plausible elements" in creep["fit"]["reason"]
+
+
+@pytest.mark.slow
+def test_the_chain_draws_the_preisach_loop_and_aims_at_the_preload(tmp_path):
+    """`fit` chooses the Preisach plane on this press's runs, and `validate` aims each reference
+    at the plan's preload plus the reference, not above the model's rest: this stack's remanence
+    makes it rest about 20 N above the preload, which the rest aim put into every figure."""
+    from piezopress import runformat
+    from piezopress.pipelines import bundle as bundle_mod
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import fit as fit_mod
+    from piezopress.pipelines import summary
+    from piezopress.pipelines import validate as val_mod
+
+    press = tp.clean_press(np.random.default_rng([0, 97]))
+    char.characterize(tmp_path / "char", backend=press)
+    fitted = fit_mod.fit_bundle([tmp_path / "char"], press.limits)
+    model = fitted.doc["hysteresis"]["model"]
+    assert model["family"] == "pi_preisach_plane", fitted.doc["hysteresis"]["fit"]["family_reason"]
+    assert model["y0_n"] > 60.0  # the remanence: the model rests well above the 50 N preload
+    bundle_mod.write_document(fitted.doc, tmp_path / "bundle.json")
+    val_mod.validate(tmp_path / "val", tmp_path / "bundle.json", backend=press)
+    run = runformat.read_run(tmp_path / "val" / "tri-150n-0.1hz.parquet")
+    err = run.output - run.data["reference_n"].to_numpy()
+    # measured: mean error -1.4 N (+23.5 N when aimed above the rest)
+    assert abs(float(np.mean(err))) < 5.0
+    static = {
+        r.run: r.value
+        for r in summary.validation_table(tmp_path / "val").itertuples()
+        if r.metric == "max_hysteresis" and r.run.endswith("0.1hz")
+    }
+    # measured: 0.86 % (300 N), 1.2 (225 N), 1.96 (150 N), 4.0 % (75 N); the modified PI model alone
+    # leaves 7.0 % (bench/bench_family.py)
+    assert max(static.values()) < 6.0, static

@@ -28,7 +28,14 @@ import numpy as np
 from piezopress import units
 from piezopress.analysis.compensation import RATE_TAU_S, Compensator, RateDependence
 from piezopress.analysis.creep import CreepModel
-from piezopress.analysis.hysteresis import PIModel, rest_offset
+from piezopress.analysis.hysteresis import (
+    FAMILY_PI,
+    FAMILY_PLANE,
+    FAMILY_TITLES,
+    PIModel,
+    PreisachPlane,
+    rest_offset,
+)
 from piezopress.analysis.shaper import Shaper, design_shaper
 from piezopress.errors import CompensatorUnstableError, FitError, PiezopressError
 
@@ -180,7 +187,15 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
             list(s),
             "an invertible model: the weight at threshold 0 and every slope outward from it > 0",
         )
-    model = PIModel(r, pw, d, s, x0, y0, "V", ou)
+    family = m.get("family", "modified_pi")
+    if family not in FAMILY_TITLES:
+        c.fail(f"{w}.family", family, f"a model family, one of {', '.join(FAMILY_TITLES)}")
+    plane = check_plane(c, m, w, ou) if family == FAMILY_PLANE else None
+    if family == FAMILY_PI and m.get("preisach_plane") is not None:
+        c.fail(f"{w}.preisach_plane", "...", f"no plane in the {FAMILY_PI!r} family (or family {FAMILY_PLANE!r})")
+    model = PIModel(r, pw, d, s, x0, y0, "V", ou, plane)
+    if plane is not None and plane.max_slope() + sum(pw) <= 0:
+        c.fail(f"{w}.play_weights", list(pw), "an increasing model")
     inv = model.inverse_parameters()
     if not all(np.all(np.isfinite(v)) for v in inv.values()):
         c.fail(f"{w}.play_weights", list(pw), "weights whose inverse is finite")
@@ -210,6 +225,30 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
     if not np.all(np.isfinite(y)) or not np.all(np.isfinite(model.inverse(y)[0])):
         c.fail(w, "...", "a model whose forward and inverse outputs are finite")
     return model
+
+
+def check_plane(c: _Checker, m: Mapping[str, Any], w: str, ou: str) -> PreisachPlane:
+    """The Preisach plane of a ``pi_preisach_plane`` model: cells with ``beta <= alpha``, a positive
+    ramp width and non-negative weights (the model stays monotone, so its inverse exists)."""
+    where = f"{w}.preisach_plane"
+    pl = c.mapping(c.get(m, w, "preisach_plane"), where, "a mapping (the plane's cells and weights)")
+    h = c.number(c.get(pl, where, "ramp_width"), f"{where}.ramp_width", 0.0, MAX_DRIVE_V, "V", lo_open=True)
+    a = c.numbers(c.get(pl, where, "alpha"), f"{where}.alpha", -MAX_DRIVE_V, MAX_DRIVE_V, "rising ramps' starts in V")
+    b = c.numbers(c.get(pl, where, "beta"), f"{where}.beta", -MAX_DRIVE_V, MAX_DRIVE_V, "falling ramps' ends in V")
+    mu = c.numbers(
+        c.get(pl, where, "weights"), f"{where}.weights", 0.0, MAX_WEIGHT, f"non-negative weights in {units.label(ou)}"
+    )
+    if not len(a) == len(b) == len(mu):
+        c.fail(f"{where}.weights", list(mu), f"one alpha, beta and weight per cell ({len(a)} alphas, {len(b)} betas)")
+    bad = [i for i, (x, y) in enumerate(zip(a, b)) if y > x]
+    if bad:
+        c.fail(
+            f"{where}.beta[{bad[0]}]", b[bad[0]], f"at most alpha[{bad[0]}] = {a[bad[0]]:g} (a cell of the half-plane)"
+        )
+    levels = pl.get("levels", 0)
+    if not isinstance(levels, int) or isinstance(levels, bool) or levels < 0:
+        c.fail(f"{where}.levels", levels, "a non-negative integer")
+    return PreisachPlane(a, b, h, mu, levels)
 
 
 def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopress import operators, signals, units
+from piezopress import signals, units
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import PIModel, dead_zone_superposition
 from piezopress.analysis.shaper import Shaper
@@ -168,9 +168,12 @@ class RateDependence:
         u = np.asarray(x, float) - model.x0
         widen = self.widen_v_per_kv_s * rho / 1000.0 if self.widen_v_per_kv_s > 0 else None
         w = np.array(model.w)
-        p = operators.play(u, np.array(model.r), 0.0, widen=widen) @ w
-        if self.loss_per_kv_s > 0:
+        Y = model.columns(u, widen=widen)
+        p = Y[:, : model.n_play] @ w
+        if self.loss_per_kv_s > 0:  # the plays' lag behind the drive, scaled
             p = p + self.loss_per_kv_s * rho / 1000.0 * (p - w.sum() * u)
+        if model.plane is not None:
+            p = p + Y[:, model.n_play :] @ np.array(model.plane.weights)
         return model.y0 + dead_zone_superposition(p, np.array(model.d), np.array(model.s))
 
 

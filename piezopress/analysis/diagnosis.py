@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
-from piezopress import operators, signals, units
+from piezopress import signals, units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import profile
@@ -206,11 +206,13 @@ class Model:
         m = self.hysteresis
         widen = self.rate_v_per_kv_s * rate / 1000.0 if self.rate_v_per_kv_s > 0 and rate is not None else None
         u = np.asarray(x, float) - m.x0
-        Y = operators.play(u, np.array(m.r), 0.0, widen=widen)
+        Y = m.columns(u, widen=widen)
         w = np.array(m.w)
-        p = Y @ w
+        p = Y[:, : m.n_play] @ w
         if self.rate_loss_per_kv_s > 0 and rate is not None:  # the plays' lag behind the drive, scaled
             p = p + self.rate_loss_per_kv_s * rate / 1000.0 * (p - w.sum() * u)
+        if m.plane is not None:
+            p = p + Y[:, m.n_play :] @ np.array(m.plane.weights)
         return H.dead_zone_superposition(p, np.array(m.d), np.array(m.s))
 
     def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
@@ -633,8 +635,6 @@ def _delay_on_sweeps(ctx: Context) -> Finding | None:
         if ctx.model.creep is not None:
             y = m.y0 + ctx.model.creep.compensate(y - m.y0, r.fs_hz)[0]
         outs.append(y)
-    thresholds = np.array(m.r)
-    d_inv, _ = H.invert_dead_zone_weights(np.array(m.d), np.array(m.s))
     skip = [H.settled_start(r.x) for r in runs]
 
     # fitted on a decimated copy of a long record: plays are rate-independent, and the delayed
@@ -650,11 +650,9 @@ def _delay_on_sweeps(ctx: Context) -> Finding | None:
     def refit(k: float) -> tuple[float, H.PIModel]:
         data = prep(k / fs)
         data = H.decimate(data, step) if step > 1 else data
-        plays = [operators.play(u, thresholds) for u in data.u]
-        model = replace(
-            H.fit_structure(data, thresholds, d_inv, plays), input_unit=m.input_unit, output_unit=m.output_unit
-        )
-        return H.rms_error(model, data, plays, "train"), model
+        cache: dict = {}
+        model = H.refit(data, m, cache=cache)  # the base model's structure (plays, dead zones, plane)
+        return H.rms_error(model, data, H.columns_for(data, np.array(m.r), m.plane, cache), "train"), model
 
     fs = min(r.fs_hz for r in runs)
     fits = {k: refit(k) for k in range(0, 9)}  # whole samples, then half a sample either side
@@ -1422,7 +1420,8 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         data = H.prepare(outs, holdout_fraction=0.4, x0=m.x0, y0=m.y0)
         n_dz = max(0, len([d for d in m.d if d > 0]))
         try:
-            base_fit = H.fit_hysteresis(data, [H.Candidate(max(2, len(m.r)), 1.0, n_dz)], refit_all=False)
+            levels = m.plane.levels if m.plane is not None else 0
+            base_fit = H.fit_hysteresis(data, [H.Candidate(max(2, len(m.r)), 1.0, n_dz, levels)], refit_all=False)
             rich_fit = H.fit_hysteresis(data, refit_all=False)
         except H.HysteresisFitError:
             return None
@@ -1434,9 +1433,10 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     # be taken for a force and clipped at 0 N)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
     base_model = replace(base_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
+    cells = f" and a Preisach plane of {rich.plane.n_cells} cells" if rich.plane is not None else ""
     ev = (
         f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} dead "
-        "zones (chosen on "
+        f"zones{cells} (chosen on "
         f"held-out data) capture asymmetry and saturation that {len(m.r)} plays and {len(m.d)} dead zones miss"
     )
     return _judge(

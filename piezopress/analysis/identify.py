@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from piezopress import operators
 from piezopress.analysis import creep as C
 from piezopress.analysis import hysteresis as H
 from piezopress.errors import FitError
@@ -173,11 +172,9 @@ def fit_sweeps(
     # final: the same alternation on every fitted sample
     all_rows = [t | h for t, h in zip(data.train, data.holdout)]
     cmf, hmf = _fit_creep(hfit.final_model or hfit.model, runs, all_rows, taus)
-    hf = H.fit_structure(
+    hf = H.refit(
         H.prepare(_decreep(hmf, cmf, runs), holdout_fraction=holdout_fraction, skip=skip, x0=data.x0, y0=hmf.y0),
-        np.array(hfit2.model.r),
-        H.invert_dead_zone_weights(np.array(hfit2.model.d), np.array(hfit2.model.s))[0],
-        [operators.play(x - data.x0, np.array(hfit2.model.r)) for _, x, _, _ in runs],
+        hfit2.model,
         rows="all",
     )
     cmf, hmf = _fit_creep(hf, runs, all_rows, taus)
@@ -197,7 +194,7 @@ def judged_rows(data: H.HysteresisData) -> tuple[tuple[int, int, int], ...]:
     )
 
 
-def _candidate(label: str) -> tuple[int, float, int]:
-    """``Candidate`` fields from its label ``n=.. gamma=.. m=..``."""
+def _candidate(label: str) -> tuple[int, float, int, int]:
+    """``Candidate`` fields from its label ``n=.. gamma=.. m=.. [plane=..]``."""
     parts = dict(p.split("=") for p in label.split())
-    return int(parts["n"]), float(parts["gamma"]), int(parts["m"])
+    return int(parts["n"]), float(parts["gamma"]), int(parts["m"]), int(parts.get("plane", 0))
