@@ -18,7 +18,12 @@ compensator (``pipelines/gain.py``): the table per cause, base bundle against ex
 validation row, with each row's noise, beside the finding's prediction gain; ``--gain-out``
 writes it as ``compensated_gain.csv``.
 
-Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2]
+The cases run as a batch on a local Dask cluster of ``--workers`` processes (issue 23): every
+characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` (what
+``piezopress batch diagnose`` runs) fits the base model and diagnoses each run set on the same
+cluster; ``--no-batch`` (or Dask missing) runs each case start to end in a process pool.
+
+Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2] [--no-batch]
          [--record results.jsonl]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
@@ -62,27 +67,119 @@ def _third_press(effect: str, seed: int):
     return (tp.clean_press(rng) if effect == "none" else tp.hidden_press(effect, rng)), None
 
 
-def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
+def _backend(rig: str, effect: str, seed: int):
+    """The press of one case and the plan to characterize it with (None: the default plan)."""
     from piezopress.acquisition.rig_config import RigConfig, hidden_effect
     from piezopress.acquisition.virtual_rig import VirtualRig
+
+    if rig == "second":
+        return _second_press(effect, seed)
+    if rig == "third":
+        return _third_press(effect, seed)
+    rng = np.random.default_rng([seed, 99])
+    return (
+        VirtualRig(
+            RigConfig.clean().replace(rig={"seed": int(rng.integers(0, 2**31))})
+            if effect == "none"
+            else hidden_effect(effect, rng)
+        ),
+        None,
+    )
+
+
+def characterize_case(args: tuple[str, str, int, str]) -> str:
+    """One case's characterization into ``work/runs/<rig>-<effect>-<seed>`` (a Dask task)."""
+    from piezopress.pipelines import characterize as char
+
+    rig, effect, seed, work = args
+    backend, plan = _backend(rig, effect, seed)
+    out = Path(work) / "runs" / f"{rig}-{effect}-{seed}"
+    try:
+        char.characterize(out, backend=backend, **({"plan_path": plan} if plan else {}))
+    except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
+        return f"error: {type(exc).__name__}"
+    return str(out)
+
+
+def run_as_batch(jobs: list[tuple[str, str, int]], workers: int, record: Path | None) -> list[tuple]:
+    """The cases on one local Dask cluster: every characterization as a task, then
+    ``piezopress batch diagnose`` (``fit --base`` + ``diagnose`` per press, the same functions as
+    the commands) over the run sets, on the same cluster. Returns ``(effect, named, gain)`` per job."""
+    from dask.distributed import Client, LocalCluster
+
+    from piezopress.pipelines import batch as BT
+
+    results: dict[int, tuple] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-diagnose-") as work:
+        one_thread = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+        cluster = LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=40,
+            env=one_thread,
+        )
+        client = Client(cluster)
+        try:
+            dirs = client.gather(client.map(characterize_case, [(*j, work) for j in jobs], pure=False))
+            presses, index = [], {}
+            for i, (job, d) in enumerate(zip(jobs, dirs)):
+                if d.startswith("error"):
+                    results[i] = (job[1], (d,), float("nan"))
+                else:
+                    presses.append(BT.Press(Path(d).name, (d,)))
+                    index[Path(d).name] = i
+
+            def done(k: int, n: int, row: dict) -> None:
+                i = index[row["press"]]
+                effect = jobs[i][1]
+                if row.get("status") != "done":
+                    named, gain = (f"error: {str(row.get('why', '?'))[:60]}",), float("nan")
+                else:
+                    named = tuple(x for x in str(row.get("findings", "none")).split(";") if x) or ("none",)
+                    doc = json.loads((Path(row["out"]) / "diagnosis" / "diagnosis.json").read_text(encoding="utf-8"))
+                    gain = next(
+                        (f["gain_pct"] for f in doc.get("findings", []) if f["cause"] == effect and f["gain_pct"]),
+                        float("nan"),
+                    )
+                results[i] = (effect, named, float(gain))
+                _record(record, jobs[i], results[i])
+                print(f"  {k}/{n} {row['press']}: {', '.join(named)}", file=sys.stderr)
+
+            BT.run_batch(presses, "diagnose", Path(work) / "out", scheduler=cluster.scheduler_address, on_done=done)
+        finally:
+            client.close()
+            cluster.close()
+    return [results[i] for i in range(len(jobs))]
+
+
+def _record(path: Path | None, job: tuple, r: tuple) -> None:
+    if path is None:
+        return
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(
+            json.dumps(
+                {
+                    "rig": job[0],
+                    "effect": r[0],
+                    "seed": job[2],
+                    "named": list(r[1]),
+                    "gain_pct": None if not np.isfinite(r[2]) else r[2],
+                }
+            )
+            + "\n"
+        )
+
+
+def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import characterize as char
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
     rig, effect, seed = args
-    plan = None
-    if rig == "second":
-        backend, plan = _second_press(effect, seed)
-    elif rig == "third":
-        backend, plan = _third_press(effect, seed)
-    else:
-        rng = np.random.default_rng([seed, 99])
-        backend = VirtualRig(
-            RigConfig.clean().replace(rig={"seed": int(rng.integers(0, 2**31))})
-            if effect == "none"
-            else hidden_effect(effect, rng)
-        )
+    backend, plan = _backend(rig, effect, seed)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         try:
@@ -108,7 +205,13 @@ def main() -> None:
         "apart from the others; the third's effects: its own EFFECTS, mains pickup and sensitivity drift among them)",
     )
     ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2, help="Dask workers (local cluster) or pool processes")
+    ap.add_argument(
+        "--no-batch",
+        action="store_true",
+        help="one process pool running each case start to end, instead of the cases as a Dask batch "
+        "(characterizations as tasks, then `batch diagnose` on the same cluster)",
+    )
     ap.add_argument("--effects", nargs="*", help="only these rows (effect ids, or none)")
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument(
@@ -156,24 +259,18 @@ def main() -> None:
     # seed by seed over every row, so that a run stopped part way has every row at (nearly) the same count
     jobs = [(a.rig, e, s) for s in range(a.first_seed, a.first_seed + a.seeds) for e in hidden]
     start = time.perf_counter()
-    results = []
-    with ProcessPoolExecutor(a.workers) as pool:
-        for job, r in zip(jobs, pool.map(one, jobs)):
-            results.append(r)
-            if a.record:
-                with open(a.record, "a", encoding="utf-8") as fh:
-                    fh.write(
-                        json.dumps(
-                            {
-                                "rig": job[0],
-                                "effect": r[0],
-                                "seed": job[2],
-                                "named": list(r[1]),
-                                "gain_pct": None if not np.isfinite(r[2]) else r[2],
-                            }
-                        )
-                        + "\n"
-                    )
+    from piezopress.pipelines.batch import dask_available
+
+    if a.no_batch or not dask_available():
+        if not a.no_batch:
+            print("Dask is not installed: one process pool instead (pip install 'piezopress[fleet]')", file=sys.stderr)
+        results = []
+        with ProcessPoolExecutor(a.workers) as pool:
+            for job, r in zip(jobs, pool.map(one, jobs)):
+                results.append(r)
+                _record(a.record, job, r)
+    else:
+        results = run_as_batch(jobs, a.workers, a.record)
     wall = time.perf_counter() - start
     print_matrix(a.rig, hidden, results, f"{a.seeds} seeds per row", (wall, len(jobs), a.workers))
 

@@ -24,7 +24,10 @@ seen. Rows:
 * Aye-Ang ``Test_Vi_Do_Di.dat`` rows 200:3100 (uncompensated, the sensor one sample late):
   the model fitted on ``Model_Vi_Do.dat`` 0-20 s predicts it; judged after the input has
   swept its range once (the state before is unknown), with the output offset of the new
-  record estimated from its first second (a sensor's offset is not a property of the press).
+  record estimated from its first second (a sensor's offset is not a property of the press);
+* Aye-Ang ``Test_Vi_Do_Di.dat`` rows 7600:9400, where the authors' compensated drive was
+  applied (issue 19): the same model predicts the measured output from that applied input,
+  judged and offset the same way; the drive there is a compensator's, not a plain sweep.
 
 Run: .venv/bin/python bench/bench_real.py   (exits 1 if a row misses its acceptance bound
 or loses to the classic PI baseline)
@@ -54,6 +57,7 @@ BOUNDS = {
     "SmartHysteresis 6.5-10 s": (0.30, 2.0),
     "Aye-Ang Model 20-40 s": (0.60, 1.6),
     "Aye-Ang Test rows 200:3100": (2.0, None),
+    "Aye-Ang Test rows 7600:9400": (2.0, None),
 }
 
 
@@ -138,6 +142,7 @@ def main() -> int:
     import cvxpy  # noqa: F401  (import time is not fit time)
 
     s, m_, tst = smart(), aye("Model_Vi_Do.dat"), aye("Test_Vi_Do_Di.dat", rows=(200, 3100))
+    comp = aye("Test_Vi_Do_Di.dat", rows=(7600, 9400))
     rows = []  # (row, model, rms %, max %, fit seconds)
 
     def run_row(label, rec, fit_mask, judge_mask, baseline_mask=None, other=None):
@@ -160,6 +165,8 @@ def main() -> int:
     run_row("Aye-Ang Model 20-40 s", m_, m_.t < 20, m_.t >= 20)
     first = H.settled_start(tst.x)
     run_row("Aye-Ang Test rows 200:3100", m_, m_.t < 20, None, other=(tst, first, slice(first, first + 200)))
+    first = H.settled_start(comp.x)
+    run_row("Aye-Ang Test rows 7600:9400", m_, m_.t < 20, None, other=(comp, first, slice(first, first + 200)))
 
     print("Real data: fitted on the start of each record, judged on the rest (% of the judged output range)")
     print(f"{'row':28s} {'model':11s} {'RMS %':>7s} {'max %':>7s} {'fit s':>7s}")

@@ -205,7 +205,11 @@ def _bundle_figures(doc: dict[str, Any]) -> dict[str, Any]:
     mode = shaper.get("mode") or {}
     return {
         "output_unit": unit,
-        "model_family": "modified Prandtl-Ishlinskii",
+        "model_family": (
+            f"PI + Preisach plane ({len((model.get('preisach_plane') or {}).get('weights', []))} cells)"
+            if model.get("family") == "pi_preisach_plane"
+            else "modified Prandtl-Ishlinskii"
+        ),
         "plays": len(model.get("play_thresholds", [])),
         "dead_zones": len(model.get("dead_zone_thresholds", [])),
         "holdout_rms": fit.get(f"holdout_rms_{k}"),

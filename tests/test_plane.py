@@ -200,3 +200,12 @@ def test_the_family_search_keeps_the_plays_where_they_draw_the_loop():
     fit = H.fit_hysteresis(H.prepare(runs, holdout_fraction=0.3))
     assert fit.model.family == H.FAMILY_PI, fit.family_reason
     assert "short of the" in fit.family_reason
+
+
+def test_the_fleet_row_names_the_family():
+    from piezopress.pipelines.batch import _bundle_figures
+
+    plane = _bundle_figures(_bundle_doc(replace_units(_model(levels=4))))
+    assert plane["model_family"] == "PI + Preisach plane (10 cells)"
+    pi = _bundle_doc(replace_units(H.PIModel((0.0, 5.0), (0.6, 0.2), (0.0,), (1.0,))))
+    assert _bundle_figures(pi)["model_family"] == "modified Prandtl-Ishlinskii"
