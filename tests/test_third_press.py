@@ -208,6 +208,7 @@ def test_the_chain_draws_the_preisach_loop_and_aims_at_the_preload(tmp_path):
         for r in summary.validation_table(tmp_path / "val").itertuples()
         if r.metric == "max_hysteresis" and r.run.endswith("0.1hz")
     }
-    # measured: 0.86 % (300 N), 1.2 (225 N), 1.96 (150 N), 4.0 % (75 N); the modified PI model alone
-    # leaves 7.0 % (bench/bench_family.py)
-    assert max(static.values()) < 6.0, static
+    # measured: 0.48-0.70 % on every loop but the 75 N one, 1.64 % (its drive goes below the fitted range to
+    # reach the preload); the modified PI model alone leaves 8.1 % (bench/bench_family.py)
+    assert max(static.values()) < 2.5, static
+    assert sorted(static.values())[-2] < 1.0, static
