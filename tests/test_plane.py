@@ -209,3 +209,20 @@ def test_the_fleet_row_names_the_family():
     assert plane["model_family"] == "PI + Preisach plane (10 cells)"
     pi = _bundle_doc(replace_units(H.PIModel((0.0, 5.0), (0.6, 0.2), (0.0,), (1.0,))))
     assert _bundle_figures(pi)["model_family"] == "modified Prandtl-Ishlinskii"
+
+
+def test_fit_sweeps_reports_the_family_it_chose(monkeypatch):
+    """With creep kept, the hysteresis is refitted on the chosen structure: the family and why it
+    won are the first search's, never 'no other family tried'."""
+    import third_press as tp
+
+    from piezopress.analysis import identify
+
+    monkeypatch.setattr(identify, "CREEP_MIN_GAIN", -1.0)  # creep kept whatever it gains: the refit path
+    ev = tp.ThirdPress()._everett
+    runs = _sweeps(lambda v: 50.0 + 1.6 * (tp.preisach(v, ev) - tp.preisach(np.zeros(1), ev)[0]))
+    found = identify.fit_sweeps([(n, x, y, 100.0) for n, x, y in runs], holdout_fraction=0.3)
+    assert found.creep is not None, found.creep_reason
+    assert found.model.family == H.FAMILY_PLANE
+    why = found.hysteresis.family_reason
+    assert "Preisach plane" in why and "for the best modified PI model" in why, why

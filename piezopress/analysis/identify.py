@@ -183,6 +183,7 @@ def fit_sweeps(
         f"Kelvin-Voigt creep from the sweeps ({cmf.describe()}): held-out RMS {creep_ho:.4g} with it against "
         f"{static_ho:.4g} without"
     )
+    hfit2 = replace(hfit2, family_reason=hfit.family_reason)  # the family was chosen by the first search
     return SweepFit(hfit2, hmf, cmf, train, creep_ho, static_ho, hfit.output_range, hfit.reason, why, judged_rows(data))
 
 
