@@ -428,35 +428,6 @@ def fit_hysteresis_and_creep(
     return h, hfit, c, cfit
 
 
-def _rest_level(y: np.ndarray, x: np.ndarray) -> float:
-    """Mean output while the drive is still at its first value (before the step)."""
-    still = np.flatnonzero(np.abs(x - x[0]) > 1e-9)
-    n = int(still[0]) if still.size else x.size
-    return float(np.mean(y[: max(n, 1)]))
-
-
-#: Creep is fitted below this rate: faster dynamics (slew, ringing) are filtered out of both signals.
-CREEP_FIT_RATE_HZ = 50.0
-
-
-def _slow_part(
-    t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Input and output through the same low-pass (so an LTI relation between them holds
-    unchanged) and decimated to ``CREEP_FIT_RATE_HZ``: the millisecond step transient (the
-    amplifier's slew, the mode's ringing) is not creep and must not be fitted as creep."""
-    from scipy import signal
-
-    step = max(1, int(round(fs_hz / CREEP_FIT_RATE_HZ)))
-    if step == 1:
-        return t_s, u, y
-    sos = signal.butter(4, 0.8 / step, output="sos")  # below the new Nyquist frequency
-    zi = signal.sosfilt_zi(sos)
-    uf = signal.sosfilt(sos, u, zi=zi * u[0])[0]
-    yf = signal.sosfilt(sos, y, zi=zi * y[0])[0]
-    return t_s[::step], uf[::step], yf[::step]
-
-
 def fit_creep_section(
     paths: Iterable[str | Path],
     hysteresis: dict[str, Any],
@@ -471,10 +442,15 @@ def fit_creep_section(
     run = select_creep_run(paths, names)
     model = H.PIModel.from_dict(hysteresis["model"])
     static, _ = model.forward(run.command_v)
-    u = static - model.y0
-    y = run.output - _rest_level(run.output, run.command_v)
-    t, u, y = _slow_part(run.t_s, u, y, run.sample_rate_hz)
-    fit = creep_mod.fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
+    fit = creep_mod.fit_held_step(
+        run.t_s,
+        static - model.y0,
+        run.command_v,
+        run.output,
+        run.sample_rate_hz,
+        holdout_fraction=holdout_fraction,
+        forms=forms,
+    )
     fit.model.check_stable(run.sample_rate_hz)
     body = {
         "model": fit.model.to_dict(),

@@ -57,6 +57,7 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
+from scipy import signal
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
@@ -1155,3 +1156,48 @@ def fit_sweep_creep(u, y, fs_hz: float, mask, taus_s=KV_TAUS_S) -> tuple[CreepMo
         )
     model = CreepModel("kv", k_c, tuple(float(t) for t in taus_s), gains)
     return model, float(coef[-2] - coef[-1])
+
+
+# --------------------------------------------------------------------------- creep of a held step
+
+#: Creep is fitted below this rate: faster dynamics (slew, ringing) are filtered out of both signals.
+FIT_RATE_HZ = 50.0
+
+
+def rest_level(y: np.ndarray, x: np.ndarray) -> float:
+    """Mean output while the drive is still at its first value (before the step)."""
+    still = np.flatnonzero(np.abs(x - x[0]) > 1e-9)
+    n = int(still[0]) if still.size else x.size
+    return float(np.mean(y[: max(n, 1)]))
+
+
+def slow_part(t_s: np.ndarray, u: np.ndarray, y: np.ndarray, fs_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Input and output through the same low-pass (so an LTI relation between them holds
+    unchanged) and decimated to :data:`FIT_RATE_HZ`: the millisecond step transient (the
+    amplifier's slew, the mode's ringing) is not creep and must not be fitted as creep."""
+    step = max(1, int(round(fs_hz / FIT_RATE_HZ)))
+    if step == 1:
+        return t_s, u, y
+    sos = signal.butter(4, 0.8 / step, output="sos")  # below the new Nyquist frequency
+    zi = signal.sosfilt_zi(sos)
+    uf = signal.sosfilt(sos, u, zi=zi * u[0])[0]
+    yf = signal.sosfilt(sos, y, zi=zi * y[0])[0]
+    return t_s[::step], uf[::step], yf[::step]
+
+
+def fit_held_step(
+    t_s: np.ndarray,
+    static: np.ndarray,
+    command_v: np.ndarray,
+    output: np.ndarray,
+    fs_hz: float,
+    *,
+    holdout_fraction: float = 0.3,
+    forms: tuple[str, ...] = FORMS,
+) -> CreepFit:
+    """Creep of a held step: ``static`` (the hysteresis model's prediction above its rest) in,
+    the measured ``output`` above its level before the step out, both slowed to
+    :data:`FIT_RATE_HZ` (:func:`slow_part`), then :func:`fit_creep`."""
+    y = np.asarray(output, float) - rest_level(np.asarray(output, float), np.asarray(command_v, float))
+    t, u, y = slow_part(np.asarray(t_s, float), np.asarray(static, float), y, fs_hz)
+    return fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
