@@ -271,3 +271,57 @@ def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
     assert (tmp_path / "rep" / "report.html").is_file(), out
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "## Comparison on the press" in md
+
+
+@pytest.mark.slow
+def test_the_third_press_runs_the_chain_through_a_rig_file(tmp_path):
+    """Issue 21: the third test press (a Preisach stack, written apart from both others) as a
+    lab's plug-in named in a rig file: characterize, fit (the family search picks the plane),
+    validate and report from the command line, the report naming the model family."""
+    (tmp_path / "preisachpress.py").write_text(
+        textwrap.dedent(
+            f"""
+            import sys
+            sys.path.insert(0, {str(TESTS)!r})
+            from third_press import ThirdPress
+            from piezopress.errors import ConfigError
+
+            class PreisachPress(ThirdPress):
+                def __init__(self, document):
+                    press = document.get("press", {{}})
+                    unknown = sorted(set(press) - {{"seed"}})
+                    if unknown:
+                        raise ConfigError("rig file", [f"[press] {{k}}: unknown key" for k in unknown])
+                    super().__init__(**press)
+            """
+        )
+    )
+    rig = tmp_path / "preisach.toml"
+    rig.write_text('[rig]\nbackend = "preisachpress:PreisachPress"\n\n[press]\nseed = 5\n')
+    run = CliRunner()
+
+    def ok(*args):
+        res = run.invoke(cli, [str(a) for a in args])
+        assert res.exit_code == 0, res.output
+        return res.output
+
+    assert check_backend(char.make_backend(None, rig)) == list(RULES)
+    ok("characterize", "--rig", rig, "--out", tmp_path / "char")
+    ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
+    doc = json.loads((tmp_path / "b.json").read_text())
+    assert doc["hysteresis"]["model"]["family"] == "pi_preisach_plane", doc["hysteresis"]["fit"]["family_reason"]
+    ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
+    ok(
+        "report",
+        "--characterization",
+        tmp_path / "char",
+        "--validation",
+        tmp_path / "val",
+        "--bundle",
+        tmp_path / "b.json",
+        "--out",
+        tmp_path / "rep",
+    )
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert "Hysteresis (Prandtl-Ishlinskii + Preisach plane)" in md
+    assert "Model family: Prandtl-Ishlinskii plus a Preisach plane" in md

@@ -1073,19 +1073,19 @@ def _family_reason(fits, choose) -> tuple[Any, str]:
     planes = [f for f in fits if f[2].plane_levels]
     title = FAMILY_TITLES[FAMILY_PI]
     if not planes:
-        return None, f"family: {title} (no other family tried)"
+        return None, f"{title} (no other family tried)"
     if not pi:
-        return None, f"family: {FAMILY_TITLES[FAMILY_PLANE]} (the only family tried)"
+        return None, f"{FAMILY_TITLES[FAMILY_PLANE]} (the only family tried)"
     best_pi, pi_choice = choose(pi)
     best_plane = min(f[0] for f in planes)
     gain = 1.0 - best_plane / best_pi if best_pi > 0 else 0.0
     if gain >= FAMILY_MARGIN:
         return None, (
-            f"family: {FAMILY_TITLES[FAMILY_PLANE]}: held-out RMS {best_plane:.4g} against {best_pi:.4g} for the "
+            f"{FAMILY_TITLES[FAMILY_PLANE]}: held-out RMS {best_plane:.4g} against {best_pi:.4g} for the "
             f"best modified PI model ({100 * gain:.0f} % lower; needs {100 * FAMILY_MARGIN:g} %)"
         )
     return (best_pi, pi_choice), (
-        f"family: {title}: a Preisach plane predicts the held-out rows {100 * gain:.0f} % better "
+        f"{title}: a Preisach plane predicts the held-out rows {100 * gain:.0f} % better "
         f"({best_plane:.4g} against {best_pi:.4g}), short of the {100 * FAMILY_MARGIN:g} % a richer family needs"
     )
 
@@ -1158,7 +1158,7 @@ def _finish(
         "held-out RMS "
         f"{ho:.4g} ({100 * ho / out_range:.2f} % of range), within {100 * tolerance:g} % of the best of {n_fits} "
         "candidates "
-        f"({best:.4g}) with the fewest operators" + (f"; {family}" if family else "")
+        f"({best:.4g}) with the fewest operators" + (f"; family: {family}" if family else "")
     )
     final = refit(data, model, rows="all", cache=cache) if refit_all else None
     return HysteresisFit(model, rows, cand.label, reason, tr, ho, out_range, pruned, final, family)
