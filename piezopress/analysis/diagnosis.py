@@ -125,6 +125,7 @@ class RunData:
 
 #: Static predictions of recent (run, static map) pairs: (run, prediction) by (id(run), map parameters).
 _STATIC_MEMO: dict[tuple, tuple[RunData, np.ndarray]] = {}
+_CREEP_MEMO: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # (static prediction, its creep response)
 
 
 @dataclass(frozen=True)
@@ -217,7 +218,7 @@ class Model:
 
     def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
         """Creep, mode(s), sensor low-pass and contact applied to the static prediction."""
-        c = self.creep.response(h, run.fs_hz)[0] if self.creep is not None else h
+        c = self._crept(run, h)
         modes = []
         if self.wn:
             modes.append((1.0 - (self.mode2[0] if self.mode2 else 0.0), self.wn, self.zeta))
@@ -229,6 +230,24 @@ class Model:
         y = self.hysteresis.y0 + out
         # a press only pushes: a force reads no less than 0 N; a displacement is never clipped
         return np.maximum(y, 0.0) if units.is_force(self.unit) else y
+
+    def _crept(self, run: RunData, h: np.ndarray) -> np.ndarray:
+        """The creep model's response to the static prediction ``h``; memoised for a read-only
+        ``h`` (the static memo's): a search varies later stages on one static prediction."""
+        if self.creep is None:
+            return h
+        if h.flags.writeable:
+            return self.creep.response(h, run.fs_hz)[0]
+        key = (id(h), self.creep, run.fs_hz)
+        hit = _CREEP_MEMO.get(key)
+        if hit is not None and hit[0] is h:
+            return hit[1]
+        c = self.creep.response(h, run.fs_hz)[0]
+        c.setflags(write=False)
+        if len(_CREEP_MEMO) >= 64:
+            _CREEP_MEMO.pop(next(iter(_CREEP_MEMO)))
+        _CREEP_MEMO[key] = (h, c)
+        return c
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, drift."""
