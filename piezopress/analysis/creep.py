@@ -1135,17 +1135,31 @@ def fit_sweep_creep(u, y, fs_hz: float, mask, taus_s=KV_TAUS_S) -> tuple[CreepMo
     ``K_c >= 0`` (non-negative least squares, the offset ``c`` free): the model is then
     positive real, and its compensator stable. Returns the model (form ``"kv"``) and ``c``.
     """
+    return fit_sweep_creep_runs([(u, y, fs_hz, mask)], taus_s)
+
+
+def fit_sweep_creep_runs(parts, taus_s=KV_TAUS_S) -> tuple[CreepModel, float]:
+    """:func:`fit_sweep_creep` over several records ``(u, y, fs_hz, mask)``, each at its own
+    sample rate and each from rest: the elements' columns are computed record by record at
+    its rate (exact: every record starts with the elements at rest) and stacked."""
     from scipy.optimize import nnls
 
-    u = _signal("fit_sweep_creep", "u", u, MIN_FIT_SAMPLES)
-    y = _signal("fit_sweep_creep", "y", y, u.size)
-    mask = np.asarray(mask, bool)
-    if mask.shape != u.shape or mask.sum() < MIN_FIT_SAMPLES:
-        raise FitError(
-            f"fit_sweep_creep: {int(mask.sum())} samples selected of {u.size}; expected at least {MIN_FIT_SAMPLES}"
-        )
-    X = kv_columns(u, fs_hz, taus_s)
-    A = np.column_stack([X, np.ones_like(u), -np.ones_like(u)])
+    rows = []
+    for u, y, fs_hz, mask in parts:
+        u = _signal("fit_sweep_creep", "u", u, 2)
+        y = _signal("fit_sweep_creep", "y", y, u.size)
+        mask = np.asarray(mask, bool)
+        if mask.shape != u.shape:
+            raise FitError(
+                f"fit_sweep_creep: a mask of shape {mask.shape} for {u.size} samples; expected one per sample"
+            )
+        X = kv_columns(u, float(fs_hz), taus_s)
+        rows.append((np.column_stack([X, np.ones_like(u), -np.ones_like(u)])[mask], y[mask]))
+    A = np.vstack([a for a, _ in rows])
+    y = np.concatenate([b for _, b in rows])
+    if y.size < MIN_FIT_SAMPLES:
+        raise FitError(f"fit_sweep_creep: {y.size} samples selected; expected at least {MIN_FIT_SAMPLES}")
+    mask = np.ones(y.size, bool)
     scale = np.maximum(np.sqrt(np.mean(A[mask] ** 2, axis=0)), 1e-300)
     coef, _ = nnls(A[mask] / scale, y[mask])
     coef = coef / scale

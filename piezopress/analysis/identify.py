@@ -99,8 +99,11 @@ def _fit_creep(model: H.PIModel, runs, masks, taus) -> tuple[C.CreepModel, H.PIM
     """Creep on ``model``'s static prediction (runs concatenated, each from rest); the fitted
     output offset goes into the hysteresis model's rest output."""
     fs = {float(r[3]) for r in runs}
-    if len(fs) != 1:
-        raise FitError(f"creep from sweeps needs one sample rate; the runs have {sorted(fs)} Hz")
+    if len(fs) != 1:  # runs at several rates: the elements' columns run by run, each at its rate (exact)
+        creep, c = C.fit_sweep_creep_runs(
+            [(model.forward(x)[0] - model.y0, yy - model.y0, f, m) for (_, x, yy, f), m in zip(runs, masks)], taus
+        )
+        return creep, replace(model, y0=model.y0 + c)
     u = np.concatenate([model.forward(x)[0] - model.y0 for _, x, _, _ in runs])
     y = np.concatenate([yy - model.y0 for _, _, yy, _ in runs])
     mask = np.concatenate(list(masks))
