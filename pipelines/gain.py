@@ -26,7 +26,7 @@ better everywhere) gets:
   12-bit reading);
 * ``change_pct``: ``100 (base - extended) / base``.
 
-A cause's verdict (:meth:`GainResult.verdict`): every row it targets (:data:`TARGETS`) that
+A cause's verdict (:meth:`GainResult.verdict`): every row it targets (:func:`targets`) that
 the effect makes worse by at least :data:`MIN_TARGET_GAIN_PCT` of the base value (beyond the
 noise: only there can that much be gained) improves by at least that much, and no row gets
 worse than the base by more than its noise.
@@ -88,15 +88,21 @@ ROWS: tuple[Row, ...] = (
 )
 ROW_BY_ID = {r.id: r for r in ROWS}
 
-#: The rows each compensator extension is for (the rows its effect hurts).
-TARGETS: dict[str, tuple[str, ...]] = {
-    "amplifier_slew_limit": ("overshoot", "hysteresis_50hz"),
-    "rate_dependent_hysteresis": ("hysteresis_5hz", "hysteresis_10hz", "hysteresis_50hz"),
-    "input_delay": ("tracking_random", "hysteresis_50hz"),
-    "second_resonance": ("overshoot",),
-    "logarithmic_creep": ("creep",),
-    "hysteresis_order": ("static_hysteresis", "tracking_staircase", "tracking_random"),
-}
+
+def targets() -> dict[str, tuple[str, ...]]:
+    """The rows each compensator extension is for (the rows its effect hurts): the catalogue's
+    ``Cause.targets`` (:data:`piezopress.analysis.diagnosis.CAUSES`), read there (imported when
+    asked: the diagnosis machinery is not needed to play a comparison)."""
+    from piezopress.analysis import diagnosis as dg
+
+    return {c.id: c.targets for c in dg.CAUSES.values() if c.targets}
+
+
+def __getattr__(name: str) -> Any:
+    if name == "TARGETS":  # the catalogue's targets, as the module attribute earlier versions had
+        return targets()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: The magnitude at which each effect's gain is measured: the top of its documented
 #: detectable range (:data:`piezopress.acquisition.rig_config.DETECTABLE`), where there is
@@ -424,7 +430,7 @@ def targets_of(cause: str | None, applied: Iterable[str] = ()) -> tuple[str, ...
     """The rows targeted by the effect switched on and by every extension applied."""
     t: list[str] = []
     for c in ([cause] if cause else []) + list(applied):
-        t += [x for x in TARGETS.get(c, ()) if x not in t]
+        t += [x for x in targets().get(c, ()) if x not in t]
     return tuple(t)
 
 
@@ -643,7 +649,7 @@ def format_table(df: pd.DataFrame, prediction_gain: dict[str, float] | None = No
 
 __all__ = [
     "ROWS",
-    "TARGETS",
+    "targets",
     "GAIN_MAGNITUDES",
     "MIN_TARGET_GAIN_PCT",
     "GAIN_CSV",

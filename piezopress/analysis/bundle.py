@@ -746,6 +746,56 @@ def creep_for_compensator(model: CreepModel) -> CreepModel:
     )
 
 
+# Each cause's extension of the bundle (``Cause.extend`` in the catalogue,
+# :data:`piezopress.analysis.diagnosis.CAUSES`): ``(extended document, its compensation
+# section, the finding)``; the compensator applies what these write.
+
+
+def extend_slew_limit(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
+    """The compensator keeps its drive below the slew (slowing the reference where the drive would outrun it)."""
+    comp["slew_v_per_s"] = float(f.parameters["slew_rate_v_per_s"])
+
+
+def extend_input_delay(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
+    """The drive leads by the delay; found on slow sweeps, the operators refitted on the delayed drive too."""
+    comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
+    if f.parameters.get("operators_refitted"):  # found on slow sweeps: the lag had widened the fitted loop
+        ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
+        ext["hysteresis"]["extended_by"] = "diagnose: input_delay (operators refitted on the delayed drive)"
+    comp["delay_lead_s"] = comp.get("delay_lead_s", 0.0) + f.parameters["delay_s"]
+
+
+def extend_rate_dependence(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
+    """The inverse at the drive's own rate."""
+    comp["rate_dependence"] = rate_dependence(f.model)
+
+
+def extend_second_resonance(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
+    """A second shaper for the second mode (with a shaper section to add it to)."""
+    if "shaper" in ext:
+        ext["shaper"]["shaper2"] = second_shaper(f.parameters)
+
+
+def extend_hysteresis_order(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
+    """The richer hysteresis model the finding chose on held-out data."""
+    ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
+    ext["hysteresis"]["extended_by"] = "diagnose: hysteresis_order"
+
+
+def extend_logarithmic_creep(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
+    """The creep model the finding fitted and judged (its elements and log tail), not a log form
+    rebuilt from two of its numbers: the compensator inverts what was found."""
+    if "creep" not in ext:
+        return
+    log = (
+        f.model.creep
+        if f.model.creep is not None
+        else CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
+    )
+    ext["creep"]["model"] = creep_for_compensator(log).to_dict()
+    ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
+
+
 def modal_delay_s(model: Any) -> float:
     """The low-frequency delay of a model's mode(s): ``2 zeta / wn``, each mode weighted by its share."""
     share2 = model.mode2[0] if model.mode2 else 0.0
@@ -768,39 +818,16 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
 
     ext = copy.deepcopy(bundle)
     ext["extensions"] = {f.cause: f.parameters for f in findings}
-    # what the compensator applies of them, and what it only records: the catalogue says
-    # (Cause.in_compensator, the one place; a branch below must change the compensator for exactly those)
+    # what the compensator applies of them, and what it only records: the catalogue says (a cause
+    # with an extension of the compensator, Cause.extend, is applied; the others are recorded)
     applied = {c.id for c in dg.CAUSES.values() if c.in_compensator}
     ext["extensions_applied_by_compensator"] = sorted(f.cause for f in findings if f.cause in applied)
     ext["extensions_recorded_only"] = sorted(f.cause for f in findings if f.cause not in applied)
     comp = ext.setdefault("compensation", {})
     for f in findings:
-        if f.cause == "amplifier_slew_limit":
-            # the compensator keeps its drive below the slew (slowing the reference where the drive would outrun it)
-            comp["slew_v_per_s"] = float(f.parameters["slew_rate_v_per_s"])
-        elif f.cause == "input_delay":
-            comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
-            if f.parameters.get("operators_refitted"):  # found on slow sweeps: the lag had widened the fitted loop
-                ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
-                ext["hysteresis"]["extended_by"] = "diagnose: input_delay (operators refitted on the delayed drive)"
-            comp["delay_lead_s"] = comp.get("delay_lead_s", 0.0) + f.parameters["delay_s"]
-        elif f.cause == "rate_dependent_hysteresis":
-            comp["rate_dependence"] = rate_dependence(f.model)  # the inverse at the drive's own rate
-        elif f.cause == "second_resonance" and "shaper" in ext:
-            ext["shaper"]["shaper2"] = second_shaper(f.parameters)
-        elif f.cause == "hysteresis_order":
-            ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()
-            ext["hysteresis"]["extended_by"] = "diagnose: hysteresis_order"
-        elif f.cause == "logarithmic_creep" and "creep" in ext:
-            # the creep model the finding fitted and judged (its elements and log tail), not a log form rebuilt
-            # from two of its numbers: the compensator inverts what was found
-            log = (
-                f.model.creep
-                if f.model.creep is not None
-                else CreepModel.log(f.parameters["static_gain"], f.parameters["per_decade"])
-            )
-            ext["creep"]["model"] = creep_for_compensator(log).to_dict()
-            ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
+        cause = dg.CAUSES.get(f.cause)
+        if cause is not None and cause.extend is not None:
+            cause.extend(ext, comp, f)
     refit_by = [f.cause for f in findings if f.cause in MODE_REFIT_CAUSES]
     if model is not None and model.wn and model.zeta and refit_by and "shaper" in ext:
         sh = ext["shaper"]

@@ -43,6 +43,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from piezopress import signals, units
+from piezopress.analysis import bundle as _bundle
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import profile
@@ -1692,21 +1693,32 @@ def testability(cause: Cause, ctx: Context) -> Testability:
 
 @dataclass(frozen=True)
 class Cause:
-    """A catalogue entry: stable id, the physics, the extension, its fit, and what it needs.
+    """A catalogue entry, the one object every other place reads for a cause: stable id, the
+    physics, the extension (in words), its fit (``run``), what it needs, how it extends the
+    bundle (``extend``), and the compensated rows its extension is for (``targets``).
 
-    ``in_compensator`` is the one place that says whether the compensator applies the
-    extension (``piezopress.pipelines.diagnose.extend_bundle`` changes the compensator for exactly these;
-    the extended bundle, ``diagnosis.json`` and the report all read it here). ``needs`` are
-    the ways to test the cause (any one suffices): a cause whose needs the runs do not meet
-    is not tried, and :func:`testability` says what it needs and what the runs offer.
+    ``extend(document, compensation, finding)`` writes the finding into the extended bundle
+    (:func:`piezopress.analysis.bundle.extend_document` calls it); a cause with one is applied
+    by the compensator (``in_compensator``), the others are recorded only: the extended bundle,
+    ``diagnosis.json`` and the report all read it here. ``targets`` are the validation rows
+    (:data:`piezopress.pipelines.gain.ROWS`) the extension should improve, where its gain on
+    the press is judged. ``needs`` are the ways to test the cause (any one suffices): a cause
+    whose needs the runs do not meet is not tried, and :func:`testability` says what it needs
+    and what the runs offer.
     """
 
     id: str
     physics: str
     extension: str
     run: Callable[[Context], Finding | None]
-    in_compensator: bool = False
     needs: tuple[Need, ...] = ()
+    extend: Callable[[dict[str, Any], dict[str, Any], Finding], None] | None = None
+    targets: tuple[str, ...] = ()
+
+    @property
+    def in_compensator(self) -> bool:
+        """Whether the compensator applies the extension (the cause extends the compensation)."""
+        return self.extend is not None
 
 
 _FAST_STEPS = RunSpec("step", min_fs_hz=5000.0)  # what Context.steps() takes
@@ -1720,16 +1732,18 @@ CAUSES: dict[str, Cause] = {
             "play thresholds r_i + beta |dV/dt|, or the loop's width scaled by 1 + k |dV/dt| (the rate smoothed, "
             "linear or saturating)",
             cause_rate_dependent_hysteresis,
-            True,
             needs=(Need((RunSpec("sweep", min_freq_hz=5.0),), 1, independent=True),),
+            extend=_bundle.extend_rate_dependence,
+            targets=("hysteresis_5hz", "hysteresis_10hz", "hysteresis_50hz"),
         ),
         Cause(
             "amplifier_slew_limit",
             "the amplifier's current limit into the stack's capacitance caps dV/dt at I/C",
             "the drive passed through a rate limiter before the model",
             cause_amplifier_slew_limit,
-            True,
             needs=(Need((_FAST_STEPS,), 2),),
+            extend=_bundle.extend_slew_limit,
+            targets=("overshoot", "hysteresis_50hz"),
         ),
         Cause(
             "drive_coupled_interference",
@@ -1743,16 +1757,18 @@ CAUSES: dict[str, Cause] = {
             "creep grows with log time (a spectrum of relaxation times) where a poles model saturates",
             "the creep model with a log-time tail (equal gains per half decade to 10^4 s)",
             cause_logarithmic_creep,
-            True,
             needs=(Need((RunSpec("creep"),), 1, model=("creep",)),),
+            extend=_bundle.extend_logarithmic_creep,
+            targets=("creep",),
         ),
         Cause(
             "second_resonance",
             "a second, weaker mechanical mode of the press",
             "a second mode in parallel",
             cause_second_resonance,
-            True,
             needs=(Need((_FAST_STEPS,), 2, model=("mode",)),),
+            extend=_bundle.extend_second_resonance,
+            targets=("overshoot",),
         ),
         Cause(
             "sensor_offset_drift",
@@ -1766,19 +1782,21 @@ CAUSES: dict[str, Cause] = {
             "a pure delay between command and response (board latency, filters)",
             "the prediction delayed",
             cause_input_delay,
-            True,
             needs=(
                 Need((_FAST_STEPS, RunSpec("sweep", min_freq_hz=5.0)), 2, independent=True),
                 Need((RunSpec("sweep", lag_visible=True),), 1),
             ),
+            extend=_bundle.extend_input_delay,
+            targets=("tracking_random", "hysteresis_50hz"),
         ),
         Cause(
             "hysteresis_order",
             "asymmetry or saturation the fitted operator set cannot represent",
             "more play and dead-zone operators, chosen on held-out data",
             cause_hysteresis_order,
-            True,
             needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1),),
+            extend=_bundle.extend_hysteresis_order,
+            targets=("static_hysteresis", "tracking_staircase", "tracking_random"),
         ),
     )
 }
