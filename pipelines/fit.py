@@ -547,6 +547,7 @@ def fit_shaper_section(
                 "form": chain.chain,
                 "slew_v_per_s": chain.slew_v_per_s,
                 "tau_s": chain.tau_s,
+                "delay_s": chain.delay_s,
                 "rms_by_chain": chain.candidates,
             },
             "hold": fit.hold,
@@ -626,7 +627,10 @@ def compensation_settings(
     """Compensation settings: drive range, reference rate limit and the drive's lead.
 
     The lead is the mode's low-frequency group delay ``2 zeta / wn`` (the shaper itself is
-    applied centred on its centroid, so it adds none on average). The rate limit is in the
+    applied centred on its centroid, so it adds none on average). A delay-like drive chain
+    identified with the mode (``shaper.mode.drive_chain``) is the press's own and is not led
+    here (a load cell's filter delays the reading, not the force); ``diagnose`` names a delay
+    beyond it. The rate limit is in the
     hysteresis model's output unit per second, under the key ``max_rate_n_per_s`` or
     ``max_rate_um_per_s``; without ``max_rate_per_s`` a force bundle gets
     :data:`FORCE_MAX_RATE_N_PER_S` and a displacement bundle none (``null``: no limit).

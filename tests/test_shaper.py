@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete, lfilter, lsim
 
-from piezopress.analysis.mode import mode_foh, mode_zoh
+from piezopress.analysis.mode import mode_foh, mode_response, mode_zoh
 from piezopress.analysis.mode_fit import identify_mode, identify_mode_runs
 from piezopress.analysis.shaper import (
     SHAPERS,
@@ -418,3 +418,28 @@ def test_identify_mode_validates_its_input():
         identify_mode(t, monitor, PRELOAD_N + GAIN_N_PER_V * x)
     with pytest.raises(FitError, match="same number"):
         identify_mode_runs([t], [monitor, monitor], [force])
+
+
+@pytest.mark.parametrize("chain", ["delay", "first_order"])
+def test_the_drive_chain_is_told_apart_and_the_mode_found_through_it(chain):
+    """Steps whose applied drive is not recorded: a pure delay (a FIFO, a filter's group delay)
+    is named a delay and a first-order amplifier a bandwidth, and the mode is found through
+    either; identified without the chain, a delay of half a mode period reads as another mode."""
+    from piezopress.analysis import mode_fit
+
+    fs, wn, zeta = 20_000.0, 2 * np.pi * 800.0, 0.06
+    ts, cmds, ys = [], [], []
+    for v in (20.0, 50.0, 100.0, 150.0):
+        t = np.arange(int(0.05 * fs)) / fs
+        c = np.where(t >= 0.005, v, 0.0)
+        drive = mode_fit.CHAIN_DRIVES[chain](c, fs, 3.7e-4 if chain == "delay" else 1.5e-4)
+        y = 50.0 + 2.0 * mode_response(drive, fs, wn, zeta, hold="foh")
+        ts.append(t), cmds.append(c), ys.append(y + np.random.default_rng(int(v)).normal(0, 0.05, t.size))
+    found = mode_fit.identify_mode_chain(ts, cmds, ys)
+    assert found.chain == chain, found.candidates
+    assert found.mode.wn == pytest.approx(wn, rel=0.03)
+    assert found.mode.zeta == pytest.approx(zeta, rel=0.25)
+    if chain == "delay":
+        assert found.delay_s == pytest.approx(3.7e-4, rel=0.1)
+        plain = mode_fit.identify_mode_runs(ts, cmds, ys, hold="zoh")
+        assert abs(plain.wn / wn - 1) > 0.05  # what the chain corrects

@@ -631,7 +631,8 @@ class Bundle:
     @property
     def drive_chain(self) -> tuple[float | None, float | None]:
         """``(slew V/s, first-order lag s)`` of the drive chain ``fit`` identified with the mode
-        when no amplifier monitor was recorded (``shaper.mode.drive_chain``; ``None``: none)."""
+        when no amplifier monitor was recorded (``shaper.mode.drive_chain``; ``None``: none; a
+        ``delay`` chain as the lag of the same low-frequency delay)."""
         chain = self.doc.get("shaper", {}).get("mode", {}).get("drive_chain") if isinstance(self.doc, dict) else None
         if not isinstance(chain, dict):
             return None, None
@@ -643,7 +644,13 @@ class Bundle:
         form = chain.get("form")
         return (
             positive(chain.get("slew_v_per_s")) if form == "slew" else None,
-            positive(chain.get("tau_s")) if form == "first_order" else None,
+            # a chain the steps read best as a pure delay (lags in series: an amplifier, a filter)
+            # enters the forward model as the first-order lag of the same low-frequency delay
+            positive(chain.get("tau_s"))
+            if form == "first_order"
+            else positive(chain.get("delay_s"))
+            if form == "delay"
+            else None,
         )
 
     def remove_creep(self, run) -> np.ndarray:

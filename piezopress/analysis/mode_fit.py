@@ -8,6 +8,7 @@ decrement. Pure numpy/scipy: no file I/O.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -273,16 +274,18 @@ def identify_mode_runs(t_s_list, drive_list, y_list, *, step_times_s=None, hold:
 
 #: Drive chains tried when the applied drive is not recorded: the command as it is, a slew
 #: limit (an amplifier's current limit into the stack's capacitance: dV/dt <= I/C), a
-#: first-order amplifier bandwidth.
-CHAINS = ("none", "slew", "first_order")
+#: first-order amplifier bandwidth, a pure delay (a board's output FIFO, a converter's group
+#: delay: the mode identified without it reads the delay as a lower, more damped mode).
+CHAINS = ("none", "slew", "first_order", "delay")
 
 
 @dataclass(frozen=True)
 class ChainFit:
     """The mode identified through an identified drive chain (:func:`identify_mode_chain`).
 
-    ``chain`` is one of :data:`CHAINS`; ``slew_v_per_s`` (``slew``) or ``tau_s``
-    (``first_order``) its parameter; ``candidates`` the mean RMS residual of every chain tried.
+    ``chain`` is one of :data:`CHAINS`; ``slew_v_per_s`` (``slew``), ``tau_s``
+    (``first_order``) or ``delay_s`` (``delay``) its parameter; ``candidates`` the mean RMS
+    residual of every chain tried.
     """
 
     mode: ModeFit
@@ -290,6 +293,11 @@ class ChainFit:
     slew_v_per_s: float | None
     tau_s: float | None
     candidates: dict[str, float]
+    delay_s: float | None = None
+
+    @property
+    def parameter(self) -> float | None:
+        return {"slew": self.slew_v_per_s, "first_order": self.tau_s, "delay": self.delay_s}.get(self.chain)
 
 
 def slew_limited(command: np.ndarray, fs_hz: float, slew_v_per_s: float) -> np.ndarray:
@@ -314,6 +322,17 @@ def first_order(command: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
     return c[0] + lfilter([1.0 - a], [1.0, -a], c - c[0])
 
 
+def delayed(command: np.ndarray, fs_hz: float, delay_s: float) -> np.ndarray:
+    """The command delayed by ``delay_s`` (linear between samples; the first value before it)."""
+    c = np.asarray(command, float)
+    t = np.arange(c.size) / fs_hz
+    return np.interp(t - delay_s, t, c, left=c[0])
+
+
+#: How each chain makes the applied drive of a command: ``(command, fs_hz, parameter)``.
+CHAIN_DRIVES = {"slew": slew_limited, "first_order": first_order, "delay": delayed}
+
+
 def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> ChainFit:
     """The mode from steps whose applied drive was not recorded: the drive chain between the
     command and the stack (a slew limit or a first-order bandwidth) is identified with it.
@@ -322,7 +341,8 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
     the lowest mean RMS residual of :func:`identify_mode_runs` on the drive that chain makes
     of the command (sampled, so modelled as linear between samples); the chain with the
     lowest residual wins, the plain command unless another lowers it by 10 % or more (so a
-    chain is named only where the steps show it).
+    chain is named only where the steps show it), and a bandwidth rather than a delay unless
+    the delay is 10 % better (a lag a low-pass explains is no delay).
 
     ``chain_from``: other steps ``(t_s_list, command_list, y_list)`` to choose the chain on
     (steps of every size: a slew limit lengthens a large step's rise, a bandwidth does not,
@@ -333,16 +353,16 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
 
     if chain_from is not None:
         chosen = identify_mode_chain(*chain_from)
-        p = chosen.slew_v_per_s if chosen.chain == "slew" else chosen.tau_s
+        p = chosen.parameter
         fs_own = [1.0 / float(np.mean(np.diff(np.asarray(t, float)))) for t in t_s_list]
         if chosen.chain == "none":
             mode = identify_mode_runs(t_s_list, command_list, y_list, hold="zoh")
         else:
-            make = slew_limited if chosen.chain == "slew" else first_order
+            make = CHAIN_DRIVES[chosen.chain]
             mode = identify_mode_runs(
                 t_s_list, [make(c, f, p) for c, f in zip(command_list, fs_own)], y_list, hold="foh"
             )
-        return ChainFit(mode, chosen.chain, chosen.slew_v_per_s, chosen.tau_s, chosen.candidates)
+        return ChainFit(mode, chosen.chain, chosen.slew_v_per_s, chosen.tau_s, chosen.candidates, chosen.delay_s)
 
     t_s_list, command_list, y_list = list(t_s_list), list(command_list), list(y_list)
     fs = [1.0 / float(np.mean(np.diff(np.asarray(t, float)))) for t in t_s_list]
@@ -360,24 +380,25 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
     # a slew that takes from a twentieth of a sample to ten mode periods for the smallest step
     lo_slew, hi_slew = min(steps) / (10.0 * period), min(steps) * 20.0 * max(fs)
 
-    def slew_cost(log_r: float) -> float:
-        r = math.exp(log_r)
-        try:
-            return cost(fit([slew_limited(c, f, r) for c, f in zip(command_list, fs)], "foh"))
-        except FitError:
-            return math.inf
+    def chain_cost(name: str) -> Callable[[float], float]:
+        """The mean residual of the mode fitted through chain ``name`` of parameter ``exp(log_p)``."""
+        make = CHAIN_DRIVES[name]
 
-    def tau_cost(log_tau: float) -> float:
-        tau = math.exp(log_tau)
-        try:
-            return cost(fit([first_order(c, f, tau) for c, f in zip(command_list, fs)], "foh"))
-        except FitError:
-            return math.inf
+        def cost_of(log_p: float) -> float:
+            p = math.exp(log_p)
+            try:
+                return cost(fit([make(c, f, p) for c, f in zip(command_list, fs)], "foh"))
+            except FitError:
+                return math.inf
 
-    for name, func, lo, hi in (
-        ("slew", slew_cost, lo_slew, hi_slew),
-        ("first_order", tau_cost, 0.05 / max(fs), 2.0 * period),
+        return cost_of
+
+    for name, lo, hi in (
+        ("slew", lo_slew, hi_slew),
+        ("first_order", 0.05 / max(fs), 2.0 * period),
+        ("delay", 0.05 / max(fs), 2.0 * period),
     ):
+        func = chain_cost(name)
         grid = np.linspace(math.log(lo), math.log(hi), 9)
         costs = [func(g) for g in grid]
         i = int(np.argmin(costs))
@@ -385,10 +406,12 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
         sol = minimize_scalar(func, bounds=(a, b), method="bounded", options={"xatol": 0.01})
         best = float(sol.x) if sol.fun <= costs[i] else float(grid[i])
         p = math.exp(best)
-        drives = [slew_limited(c, f, p) if name == "slew" else first_order(c, f, p) for c, f in zip(command_list, fs)]
+        drives = [CHAIN_DRIVES[name](c, f, p) for c, f in zip(command_list, fs)]
         m = fit(drives, "foh")
         results[name] = (cost(m), m, p)
     best_name = min(results, key=lambda k: results[k][0])
+    if best_name == "delay" and results["first_order"][0] <= 1.1 * results["delay"][0]:
+        best_name = "first_order"  # a lag a bandwidth explains as well is no delay (an amplifier's, a filter's)
     if results[best_name][0] > 0.9 * results["none"][0]:
         best_name = "none"
     c, m, p = results[best_name]
@@ -398,4 +421,5 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
         p if best_name == "slew" else None,
         p if best_name == "first_order" else None,
         {k: v[0] for k, v in results.items()},
+        p if best_name == "delay" else None,
     )
