@@ -478,7 +478,7 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
                 f"{f.cause:<28} {f.baseline_rms:>14.3g} {u} -> {f.extended_rms:.3g} {u} {f.gain_pct:>6.0f} %  {params}"
             )
             lines.append(f"    why: {dg.CAUSES[f.cause].physics}; evidence: {f.evidence}")
-            lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension)")
+            lines.append(f"    judged on {', '.join(f.heldout)} (not used to fit the extension); {f.strength_text()}")
         lines.append("")
         lines.append(
             "The extended bundle predicts these runs better; whether it compensates better is "

@@ -38,3 +38,44 @@ def test_the_compensator_applies_exactly_the_causes_that_extend_it():
         assert all(row in gain.ROW_BY_ID for row in c.targets), (c.id, c.targets)
     assert gain.targets() == {c.id: c.targets for c in dg.CAUSES.values() if c.in_compensator}
     assert gain.TARGETS == gain.targets()
+
+
+# --------------------------------------------------------------------------- how sure
+
+
+def _finding(gain: float, heldout: list[str], by_run: dict[str, float]) -> dg.Finding:
+    from piezopress.analysis.hysteresis import PIModel
+
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    return dg.Finding("input_delay", "t", 1.0, 1 - gain / 100, gain, {}, heldout, heldout, 10.0, 0.1, model, by_run)
+
+
+def test_each_finding_says_how_sure_it_is():
+    strong = _finding(60.0, ["a", "b", "c"], {"a": 55.0, "b": 62.0, "c": 70.0})
+    assert strong.strength == "strong" and strong.consistency == (3, 3)
+    assert strong.strength_text() == "strong evidence: better on 3 of 3 held-out runs, held-out gain 60 %"
+    mixed = _finding(60.0, ["a", "b", "c"], {"a": 90.0, "b": -3.0, "c": 40.0})
+    assert mixed.strength == "moderate" and "(not on b)" in mixed.strength_text()
+    lone = _finding(60.0, ["a", "b", "c"], {"a": 90.0, "b": -3.0, "c": -1.0})  # one run carries the gain
+    assert lone.strength == "weak" and "better on 1 of 3 held-out runs (not on b, c)" in lone.strength_text()
+    one_run = _finding(90.0, ["a"], {})
+    assert one_run.strength == "weak" and "one held-out run only" in one_run.strength_text()
+    together = _finding(25.0, ["a", "b"], {})  # judged on its runs together (the slow causes)
+    assert together.strength == "moderate" and "2 runs together" in together.strength_text()
+    doc = lone.as_dict()
+    assert doc["evidence_strength"] == "weak" and doc["gain_by_heldout_run_pct"] == {"a": 90.0, "b": -3.0, "c": -1.0}
+
+
+def test_the_summary_names_a_finding_on_weak_evidence(monkeypatch):
+    from dataclasses import replace
+
+    from test_diagnose_coverage import pi_run  # noqa: PLC0415 - the coverage tests' runs
+
+    from piezopress.analysis.hysteresis import PIModel
+
+    weak = _finding(60.0, ["a"], {})  # accepted (60 % gain, well above the floor), judged on one run
+    monkeypatch.setitem(dg.CAUSES, "input_delay", replace(dg.CAUSES["input_delay"], run=lambda ctx: weak, needs=()))
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    result = dg.diagnose(model, [pi_run("a", 2200), pi_run("b", 1800, seed=1)], causes=["input_delay"])
+    assert [f.cause for f in result.findings] == ["input_delay"]
+    assert "weak evidence for input_delay (judged on one held-out run only, held-out gain 60 %)" in result.summary

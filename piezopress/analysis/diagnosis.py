@@ -448,6 +448,8 @@ class Finding:
     output_range: float
     floor: float
     model: Model
+    #: the held-out gain (%) on each held-out run alone, where more than one run judges it
+    gain_by_run: dict[str, float] = field(default_factory=dict)
 
     @property
     def unit(self) -> str:
@@ -460,6 +462,38 @@ class Finding:
             and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
             and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor
         )
+
+    @property
+    def consistency(self) -> tuple[int, int] | None:
+        """``(held-out runs the extension predicts better, held-out runs)``; None where the
+        finding is judged on its held-out runs together only (cycle-averaged slow judging)."""
+        if not self.gain_by_run:
+            return None
+        return sum(g > 0 for g in self.gain_by_run.values()), len(self.gain_by_run)
+
+    @property
+    def strength(self) -> str:
+        """How sure the finding is: ``weak`` (one held-out run, or a third or more of them not
+        helped), ``strong`` (at least twice the gain a finding needs, every held-out run
+        helped), else ``moderate``."""
+        c = self.consistency
+        if len(self.heldout) <= 1 or (c is not None and c[0] < c[1] * 2 / 3):
+            return "weak"
+        if (c is None or c[0] == c[1]) and self.gain_pct >= 2 * MIN_GAIN_PCT:
+            return "strong"
+        return "moderate"
+
+    def strength_text(self) -> str:
+        """One line on the evidence's strength, naming the held-out runs that do not back it."""
+        c = self.consistency
+        if len(self.heldout) <= 1:
+            why = "judged on one held-out run only"
+        elif c is None:
+            why = f"judged on {len(self.heldout)} runs together"
+        else:
+            against = sorted(r for r, g in self.gain_by_run.items() if g <= 0)
+            why = f"better on {c[0]} of {c[1]} held-out runs" + (f" (not on {', '.join(against)})" if against else "")
+        return f"{self.strength} evidence: {why}, held-out gain {self.gain_pct:.0f} %"
 
     def as_dict(self) -> dict[str, Any]:
         k = units.key(self.unit)
@@ -475,6 +509,9 @@ class Finding:
             "runs": self.runs,
             "heldout": self.heldout,
             f"noise_floor_{k}": self.floor,
+            "gain_by_heldout_run_pct": {r: float(g) for r, g in self.gain_by_run.items()},
+            "evidence_strength": self.strength,
+            "evidence_strength_text": self.strength_text(),
         }
 
 
@@ -581,6 +618,14 @@ def _judge(
     b = cost(held, base)
     e = cost(held, extended)
     runs = [r for r, _ in fit + held]
+    by_run: dict[str, list[Segment]] = {}
+    for seg in held:
+        by_run.setdefault(seg[0].name, []).append(seg)
+    per_run = {}
+    if len(by_run) > 1 and b > 0 and 100.0 * (b - e) / b >= MIN_GAIN_PCT:  # only where it could be a finding
+        for name, segs in by_run.items():  # the gain on each held-out run alone: is it everywhere?
+            bb, ee = cost(segs, base), cost(segs, extended)
+            per_run[name] = 100.0 * (bb - ee) / bb if bb > 0 else 0.0
     return Finding(
         cause,
         evidence,
@@ -593,6 +638,7 @@ def _judge(
         max(float(np.ptp(r.y)) for r in runs),
         float(np.median([ctx.floor[r.name] for r, _ in held])),
         extended,
+        per_run,
     )
 
 
@@ -2057,6 +2103,9 @@ def diagnose(
         head = f"The one cause tried ({names[0]}) does not explain the residual ({numbers})"
     else:
         head = f"None of the {len(names)} causes tried ({', '.join(names)}) explains the residual ({numbers})"
+    weak = [f for f in findings if f.strength == "weak"]
+    if weak:  # how sure: a finding backed by one held-out run, or not by a third of them, is said to be
+        head += "; weak evidence for " + ", ".join(f"{f.cause} ({f.strength_text().split(': ', 1)[1]})" for f in weak)
     if unexplained:
         head += "; unexplained structure in " + ", ".join(u_["run"] for u_ in unexplained)
     for sig in signatures:
