@@ -439,13 +439,17 @@ def clean_press(rng: np.random.Generator, **changes: Any) -> IndependentPress:
 
 
 def hidden_press(effect: str, rng: np.random.Generator) -> IndependentPress:
-    """The clean press with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`."""
-    draw = _draw(rng, DETECTABLE[effect])
-    if effect == "sensor_offset_drift":
-        draw["drift_n_per_min"] *= float(rng.choice([-1.0, 1.0]))
+    """The clean press with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`
+    (``a+b``: two effects at once, each drawn so)."""
+    draw: dict[str, float] = {}
+    for one in effect.split("+"):
+        d = _draw(rng, DETECTABLE[one])
+        if one == "sensor_offset_drift":
+            d["drift_n_per_min"] *= float(rng.choice([-1.0, 1.0]))
+        draw.update(d)
     return clean_press(rng, **draw)
 
 
 def plan_for(effect: str) -> Path | None:
-    """The plan a hidden effect is characterized with (``None``: the default plan)."""
-    return PLAN_WITHOUT_REST if effect == "sensor_offset_drift" else None
+    """The plan a hidden effect (or pair) is characterized with (``None``: the default plan)."""
+    return PLAN_WITHOUT_REST if "sensor_offset_drift" in effect.split("+") else None

@@ -79,3 +79,19 @@ def test_the_summary_names_a_finding_on_weak_evidence(monkeypatch):
     result = dg.diagnose(model, [pi_run("a", 2200), pi_run("b", 1800, seed=1)], causes=["input_delay"])
     assert [f.cause for f in result.findings] == ["input_delay"]
     assert "weak evidence for input_delay (judged on one held-out run only, held-out gain 60 %)" in result.summary
+
+
+def test_the_test_presses_hide_two_effects_at_once():
+    """Pairs for the two-effects matrices (``bench/bench_diagnose.py --pairs``): both effects
+    on, each within its documented range; a drift pair runs the plan without the rest run."""
+    import numpy as np
+
+    for mod in (ip, tp):
+        pair = "input_delay+drive_coupled_interference"
+        press = mod.hidden_press(pair, np.random.default_rng(3))
+        params = press.describe()["parameters"]
+        for one in pair.split("+"):
+            for key, (lo, hi) in mod.DETECTABLE[one].items():
+                assert lo <= abs(params[key]) <= hi, (mod.__name__, key, params[key])
+    assert ip.plan_for("amplifier_slew_limit+sensor_offset_drift") == ip.PLAN_WITHOUT_REST
+    assert ip.plan_for("input_delay+drive_coupled_interference") is None

@@ -485,9 +485,13 @@ def clean_press(rng: np.random.Generator, **changes: Any) -> ThirdPress:
 
 
 def hidden_press(effect: str, rng: np.random.Generator) -> ThirdPress:
-    """The clean press with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`."""
-    draw = _draw(rng, DETECTABLE[effect])
-    if effect in ("sensor_offset_drift", "sensitivity_drift"):
-        key = next(iter(draw))
-        draw[key] *= float(rng.choice([-1.0, 1.0]))
+    """The clean press with ``effect`` on at a magnitude drawn from :data:`DETECTABLE`
+    (``a+b``: two effects at once, each drawn so)."""
+    draw: dict[str, Any] = {}
+    for one in effect.split("+"):
+        d = _draw(rng, DETECTABLE[one])
+        if one in ("sensor_offset_drift", "sensitivity_drift"):
+            key = next(iter(d))
+            d[key] *= float(rng.choice([-1.0, 1.0]))
+        draw.update(d)
     return clean_press(rng, **draw)
