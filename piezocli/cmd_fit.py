@@ -317,6 +317,8 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
                 "none": "none (the command reaches the stack as it is)",
                 "slew": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms",
                 "first_order": f"a first-order lag of {(chain.get('tau_s') or 0) * 1e6:.3g} us",
+                "delay": f"a delay of {(chain.get('delay_s') or 0) * 1e6:.3g} us (lags in series, a filter's group "
+                "delay: the press's own, not led; diagnose names a delay beyond it)",
             }.get(chain.get("form"), "?")
             say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
     for name, why in res.not_fitted.items():

@@ -307,7 +307,9 @@ def test_the_third_press_runs_the_chain_through_a_rig_file(tmp_path):
 
     assert check_backend(char.make_backend(None, rig)) == list(RULES)
     ok("characterize", "--rig", rig, "--out", tmp_path / "char")
-    ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
+    out = ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
+    # no monitor channel: the chain read from the steps (its filters' lags in series, as a delay) is said
+    assert "the drive chain identified from the steps is a delay of" in out, out
     doc = json.loads((tmp_path / "b.json").read_text())
     assert doc["hysteresis"]["model"]["family"] == "pi_preisach_plane", doc["hysteresis"]["fit"]["family_reason"]
     ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
