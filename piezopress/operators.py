@@ -151,46 +151,58 @@ def _clamp(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.minimum(np.maximum(v, lo), hi)
 
 
-def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, widen: np.ndarray | None = None) -> np.ndarray:
-    # Two-level scan of the clamps f_k(y) = clip(y, x[k] - r, x[k] + r), k = 1 .. n-1:
+def _blocks(steps: int) -> tuple[int, int, int]:
+    """Blocks of the two-level scan: ``(B blocks, L steps each, padding)`` for ``steps`` steps."""
+    L = max(1, int(np.ceil(np.sqrt(steps))))
+    B = -(-steps // L)
+    return B, L, B * L - steps
+
+
+def _two_level_scan(start: np.ndarray, steps: int, B: int, L: int, bounds) -> np.ndarray:
+    # Two-level scan of the clamps f_k(y) = clip(y, lo_k, hi_k), k = 1 .. steps, where
+    # ``bounds(j)`` gives step j of every block, ``(B, m)`` each (padding: -inf, inf):
     # (1) compose the clamps of each block of L steps, all blocks at once (L vector steps);
     # (2) carry the state from block to block through the composites (B small steps);
     # (3) replay each block from its start state, all blocks at once (L vector steps).
+    m = start.size
+    comp_lo = np.full((B, m), -np.inf)
+    comp_hi = np.full((B, m), np.inf)
+    for j in range(L):
+        lo, hi = bounds(j)
+        comp_lo = _clamp(comp_lo, lo, hi)
+        comp_hi = _clamp(comp_hi, lo, hi)
+    state = np.empty((B, m))
+    s = start
+    for b in range(B):
+        state[b] = s
+        s = _clamp(s, comp_lo[b], comp_hi[b])
+    out = np.empty((B, L, m))
+    for j in range(L):
+        lo, hi = bounds(j)
+        state = _clamp(state, lo, hi)
+        out[:, j] = state
+    return out.reshape(B * L, m)[:steps]
+
+
+def _play_scan(x: np.ndarray, r: np.ndarray, y_start: np.ndarray, widen: np.ndarray | None = None) -> np.ndarray:
+    # the clamps of the play: f_k(y) = clip(y, x[k] - r, x[k] + r), bounds made block column by
+    # block column (never the n x m arrays)
     steps = x.size - 1
     y = np.empty((x.size, r.size))
     y[0] = y_start
     if steps == 0:
         return y
-    L = max(1, int(np.ceil(np.sqrt(steps))))
-    B = -(-steps // L)
-    pad = B * L - steps
+    B, L, pad = _blocks(steps)
     xs = np.concatenate([x[1:], np.full(pad, np.nan)]).reshape(B, L)
     wd = None if widen is None else np.concatenate([widen[1:], np.zeros(pad)]).reshape(B, L)
     valid = ~np.isnan(xs)
-    big = np.inf
-    comp_lo = np.full((B, r.size), -big)
-    comp_hi = np.full((B, r.size), big)
 
     def bounds(j):
         col = xs[:, j, None]
         w = r if wd is None else r + wd[:, j, None]
-        return np.where(valid[:, j, None], col - w, -big), np.where(valid[:, j, None], col + w, big)
+        return np.where(valid[:, j, None], col - w, -np.inf), np.where(valid[:, j, None], col + w, np.inf)
 
-    for j in range(L):
-        lo, hi = bounds(j)
-        comp_lo = _clamp(comp_lo, lo, hi)
-        comp_hi = _clamp(comp_hi, lo, hi)
-    state = np.empty((B, r.size))
-    s = y_start
-    for b in range(B):
-        state[b] = s
-        s = _clamp(s, comp_lo[b], comp_hi[b])
-    out = np.empty((B, L, r.size))
-    for j in range(L):
-        lo, hi = bounds(j)
-        state = _clamp(state, lo, hi)
-        out[:, j] = state
-    y[1:] = out.reshape(B * L, r.size)[:steps]
+    y[1:] = _two_level_scan(y_start, steps, B, L, bounds)
     return y
 
 
@@ -342,33 +354,17 @@ def _clamp_runs(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, start: np.ndarray
 
 
 def _clamp_scan(lo: np.ndarray, hi: np.ndarray, start: np.ndarray) -> np.ndarray:
-    # the two-level clamp scan of _play_scan over explicit bounds (rows 1.. of lo/hi)
+    # the two-level clamp scan over explicit bounds (rows 1.. of lo/hi)
     n, m = lo.shape
     steps = n - 1
     y = np.empty((n, m))
     y[0] = start
     if steps == 0:
         return y
-    L = max(1, int(np.ceil(np.sqrt(steps))))
-    B = -(-steps // L)
-    pad = B * L - steps
+    B, L, pad = _blocks(steps)
     los = np.concatenate([lo[1:], np.full((pad, m), -np.inf)]).reshape(B, L, m)
     his = np.concatenate([hi[1:], np.full((pad, m), np.inf)]).reshape(B, L, m)
-    comp_lo = np.full((B, m), -np.inf)
-    comp_hi = np.full((B, m), np.inf)
-    for j in range(L):
-        comp_lo = _clamp(comp_lo, los[:, j], his[:, j])
-        comp_hi = _clamp(comp_hi, los[:, j], his[:, j])
-    state = np.empty((B, m))
-    s = start
-    for b in range(B):
-        state[b] = s
-        s = _clamp(s, comp_lo[b], comp_hi[b])
-    out = np.empty((B, L, m))
-    for j in range(L):
-        state = _clamp(state, los[:, j], his[:, j])
-        out[:, j] = state
-    y[1:] = out.reshape(B * L, m)[:steps]
+    y[1:] = _two_level_scan(start, steps, B, L, lambda j: (los[:, j], his[:, j]))
     return y
 
 

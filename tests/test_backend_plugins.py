@@ -172,6 +172,27 @@ def test_a_rig_file_naming_an_unknown_backend_or_a_missing_module_is_one_line(tm
         char.rig_limits(rig)
 
 
+def _ok(*args) -> str:
+    """``piezopress ARGS`` through the command line; its output, asserting it exited 0."""
+    res = CliRunner().invoke(cli, [str(a) for a in args])
+    assert res.exit_code == 0, res.output
+    return res.output
+
+
+def _report(tmp_path: Path, *more) -> str:
+    """``piezopress report`` of the characterization, validation and bundle under ``tmp_path``."""
+    return _ok(
+        "report",
+        "--characterization",
+        tmp_path / "char",
+        "--validation",
+        tmp_path / "val",
+        "--bundle",
+        tmp_path / "b.json",
+        *more,
+    )
+
+
 def _plugin_press(tmp_path: Path) -> Path:
     """A backend written outside the package: a module beside its rig file, wrapping the
     second test press, configured from its own [press] section."""
@@ -217,21 +238,15 @@ def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
     """Issue 21's acceptance: check-rig, characterize, fit, validate and report through a
     module in a temporary folder named in a rig file."""
     rig = _plugin_press(tmp_path)
-    run = CliRunner()
 
-    def ok(*args):
-        res = run.invoke(cli, [str(a) for a in args])
-        assert res.exit_code == 0, res.output
-        return res.output
-
-    ok("check-rig", "--rig", rig)
-    ok("characterize", "--rig", rig, "--out", tmp_path / "char")
-    ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
-    ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
-    ok("fit", tmp_path / "char", "--rig", rig, "--base", "--out", tmp_path / "base.json")
-    out = ok("compare", tmp_path / "base.json", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "cmp")
+    _ok("check-rig", "--rig", rig)
+    _ok("characterize", "--rig", rig, "--out", tmp_path / "char")
+    _ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
+    _ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
+    _ok("fit", tmp_path / "char", "--rig", rig, "--base", "--out", tmp_path / "base.json")
+    out = _ok("compare", tmp_path / "base.json", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "cmp")
     assert "b vs base" in out and (tmp_path / "cmp" / "compare.csv").is_file()
-    out = ok(
+    out = _ok(
         "diagnose",
         tmp_path / "char",
         "--bundle",
@@ -253,14 +268,8 @@ def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
             assert "worse" not in set(table[table["bundle"] == rec["bundle"]]["verdict"])
     else:
         assert rec["measured"] is False and rec["bundle"] == "base" and "nothing to extend" in out
-    out = ok(
-        "report",
-        "--characterization",
-        tmp_path / "char",
-        "--validation",
-        tmp_path / "val",
-        "--bundle",
-        tmp_path / "b.json",
+    out = _report(
+        tmp_path,
         "--diagnosis",
         tmp_path / "diag",
         "--comparison",
@@ -298,32 +307,16 @@ def test_the_third_press_runs_the_chain_through_a_rig_file(tmp_path):
     )
     rig = tmp_path / "preisach.toml"
     rig.write_text('[rig]\nbackend = "preisachpress:PreisachPress"\n\n[press]\nseed = 5\n')
-    run = CliRunner()
-
-    def ok(*args):
-        res = run.invoke(cli, [str(a) for a in args])
-        assert res.exit_code == 0, res.output
-        return res.output
 
     assert check_backend(char.make_backend(None, rig)) == list(RULES)
-    ok("characterize", "--rig", rig, "--out", tmp_path / "char")
-    out = ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
+    _ok("characterize", "--rig", rig, "--out", tmp_path / "char")
+    out = _ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
     # no monitor channel: the chain read from the steps (its filters' lags in series, as a delay) is said
     assert "the drive chain identified from the steps is a delay of" in out, out
     doc = json.loads((tmp_path / "b.json").read_text())
     assert doc["hysteresis"]["model"]["family"] == "pi_preisach_plane", doc["hysteresis"]["fit"]["family_reason"]
-    ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
-    ok(
-        "report",
-        "--characterization",
-        tmp_path / "char",
-        "--validation",
-        tmp_path / "val",
-        "--bundle",
-        tmp_path / "b.json",
-        "--out",
-        tmp_path / "rep",
-    )
+    _ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
+    _report(tmp_path, "--out", tmp_path / "rep")
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "Hysteresis (Prandtl-Ishlinskii + Preisach plane)" in md
     assert "Model family: Prandtl-Ishlinskii plus a Preisach plane" in md

@@ -394,58 +394,48 @@ def _invert_with_plane(model: PIModel, p: np.ndarray, state: np.ndarray) -> tupl
     """The relative input ``u`` whose plays-plus-plane output is ``p``, from the forward ``state``.
 
     Along a monotone stretch of ``p`` the input moves one way; from the stretch's start state
-    the superposition is ``g(u) = sum w_i max(y_i, u - r_i) + sum mu_c max(s_c, a_c(u))`` rising
-    (``min(y_i, u + r_i)`` and ``min(s_c, b_c(u))`` falling), piecewise linear and strictly
-    monotone (the threshold-0 play has weight ``w_0 > 0``); it is evaluated at its kinks and
-    inverted by interpolation, exact to rounding. The threshold-0 play holds the last input.
+    the superposition is ``g(u) = sum w_i max(y_i, u - r_i) + sum mu_c max(s_c, a_c(u))`` rising,
+    piecewise linear and strictly monotone (the threshold-0 play has weight ``w_0 > 0``); it is
+    evaluated at its kinks and inverted by interpolation, exact to rounding (:func:`_rising`).
+    A falling stretch is a rising one mirrored: ``u -> -u``, ``y -> -y``, ``s -> 1 - s``, the
+    falling ramps' ends ``beta -> -(beta + h)``, ``p -> sum mu - p``. The threshold-0 play holds
+    the last input.
     """
     r, w = np.array(model.r), np.array(model.w)
-    plane = model.plane
-    al, be, mu = plane.arrays()
-    h = plane.width
+    al, be, mu = model.plane.arrays()
+    h = model.plane.width
     n_play = r.size
     y, s = state[:n_play].copy(), state[n_play:].copy()
-    u_prev = float(y[0])
-    w_sum = float(w.sum())
     pp = np.concatenate([[float(w @ y + mu @ s)], np.asarray(p, float)])
     out = np.empty(pp.size)
-    out[0] = u_prev
+    out[0] = y[0]
     bounds = np.append(operators.monotone_runs(pp), pp.size)
     for a, b in zip(bounds[:-1], bounds[1:]):
         a1 = a if a > 0 else 1
         if a1 >= b:
             continue
-        target = pp[a1:b]
-        rising = pp[b - 1] >= pp[a1 - 1]
-        if rising:
-            kinks = np.concatenate([y + r, al + h * s, al + h])
-            kinks = np.unique(kinks[kinks > u_prev])
-            U = np.concatenate([[u_prev], kinks])
-            G = (np.maximum(y, U[:, None] - r) @ w) + (np.maximum(s, np.clip((U[:, None] - al) / h, 0.0, 1.0)) @ mu)
-            reach = float(target.max()) - G[-1]
-            if reach > 0:
-                U = np.append(U, U[-1] + reach / w_sum + 1.0)
-                G = np.append(G, G[-1] + (U[-1] - U[-2]) * w_sum)
-            seg = np.interp(target, G, U)
-            u_end = float(seg[-1])
-            y = np.maximum(y, u_end - r)
-            s = np.maximum(s, np.clip((u_end - al) / h, 0.0, 1.0))
+        if pp[b - 1] >= pp[a1 - 1]:
+            out[a1:b], y, s = _rising(pp[a1:b], y, s, r, w, al, h, mu)
         else:
-            kinks = np.concatenate([y - r, be + h * s, be])
-            kinks = np.unique(kinks[kinks < u_prev])
-            U = np.concatenate([kinks, [u_prev]])
-            G = (np.minimum(y, U[:, None] + r) @ w) + (np.minimum(s, np.clip((U[:, None] - be) / h, 0.0, 1.0)) @ mu)
-            reach = G[0] - float(target.min())
-            if reach > 0:
-                U = np.insert(U, 0, U[0] - reach / w_sum - 1.0)
-                G = np.insert(G, 0, G[0] - (U[1] - U[0]) * w_sum)
-            seg = np.interp(target, G, U)
-            u_end = float(seg[-1])
-            y = np.minimum(y, u_end + r)
-            s = np.minimum(s, np.clip((u_end - be) / h, 0.0, 1.0))
-        out[a1:b] = seg
-        u_prev = u_end
+            seg, ym, sm = _rising(mu.sum() - pp[a1:b], -y, 1.0 - s, r, w, -(be + h), h, mu)
+            out[a1:b], y, s = -seg, -ym, 1.0 - sm
     return out[1:], np.concatenate([y, s])
+
+
+def _rising(target, y, s, r, w, al, h, mu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A rising stretch of the plays-plus-plane output to ``target`` from the state ``(y, s)``
+    (the threshold-0 play ``y[0]`` is the last input): the inputs, and the state at its end."""
+    u0 = float(y[0])
+    kinks = np.concatenate([y + r, al + h * s, al + h])
+    U = np.concatenate([[u0], np.unique(kinks[kinks > u0])])
+    G = np.maximum(y, U[:, None] - r) @ w + np.maximum(s, np.clip((U[:, None] - al) / h, 0.0, 1.0)) @ mu
+    reach = float(target.max()) - G[-1]
+    if reach > 0:  # beyond the last kink every play moves and every hysteron is up: slope sum(w)
+        U = np.append(U, U[-1] + reach / w.sum() + 1.0)
+        G = np.append(G, G[-1] + (U[-1] - U[-2]) * w.sum())
+    seg = np.interp(target, G, U)
+    u_end = float(seg[-1])
+    return seg, np.maximum(y, u_end - r), np.maximum(s, np.clip((u_end - al) / h, 0.0, 1.0))
 
 
 # --------------------------------------------------------------------------- data and fit
