@@ -49,7 +49,7 @@ class JudgedRows:
     def of(self, run: runformat.Run) -> tuple[int, int]:
         """``(judged_from, stop)`` for the run, checked as ``fit`` checks them (the error names
         the value and the run's length)."""
-        from piezopress.pipelines.fit import fitted_rows
+        from piezopress.analysis.identification import fitted_rows
 
         stops, skips = fitted_rows([run], self.skip_s, self.rows)
         return (skips[0] if skips else None) or 0, stops[0]

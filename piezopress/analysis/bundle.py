@@ -678,10 +678,9 @@ def creep_removed(creep: CreepModel | None, command_v: np.ndarray, output: np.nd
 # ---------------------------------------------------------------------- diagnosis extensions
 
 
-def second_shaper(parameters: Mapping[str, float]) -> dict[str, Any]:
-    """A ZVD shaper for a second mode (``natural_freq_rad_s``, ``damping``), as a bundle's
-    ``shaper.shaper2`` (the compensator applies it after the first shaper)."""
-    sh = design_shaper("zvd", float(parameters["natural_freq_rad_s"]), float(parameters["damping"]))
+def shaper_document(sh: Shaper) -> dict[str, Any]:
+    """A shaper as a bundle's ``shaper.shaper`` (or ``shaper2``) mapping: impulses, the mode
+    it was designed for, and its delay and centroid in milliseconds."""
     return {
         "name": sh.name,
         "times_s": list(sh.times_s),
@@ -691,8 +690,14 @@ def second_shaper(parameters: Mapping[str, float]) -> dict[str, Any]:
         "zv_power": sh.zv_power,
         "delay_ms": 1e3 * sh.delay_s,
         "centroid_ms": 1e3 * sh.centroid_s,
-        "for": "diagnose: second_resonance",
     }
+
+
+def second_shaper(parameters: Mapping[str, float]) -> dict[str, Any]:
+    """A ZVD shaper for a second mode (``natural_freq_rad_s``, ``damping``), as a bundle's
+    ``shaper.shaper2`` (the compensator applies it after the first shaper)."""
+    sh = design_shaper("zvd", float(parameters["natural_freq_rad_s"]), float(parameters["damping"]))
+    return {**shaper_document(sh), "for": "diagnose: second_resonance"}
 
 
 #: Findings whose fit refits the main mode freely because the effect distorts its
