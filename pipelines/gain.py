@@ -123,6 +123,7 @@ GAIN_MAGNITUDES: dict[str, dict[str, dict[str, Any]]] = {
     "sensor_offset_drift": {"load_cell": {"drift_n_per_min": 1.5}},
     "input_delay": {"press": {"delay_s": 3e-4}},
     "hysteresis_order": {"hysteresis": {"saturation": 0.6}},
+    "mains_pickup": {"load_cell": {"mains_n": 1.0}},
 }
 
 

@@ -168,6 +168,8 @@ class IndependentPress:
         creep_gains: tuple[float, ...] = (0.007, 0.009, 0.011, 0.013),
         noise_n: float = 0.3,
         capacitance_uf: float = 5.5,
+        mains_n: float = 0.0,
+        mains_hz: float = 59.97,
     ):
         self.seed = int(seed)
         self._plays: dict[str, int] = {}  # a label played again draws new noise, as on a real press
@@ -191,6 +193,8 @@ class IndependentPress:
         self.creep_gains = tuple(creep_gains)
         self.noise_n = float(noise_n)
         self.capacitance_uf = float(capacitance_uf)
+        self.mains_n = float(mains_n)
+        self.mains_hz = float(mains_hz)
         self.amp_gain = 15.0
         self.amp_bandwidth_hz = 20_000.0
         self.dac_bits, self.dac_range_v = 16, 10.0
@@ -367,6 +371,11 @@ class IndependentPress:
             self.drift_n_per_min / 60.0 * self.drift_tau_s * -np.expm1(-t / self.drift_tau_s)
         )  # rate drift_n_per_min at t = 0
         reading = reading + drift + self.noise_n * rng.standard_normal(amp.size)
+        if self.mains_n:  # 60 Hz mains, a little off, with a third harmonic; its size wanders slowly
+            phase = rng.uniform(0.0, 2.0 * math.pi, 2)
+            size = self.mains_n * (1.0 + 0.2 * np.sin(2.0 * math.pi * 0.05 * t + phase[0]))
+            w = 2.0 * math.pi * self.mains_hz * t + phase[1]
+            reading = reading + size * (np.sin(w) + 0.4 * np.sin(3.0 * w + 1.0))
         lsb = 2.0 * self.adc_range_v / 2**self.adc_bits
         volts = (
             np.clip(
@@ -408,7 +417,9 @@ NUISANCE: dict[str, tuple[float, float]] = {"mode_hz": (950.0, 1100.0), "mode_da
 #: - ``sensor_offset_drift``: a warm-up drift in every run (rate decaying over 10 min), with
 #:   no rest run in the plan (:data:`PLAN_WITHOUT_REST`);
 #: - ``input_delay``: a delay between the amplifier and the stack (the virtual rig delays the reading);
-#: - ``hysteresis_order``: an S-shaped static map (soft contact, steep middle, saturating top).
+#: - ``hysteresis_order``: an S-shaped static map (soft contact, steep middle, saturating top);
+#: - ``mains_pickup``: 60 Hz mains a little off (59.97 Hz) with a third harmonic, its size
+#:   wandering by 20 % over 20 s (the virtual rig: a steady 50 Hz line).
 DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "rate_dependent_hysteresis": {"rate_dependence": (0.3, 1.0)},
     "amplifier_slew_limit": {"slew_v_per_ms": (20.0, 60.0)},
@@ -422,6 +433,7 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "sensor_offset_drift": {"drift_n_per_min": (4.0, 10.0)},
     "input_delay": {"input_delay_s": (1e-4, 6e-4)},
     "hysteresis_order": {"s_curve": (0.2, 0.5)},
+    "mains_pickup": {"mains_n": (0.6, 1.5)},
 }
 
 #: The default characterization plan without its rest run (``protocols/characterize.toml``

@@ -325,6 +325,7 @@ PARAMS = {
     "sensor_offset_drift": {"drift_n_per_s": 0.01},
     "input_delay": {"delay_s": 3e-4},
     "hysteresis_order": {"n_play": 4, "n_dead_zone": 2},
+    "mains_pickup": {"line1_hz": 50.0, "line1_amplitude_n": 0.5},
 }
 
 

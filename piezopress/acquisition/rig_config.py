@@ -93,6 +93,10 @@ class LoadCellSection:
     drift_n_per_min: float = param(
         0.0, "effect sensor_offset_drift: slow drift of the offset, in newtons per minute", "N/min", -100, 100
     )
+    mains_n: float = param(
+        0.0, "effect mains_pickup: mains hum on the reading (amplitude, random phase per run)", "N", 0, 1000
+    )
+    mains_hz: float = param(50.0, "mains frequency of the hum", "Hz", 1, 1000, True)
 
 
 @dataclass(frozen=True)
@@ -256,6 +260,7 @@ EFFECTS: dict[str, Effect] = {
     "sensor_offset_drift": Effect("load_cell", "drift_n_per_min", 0.0, 0.5, "slow drift of the load-cell offset"),
     "input_delay": Effect("press", "delay_s", 0.0, 2e-4, "pure delay between command and response"),
     "hysteresis_order": Effect("hysteresis", "saturation", 0.0, 0.35, "saturating, asymmetric static map"),
+    "mains_pickup": Effect("load_cell", "mains_n", 0.0, 0.5, "mains hum on the load-cell reading"),
 }
 
 
@@ -358,6 +363,7 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "sensor_offset_drift": {"drift_n_per_min": (0.3, 1.5)},
     "input_delay": {"delay_s": (1e-4, 5e-4)},
     "hysteresis_order": {"saturation": (0.25, 0.6)},
+    "mains_pickup": {"mains_n": (0.3, 1.0)},
 }
 #: The slew limit's magnitude lives in the actuator: I/C with C in this range is 25-67 V/ms.
 DETECTABLE_ACTUATOR = {"capacitance_uf": (3.0, 8.0)}

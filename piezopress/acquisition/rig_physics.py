@@ -319,6 +319,9 @@ def simulate(
     t = np.arange(u.size) / fs_hz
     reading_n = reading_n + lc.drift_n_per_min * t / 60.0
     sensed_v = lc.sensitivity_v_per_n * reading_n + lc.offset_v + lc.noise_v * rng.standard_normal(u.size)
+    if lc.mains_n:  # hum picked up after the load cell, at a phase of its own in every run
+        hum_n = lc.mains_n * np.sin(2 * np.pi * lc.mains_hz * t + rng.uniform(0.0, 2 * np.pi))
+        sensed_v = sensed_v + lc.sensitivity_v_per_n * hum_n
     adc_v = quantize(sensed_v, daq.adc_bits, daq.adc_range_v)
     return {"force_n": (adc_v - lc.offset_v) / lc.sensitivity_v_per_n, "monitor_v": amp_v}
 

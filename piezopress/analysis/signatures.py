@@ -27,7 +27,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Line", "drive_independent_lines", "QUIET_MIN_S", "SETTLE_S", "PEAK_OVER_MEDIAN", "MAINS_HZ"]
+__all__ = [
+    "Line",
+    "drive_independent_lines",
+    "fit_line",
+    "line_of",
+    "QUIET_MIN_S",
+    "SETTLE_S",
+    "PEAK_OVER_MEDIAN",
+    "MAINS_HZ",
+]
 
 #: A quiet stretch (drive constant) counts from this long after the drive last changed (the
 #: press's ringing and the sensor's filter have died out)...
@@ -65,7 +74,7 @@ class Line:
         )
 
 
-def _quiet_stretches(t: np.ndarray, x: np.ndarray, fs: float) -> list[slice]:
+def quiet_stretches(t: np.ndarray, x: np.ndarray, fs: float) -> list[slice]:
     """Stretches where the drive is constant, from ``SETTLE_S`` after it last changed, at least ``QUIET_MIN_S`` long."""
     moving = np.abs(np.diff(x, prepend=x[0])) > 1e-9 * max(1.0, float(np.ptp(x)))
     moving[0] = True  # a run's start: the state before it is unknown
@@ -107,14 +116,14 @@ def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list
     (see the module). ``runs``: ``(t_s, drive, residual, fs_hz, name)``; lines below
     ``min_hz`` (a drift's, a creep's) are not looked for."""
     peaks: list[tuple[float, float, str, float]] = []  # freq, amplitude, run, resolution
-    quiet_runs: set[str] = set()
+    quiet_runs: dict[str, float] = {}  # run name -> its sample rate (which lines it can show)
     for t, x, e, fs, name in runs:
-        for sl in _quiet_stretches(np.asarray(t), np.asarray(x), fs):
+        for sl in quiet_stretches(np.asarray(t), np.asarray(x), fs):
             seg_t, seg_e = np.asarray(t, float)[sl], np.asarray(e, float)[sl]
             f, amp = _spectrum(seg_e, fs)
             if f.size < 16:
                 continue
-            quiet_runs.add(name)
+            quiet_runs[name] = float(fs)
             res = f[1]
             ok = (f >= max(min_hz, 4 * res)) & (f <= fs / 2.5)
             idx = np.flatnonzero(ok)
@@ -144,8 +153,9 @@ def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list
         names = sorted({p[2] for p in g})
         freq = float(np.median([p[0] for p in g]))
         amp = float(np.median([p[1] for p in g]))
-        # seen in more than one quiet stretch (two runs, or one run's two stretches), or in the one quiet run there is
-        if len(g) < 2 and len(quiet_runs) > 1:
+        # seen in more than one quiet stretch (two runs, or one run's two stretches), or in the one quiet run
+        # there is that can show it (a rest sampled at 100 Hz shows no 50 Hz line)
+        if len(g) < 2 and sum(fs >= 2.5 * freq for fs in quiet_runs.values()) > 1:
             continue
         driven, tried = [], 0
         for t, x, e, fs, name in runs:
@@ -160,3 +170,58 @@ def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list
         lines.append(Line(freq, amp, tuple(names), tuple(driven), tried, _is_mains(freq)))
     lines.sort(key=lambda line: -line.amplitude)
     return lines
+
+
+#: A line's frequency is refined within this far of where it was found (Hz): the mains wander
+#: by a few hundredths of a hertz, and a line fitted at a frequency off by ``df`` loses its phase
+#: by ``2 pi df`` radians a second.
+REFINE_SPAN_HZ = 0.1
+#: Block length of the complex demodulation that refines a line (s): the baseband sampled at 20 Hz.
+DEMOD_BLOCK_S = 0.05
+
+
+def fit_line(t: np.ndarray, e: np.ndarray, f0: float, fs: float) -> tuple[float, float, float]:
+    """A sine near ``f0`` in ``e`` (sampled at ``fs``): its frequency refined within
+    :data:`REFINE_SPAN_HZ` and its sine and cosine amplitudes, ``(f, a, b)`` with the line
+    ``a sin(2 pi f t) + b cos(2 pi f t)``, by least squares with an offset and a slope.
+
+    The frequency is refined on the baseband: ``e`` demodulated at ``f0`` and averaged over
+    blocks of :data:`DEMOD_BLOCK_S`, where a line at ``f0 + df`` turns at ``df``; the ``df``
+    whose turning the blocks follow best is kept (one pass over the samples, then a search on
+    a few thousand blocks).
+
+    >>> fs = 1000.0
+    >>> t = np.arange(0, 30, 1 / fs)
+    >>> e = 0.4 * np.sin(2 * np.pi * 50.03 * t + 0.5) + np.random.default_rng(1).normal(0, 0.3, t.size)
+    >>> f, a, b = fit_line(t, e, 50.0, fs)
+    >>> round(f, 2), round(math.hypot(a, b), 2)
+    (50.03, 0.4)
+    """
+    t, e = np.asarray(t, float), np.asarray(e, float)
+    e = e - np.polyval(np.polyfit(t - t[0], e, 1), t - t[0])
+    n = max(1, int(round(DEMOD_BLOCK_S * fs)))
+    m = e.size // n
+    f = f0
+    if m >= 8:
+        z = (e[: m * n] * np.exp(-2j * np.pi * f0 * t[: m * n])).reshape(m, n).mean(axis=1)
+        tb = t[: m * n].reshape(m, n).mean(axis=1)
+        span = min(REFINE_SPAN_HZ, 0.4 / DEMOD_BLOCK_S)
+        step = 0.1 / max(float(tb[-1] - tb[0]), 1e-9)  # a tenth of the record's resolution
+        grid = np.arange(-span, span + step / 2, step)
+        power = np.abs(np.exp(-2j * np.pi * np.outer(grid, tb)) @ z)
+        i = int(np.argmax(power))
+        if 0 < i < grid.size - 1:  # a parabola through the peak and its neighbours
+            p0, p1, p2 = power[i - 1 : i + 2]
+            den = p0 - 2 * p1 + p2
+            f = f0 + grid[i] + (0.5 * (p0 - p2) / den * step if den else 0.0)
+        else:
+            f = f0 + grid[i]
+    a = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)])
+    c, *_ = np.linalg.lstsq(a, e, rcond=None)
+    return float(f), float(c[0]), float(c[1])
+
+
+def line_of(t: np.ndarray, f: float, a: float, b: float) -> np.ndarray:
+    """The line ``a sin(2 pi f t) + b cos(2 pi f t)`` at the times ``t``."""
+    w = 2 * np.pi * f * np.asarray(t, float)
+    return a * np.sin(w) + b * np.cos(w)
