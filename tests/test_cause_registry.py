@@ -30,6 +30,22 @@ def test_every_registry_names_the_catalogue():
     assert set(tp.DETECTABLE) == causes | NOT_IN_CATALOGUE  # the third press too, and two more
 
 
+def test_each_cause_is_one_module_and_the_catalogue_lists_every_one():
+    """Adding a cause is one new module under ``diagnosis/causes/`` (plus its simulated effect):
+    each module's ``CAUSE`` is the catalogue's entry of the same id, and no module is left out."""
+    import importlib
+    import pkgutil
+
+    from piezopress.analysis.diagnosis import causes
+
+    modules = sorted(m.name for m in pkgutil.iter_modules(causes.__path__))
+    assert modules == sorted(dg.CAUSES)
+    for name in modules:
+        entry = importlib.import_module(f"{causes.__name__}.{name}").CAUSE
+        assert entry is dg.CAUSES[name] and entry.id == name
+        assert entry.run.__module__ == f"{causes.__name__}.{name}"  # its fit lives beside it
+
+
 def test_the_compensator_applies_exactly_the_causes_that_extend_it():
     for c in dg.CAUSES.values():
         assert c.in_compensator == (c.extend is not None), c.id

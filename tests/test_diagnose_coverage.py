@@ -353,7 +353,7 @@ def test_the_catalogue_is_the_one_source_of_what_the_compensator_applies(tmp_pat
         assert bool(changed) == dg.CAUSES[cid].in_compensator, (
             f"{cid}: the catalogue says in_compensator={dg.CAUSES[cid].in_compensator} but extend_bundle changes "
             f"{sorted(changed) or 'nothing'}; "
-            "flip the flag in piezopress/analysis/diagnosis.py CAUSES (the one place)"
+            "set the cause's extend in its module, piezopress/analysis/diagnosis/causes/ (the one place)"
         )
         assert ext["extensions_applied_by_compensator"] == ([cid] if dg.CAUSES[cid].in_compensator else [])
         assert ext["extensions_recorded_only"] == ([] if dg.CAUSES[cid].in_compensator else [cid])

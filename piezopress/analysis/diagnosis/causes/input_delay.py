@@ -1,0 +1,145 @@
+"""The catalogue's cause ``input_delay``: its fit (the signature it keys on, the extension judged
+on held-out data) and its entry in the catalogue (:data:`CAUSE`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from piezopress.analysis import bundle as _bundle
+from piezopress.analysis import hysteresis as H
+from piezopress.analysis.diagnosis.cause import _FAST_STEPS, Cause
+from piezopress.analysis.diagnosis.judging import (
+    CHAIN_LAG_S,
+    Context,
+    Finding,
+    _cost,
+    _fast_base,
+    _fast_split,
+    _judge,
+    _judge_dynamics,
+    _refit_mode,
+    _search,
+)
+from piezopress.analysis.diagnosis.needs import Need, RunSpec, lag_visible
+
+#: The delay on slow sweeps refits the operators a dozen times: on at most this many samples.
+DELAY_FIT_MAX_SAMPLES = 8000
+
+
+def _delay_on_sweeps(ctx: Context) -> Finding | None:
+    """A delay judged on swept runs the base model may itself have been fitted on (a slow
+    sine, say), where a lag of a few samples shows (:func:`lag_visible`).
+
+    A lag there is partly taken up by the hysteresis fit (a wider loop), so the delay alone
+    cannot be judged against the base model: the operators (the base model's thresholds) are
+    refitted on each run's first 60 % twice, on the drive as recorded and on the drive
+    delayed (the delay chosen on those samples: whole samples up to 8, then half a sample
+    either side; long records decimated to :data:`DELAY_FIT_MAX_SAMPLES`), and both refits are
+    judged on the last 40 %, which neither saw."""
+    runs = [r for r in ctx.sweeps() if lag_visible(r, ctx)]
+    if not runs:
+        return None
+    m = ctx.model.hysteresis
+    outs = []
+    for r in runs:  # the output as the hysteresis sees it: accepted drift and the creep removed, as the fit does
+        y = r.y - ctx.model.drift_per_s * r.t_s
+        if ctx.model.creep is not None:
+            y = m.y0 + ctx.model.creep.compensate(y - m.y0, r.fs_hz)[0]
+        outs.append(y)
+    skip = [H.settled_start(r.x) for r in runs]
+
+    # fitted on a decimated copy of a long record: plays are rate-independent, and the delayed
+    # drive is computed on the full grid first, so a fraction of a sample still shows
+    step = int(np.ceil(sum(r.x.size for r in runs) / DELAY_FIT_MAX_SAMPLES))
+
+    def prep(delay: float) -> H.HysteresisData:
+        xs = [np.interp(r.t_s - delay, r.t_s, r.x, left=r.x[0]) for r in runs]
+        return H.prepare(
+            [(r.name, x, y) for r, x, y in zip(runs, xs, outs)], holdout_fraction=0.4, x0=m.x0, y0=m.y0, skip=skip
+        )
+
+    def refit(k: float) -> tuple[float, H.PIModel]:
+        data = prep(k / fs)
+        data = H.decimate(data, step) if step > 1 else data
+        cache: dict = {}
+        model = H.refit(data, m, cache=cache)  # the base model's structure (plays, dead zones, plane)
+        return H.rms_error(model, data, H.columns_for(data, np.array(m.r), m.plane, cache), "train"), model
+
+    fs = min(r.fs_hz for r in runs)
+    fits = {k: refit(k) for k in range(0, 9)}  # whole samples, then half a sample either side
+    k0 = min(fits, key=lambda k: fits[k][0])
+    fits.update({k: refit(k) for k in (k0 - 0.5, k0 + 0.5) if k >= 0})
+    k = min(fits, key=lambda k: fits[k][0])
+    d, ext_h, base_h = k / fs, fits[k][1], fits[0][1]
+    data = prep(0.0)  # the fitted and held-out rows
+    cuts = [int(np.argmax(h)) for h in data.holdout]
+    firsts = [int(np.argmax(t)) for t in data.train]
+    fit = [(r, slice(a, b)) for r, a, b in zip(runs, firsts, cuts)]
+    held = [(r, slice(b, None)) for r, b in zip(runs, cuts)]
+    ext = replace(ctx.model, hysteresis=ext_h, delay_s=float(d))
+    ev = (
+        f"the output lags the drive by {d * 1e3:.3g} ms ({d * fs:.2g} samples) beyond what the hysteresis takes up: "
+        "the operators "
+        f"refitted on the delayed drive predict the held-out end of {', '.join(r.name for r in runs)} better than "
+        "refitted on the "
+        f"drive as recorded (both fitted on the first 60 %)"
+    )
+    return _judge(
+        ctx,
+        "input_delay",
+        ev,
+        fit,
+        held,
+        ext,
+        {"delay_s": float(d), "operators_refitted": 1.0},
+        replace(ctx.model, hysteresis=base_h),
+    )
+
+
+def cause_input_delay(ctx: Context) -> Finding | None:
+    runs = ctx.independent(ctx.steps() + ctx.sweeps(5.0))
+    if len(runs) < 2:
+        return _delay_on_sweeps(
+            ctx
+        )  # no fast runs the base was not fitted on: swept runs where a lag of a few samples shows
+    fit, held = _fast_split(ctx)
+    steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
+    # the baseline: the mode refitted within its bounds, and the chain's own lag (CHAIN_LAG_S)
+    base = _fast_base(ctx, fit)
+    d = _search(lambda d: _cost(fit, replace(ctx.model, delay_s=d)), 0.0, 5e-3, 41)
+    ext = replace(ctx.model, delay_s=d)
+    if steps_fit:  # the mode and the delay together, on the steps and the sweeps (which pin the delay down)
+        # a delay distorts the identified mode (the identification has no delay): refit both
+        # freely, and give the baseline the same freedom of the mode with the chain's lag
+        ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [5e-3]), wide=True)
+        d = float(ext.delay_s)
+        wide = _refit_mode(
+            ctx.model,
+            fit,
+            lambda m, p: replace(m, delay_s=float(p[0])),
+            [base.delay_s],
+            ([0.0], [CHAIN_LAG_S]),
+            wide=True,
+        )
+        base = min((base, wide), key=lambda m: _cost(fit, m))
+    if d <= CHAIN_LAG_S:
+        return None  # no longer than the chain's own lag: nothing to test beyond it
+    ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike"
+    return _judge_dynamics(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
+
+
+#: The catalogue's entry for this cause (read by every place that names causes).
+CAUSE = Cause(
+    "input_delay",
+    "a pure delay between command and response (board latency, filters)",
+    "the prediction delayed",
+    cause_input_delay,
+    needs=(
+        Need((_FAST_STEPS, RunSpec("sweep", min_freq_hz=5.0)), 2, independent=True),
+        Need((RunSpec("sweep", lag_visible=True),), 1),
+    ),
+    extend=_bundle.extend_input_delay,
+    targets=("tracking_random", "hysteresis_50hz"),
+)

@@ -1,0 +1,83 @@
+"""The catalogue's cause ``sensor_offset_drift``: its fit (the signature it keys on, the extension judged
+on held-out data) and its entry in the catalogue (:data:`CAUSE`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from piezopress import units
+from piezopress.analysis import creep as creep_mod
+from piezopress.analysis.diagnosis.cause import Cause
+from piezopress.analysis.diagnosis.judging import Context, Finding
+from piezopress.analysis.diagnosis.needs import Need, RunSpec
+from piezopress.analysis.diagnosis.slow import DRIFT_MAX_OF_RANGE, _drift_fit
+
+
+def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
+    """A drift of the reading keys on time, not on the drive: the residual averaged over each
+    drive cycle (the loop's shape and the noise average out) trends at one rate in every long
+    run, at rest or under any drive. Judged on every run of 25 s or more (a rest run, the
+    creep hold, slow sweeps: the base model may have been fitted on them, for only their
+    trend is used), fitted on each run's first 60 % with an offset per run, judged on the
+    rest, against the same without the drift but with a slow creep element whose size is
+    fitted too (a creep the base model got wrong grows with the drive; a drift does not)."""
+    d = _drift_fit(ctx)
+    if d is None:
+        return None
+    span = max(float(np.ptp(r.y)) for r in d.runs)
+    longest = max(float(r.t_s[-1] - r.t_s[0]) for r in d.runs)
+    if abs(d.drift_per_s) * longest > DRIFT_MAX_OF_RANGE * span:
+        return None  # a trend of that size is the model's misfit (collinear terms), not a sensor's slow drift
+    creep = ctx.model.creep or creep_mod.CreepModel("kv", 1.0, (), ())
+    creep = creep_mod.CreepModel(
+        "kv", creep.static_gain, tuple(creep.taus_s) + (d.creep_tau_s,), tuple(creep.gains) + (d.creep_gain,)
+    )
+    steady = math.isinf(d.drift_tau_s)
+    ext = replace(
+        ctx.model,
+        drift_per_s=d.drift_per_s if steady else 0.0,
+        drift_warmup=None if steady else (d.drift_per_s, d.drift_tau_s),
+        creep=creep,
+    )
+    u = ctx.model.unit
+    names = sorted(r.name for r in d.runs)
+    rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
+    if not steady:
+        rate += f" at the start of a run, settling over {d.drift_tau_s:.3g} s (a warm-up)"
+    ev = (
+        f"the reading drifts {rate} whatever the drive does: the residual averaged over "
+        f"each drive cycle trends at one rate in {', '.join(names)} (fitted on their first 60 % with an offset each "
+        "and a slow "
+        f"creep element, judged on the rest against the creep element alone)"
+    )
+    return Finding(
+        "sensor_offset_drift",
+        ev,
+        d.baseline,
+        d.extended,
+        d.gain_pct,
+        {
+            f"drift_{units.key(u)}_per_s": d.drift_per_s,
+            "drift_settling_s": d.drift_tau_s,
+            "creep_tau_s": d.creep_tau_s,
+            "creep_gain": d.creep_gain,
+        },
+        names,
+        names,
+        max(float(np.ptp(r.y)) for r in d.runs),
+        d.floor,
+        ext,
+    )
+
+
+#: The catalogue's entry for this cause (read by every place that names causes).
+CAUSE = Cause(
+    "sensor_offset_drift",
+    "the load-cell offset drifts slowly (temperature, supply), independent of the drive",
+    "a drift term of the reading (steady, or settling: a warm-up)",
+    cause_sensor_offset_drift,
+    needs=(Need((RunSpec("rest"),), 1), Need((RunSpec("any", min_duration_s=25.0),), 1)),
+)

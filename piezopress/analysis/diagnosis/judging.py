@@ -1,0 +1,393 @@
+"""Judging an extension: the search's context, a finding, the held-out splits and fits every cause shares."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from piezopress import units
+from piezopress.analysis import profile
+from piezopress.analysis.diagnosis.model import Model, RunData
+from piezopress.analysis.diagnosis.residuals import rms
+
+#: A finding needs at least this held-out improvement of the RMS residual (percent) ...
+MIN_GAIN_PCT = 20.0
+#: ... a residual on its held-out data at least this many times the noise floor ...
+MIN_RESIDUAL_TO_FLOOR = 1.5
+#: ... and an improvement of at least this many noise floors (an echo of an accepted cause
+#: in the last fraction of a newton above the noise is not a finding).
+MIN_IMPROVEMENT_TO_FLOOR = 0.5
+#: Residual structure above this many noise floors that no finding covers is "unexplained".
+UNEXPLAINED_RATIO = 2.5
+#: At most this many findings: the whole catalogue (each accepted one extends the model for the next round).
+MAX_FINDINGS = len(("rate", "slew", "interference", "creep", "mode2", "drift", "delay", "order", "mains"))
+
+
+# --------------------------------------------------------------------------- the search
+
+
+Segment = tuple[RunData, slice]
+
+
+@dataclass
+class Context:
+    """The runs, which of them the base model was fitted on, and the current model."""
+
+    runs: list[RunData]
+    model: Model
+    fitted_runs: frozenset[str]
+    floor: dict[str, float]
+    cache: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def pred(self, run: RunData) -> np.ndarray:
+        # keyed by the run's identity (its file), never its name alone: two runs may share a name
+        if run.ident not in self.cache:
+            self.cache[run.ident] = self.model.predict(run)
+        return self.cache[run.ident]
+
+    def is_fitted(self, run: RunData) -> bool:
+        """Whether the base model was fitted on ``run`` (``fitted_runs`` holds keys or names)."""
+        return (bool(run.key) and run.key in self.fitted_runs) or run.name in self.fitted_runs
+
+    def independent(self, runs: list[RunData]) -> list[RunData]:
+        return [r for r in runs if not self.is_fitted(r)]
+
+    @property
+    def slow_hz(self) -> float:
+        """Up to which measured frequency a sweep is slow (the hysteresis model's, as ``fit``
+        chooses them): 0.5 Hz, or where no sweep is that slow, the slowest sweeps up to 2 Hz
+        (a record from elsewhere often holds one 1 Hz sine)."""
+        return profile.slow_limit_hz([r.freq_hz for r in self.runs if r.freq_hz is not None])
+
+    def steps(self) -> list[RunData]:
+        return sorted([r for r in self.runs if r.kind == "step" and r.fs_hz >= 5000], key=lambda r: r.step_v)
+
+    def sweeps(self, lo_hz: float = 0.0, hi_hz: float = np.inf) -> list[RunData]:
+        """Swept runs between two measured drive frequencies; a moving drive that is no
+        regular sweep counts as a slow sweep."""
+
+        def freq(r):
+            return r.freq_hz if r.freq_hz is not None else 0.0
+
+        return [
+            r
+            for r in self.runs
+            if r.kind in ("triangle", "sine", "custom")
+            and np.ptp(r.x) > 0
+            and profile.freq_within(freq(r), lo_hz, hi_hz)
+        ]
+
+    def rests(self) -> list[RunData]:
+        return [r for r in self.runs if np.ptp(r.x) == 0]
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A cause that explains part of the residual, with its held-out gain (RMS, range and
+    floor in the model's output unit, :attr:`unit`)."""
+
+    cause: str
+    evidence: str
+    baseline_rms: float
+    extended_rms: float
+    gain_pct: float
+    parameters: dict[str, float]
+    runs: list[str]
+    heldout: list[str]
+    output_range: float
+    floor: float
+    model: Model
+    #: the held-out gain (%) on each held-out run alone, where more than one run judges it
+    gain_by_run: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def unit(self) -> str:
+        return self.model.unit
+
+    @property
+    def accepted(self) -> bool:
+        return (
+            self.gain_pct >= MIN_GAIN_PCT
+            and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
+            and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor
+        )
+
+    @property
+    def consistency(self) -> tuple[int, int] | None:
+        """``(held-out runs the extension predicts better, held-out runs)``; None where the
+        finding is judged on its held-out runs together only (cycle-averaged slow judging)."""
+        if not self.gain_by_run:
+            return None
+        return sum(g > 0 for g in self.gain_by_run.values()), len(self.gain_by_run)
+
+    @property
+    def strength(self) -> str:
+        """How sure the finding is: ``weak`` (one held-out run, or a third or more of them not
+        helped), ``strong`` (at least twice the gain a finding needs, every held-out run
+        helped), else ``moderate``."""
+        c = self.consistency
+        if len(self.heldout) <= 1 or (c is not None and c[0] < c[1] * 2 / 3):
+            return "weak"
+        if (c is None or c[0] == c[1]) and self.gain_pct >= 2 * MIN_GAIN_PCT:
+            return "strong"
+        return "moderate"
+
+    def strength_text(self) -> str:
+        """One line on the evidence's strength, naming the held-out runs that do not back it."""
+        c = self.consistency
+        if len(self.heldout) <= 1:
+            why = "judged on one held-out run only"
+        elif c is None:
+            why = f"judged on {len(self.heldout)} runs together"
+        else:
+            against = sorted(r for r, g in self.gain_by_run.items() if g <= 0)
+            why = f"better on {c[0]} of {c[1]} held-out runs" + (f" (not on {', '.join(against)})" if against else "")
+        return f"{self.strength} evidence: {why}, held-out gain {self.gain_pct:.0f} %"
+
+    def as_dict(self) -> dict[str, Any]:
+        k = units.key(self.unit)
+        return {
+            "cause": self.cause,
+            "evidence": self.evidence,
+            f"baseline_rms_{k}": self.baseline_rms,
+            f"extended_rms_{k}": self.extended_rms,
+            "baseline_pct_of_range": 100 * self.baseline_rms / self.output_range,
+            "extended_pct_of_range": 100 * self.extended_rms / self.output_range,
+            "gain_pct": self.gain_pct,
+            "parameters": {k_: float(v) for k_, v in self.parameters.items()},
+            "runs": self.runs,
+            "heldout": self.heldout,
+            f"noise_floor_{k}": self.floor,
+            "gain_by_heldout_run_pct": {r: float(g) for r, g in self.gain_by_run.items()},
+            "evidence_strength": self.strength,
+            "evidence_strength_text": self.strength_text(),
+        }
+
+
+def _split(runs: list[RunData]) -> tuple[list[Segment], list[Segment]]:
+    """Alternate whole runs into fitting and held-out sets (largest first)."""
+    runs = list(runs)[::-1]
+    return [(r, slice(None)) for r in runs[0::2]], [(r, slice(None)) for r in runs[1::2]]
+
+
+def _time_split(runs: list[RunData], fit_fraction: float = 0.6) -> tuple[list[Segment], list[Segment]]:
+    """Each run's first ``fit_fraction`` to fit, the rest held out (states carry on)."""
+    fit, held = [], []
+    for r in runs:
+        k = int(r.t_s.size * fit_fraction)
+        fit.append((r, slice(0, k)))
+        held.append((r, slice(k, None)))
+    return fit, held
+
+
+def _err(segments: list[Segment], predict: Callable[[RunData], np.ndarray]) -> np.ndarray:
+    return np.concatenate([(r.y - predict(r))[sl] for r, sl in segments]) if segments else np.zeros(0)
+
+
+def _cost(segments: list[Segment], model: Model) -> float:
+    return rms(_err(segments, model.predict))
+
+
+def _search(objective: Callable[[float], float], lo: float, hi: float, n: int = 25, log: bool = False) -> float:
+    """Grid then bounded refinement of a 1-D objective."""
+    grid = np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n)
+    vals = [objective(g) for g in grid]
+    i = int(np.argmin(vals))
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, n - 1)]
+    if b <= a:
+        return float(grid[i])
+    res = optimize.minimize_scalar(objective, bounds=(a, b), method="bounded", options={"xatol": (b - a) * 1e-3})
+    return float(res.x) if res.fun <= vals[i] else float(grid[i])
+
+
+def _refit_mode(
+    model: Model,
+    fit: list[Segment],
+    extra: Callable[[Model, np.ndarray], Model] | None = None,
+    extra_x0: Sequence[float] = (),
+    extra_bounds: tuple[Sequence[float], Sequence[float]] = ((), ()),
+    wide: bool = False,
+) -> Model:
+    """The main mode refitted on the fitting segments, within a factor 1.3 in frequency and 3
+    in damping of the identified one (so that a mode distorted by the very effect under test
+    does not decide between causes, and no cause turns the mode into something else), jointly
+    with a cause's own parameters when ``extra`` maps them into the model. ``wide``: the mode
+    refitted freely (0.5-4 times the frequency, damping 0.01-0.9), where the effect under test
+    distorts the identification itself: a delay of half the mode's period makes the steps'
+    identification find a mode at less than half its frequency, heavily damped."""
+    if not model.wn:  # no mode identified (a bundle without a shaper section): the cause's own parameters alone
+        if extra is None:
+            return model
+        lo_e, hi_e = list(extra_bounds[0]), list(extra_bounds[1])
+        x0_e = np.clip(list(extra_x0), lo_e, hi_e)
+        try:
+            sol = optimize.least_squares(
+                lambda p: _err(fit, extra(model, p).predict), x0_e, bounds=(lo_e, hi_e), max_nfev=40
+            )
+            return extra(model, sol.x)
+        except ValueError:
+            return extra(model, x0_e)
+    wn, z = model.wn, model.zeta
+
+    def build(p):
+        m = replace(model, wn=float(p[0]), zeta=float(p[1]))
+        return extra(m, p[2:]) if extra is not None else m
+
+    lo = [(0.5 if wide else 0.77) * wn, 0.01 if wide else z / 3.0, *extra_bounds[0]]
+    hi = [(4.0 if wide else 1.3) * wn, 0.9 if wide else min(3.0 * z, 0.9), *extra_bounds[1]]
+    x0 = np.clip([wn, z, *extra_x0], lo, hi)
+    try:
+        sol = optimize.least_squares(
+            lambda p: _err(fit, build(p).predict),
+            x0,
+            bounds=(lo, hi),
+            max_nfev=40,
+            x_scale=[0.01 * wn, 0.01 * z] + [abs(v) * 0.05 + 1e-9 for v in extra_x0],
+        )
+    except ValueError:
+        return build(x0)
+    return build(sol.x)
+
+
+def _judge(
+    ctx: Context,
+    cause: str,
+    evidence: str,
+    fit: list[Segment],
+    held: list[Segment],
+    extended: Model,
+    params: dict[str, float],
+    baseline: Model | None = None,
+    cost: Callable[[list[Segment], Model], float] | None = None,
+) -> Finding:
+    """The finding of ``cause``: ``extended`` against ``baseline`` (the current model) by
+    ``cost`` (default :func:`_cost`, the held-out RMS) on the held-out segments."""
+    cost = cost or _cost
+    base = baseline or ctx.model
+    b = cost(held, base)
+    e = cost(held, extended)
+    runs = [r for r, _ in fit + held]
+    by_run: dict[str, list[Segment]] = {}
+    for seg in held:
+        by_run.setdefault(seg[0].name, []).append(seg)
+    per_run = {}
+    if len(by_run) > 1 and b > 0 and 100.0 * (b - e) / b >= MIN_GAIN_PCT:  # only where it could be a finding
+        for name, segs in by_run.items():  # the gain on each held-out run alone: is it everywhere?
+            bb, ee = cost(segs, base), cost(segs, extended)
+            per_run[name] = 100.0 * (bb - ee) / bb if bb > 0 else 0.0
+    return Finding(
+        cause,
+        evidence,
+        b,
+        e,
+        100.0 * (b - e) / b if b > 0 else 0.0,
+        params,
+        sorted({r.name for r in runs}),
+        sorted({r.name for r, _ in held}),
+        max(float(np.ptp(r.y)) for r in runs),
+        float(np.median([ctx.floor[r.name] for r, _ in held])),
+        extended,
+        per_run,
+    )
+
+
+# --------------------------------------------------------------------------- causes
+
+
+#: The base model's chain is known to within about this lag: the amplifier's bandwidth (the
+#: model drives the stack with the command), the discretisation of the load cell's filter,
+#: the converters' timing. On a press written apart from the model (tests/independent_press.py)
+#: these leave 15-25 us; on the virtual rig none. The causes that key on fast dynamics (delay,
+#: rate dependence, interference) are judged against the base model given a lag up to this,
+#: fitted on the same segments, so that what the known chain already explains is no finding.
+CHAIN_LAG_S = 30e-6
+
+
+def _forces(model: Model, runs: Sequence[RunData]) -> dict[int, np.ndarray]:
+    return {id(r): model.force(r, model.static(r)) for r in runs}
+
+
+def _with_chain_lag(model: Model, fit: list[Segment], n: int = 7) -> Model:
+    """``model`` with the lag up to :data:`CHAIN_LAG_S` that best predicts the fitting
+    segments (a model with a delay found already: that delay moved by up to as much either
+    way, for it was fitted with the chain's lag in it)."""
+    if not fit:
+        return model
+    forces = _forces(model, {id(r): r for r, _ in fit}.values())
+
+    def cost(d):
+        m = replace(model, delay_s=d)
+        return rms(np.concatenate([(r.y - m.reading(r, forces[id(r)]))[sl] for r, sl in fit]))
+
+    grid = np.linspace(0.0, CHAIN_LAG_S, n)
+    if model.delay_s > 0:
+        grid = np.clip(model.delay_s + np.linspace(-CHAIN_LAG_S, CHAIN_LAG_S, 2 * n - 1), 0.0, None)
+    d = min(grid, key=cost)
+    return replace(model, delay_s=float(d))
+
+
+def _fast_split(ctx: Context) -> tuple[list[Segment], list[Segment]]:
+    """The fast runs the base model was not fitted on, split for the causes that key on fast
+    dynamics (rate dependence, interference, delay), which judge their gains on the same
+    held-out data so that the search compares like with like: the step runs alternate whole
+    (largest first), the sweeps at 5 Hz or more give their first 60 % to fit and the rest is
+    held out."""
+    sf, sh = _split(ctx.independent(ctx.steps()))
+    wf, wh = _time_split(ctx.independent(ctx.sweeps(5.0)))
+    return sf + wf, sh + wh
+
+
+def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
+    """The baseline of the fast causes: the mode refitted on the fitting steps within its
+    bounds (:func:`_refit_mode`), with the chain's own lag (:func:`_with_chain_lag`)."""
+    steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
+    return _with_chain_lag(_refit_mode(ctx.model, steps_fit) if steps_fit else ctx.model, fit)
+
+
+def _level_free(segments: list[Segment], model: Model) -> float:
+    """RMS of the residual with each segment's static levels taken out: on a step run a least-
+    squares offset, a gain on the drive and the level after the step's fall; on a sweep an
+    offset. What is left is the response's dynamics. The levels are the hysteresis and creep
+    models' business (a base model fitted elsewhere may be off by a constant on a fast sweep);
+    a cause of the dynamics is judged on what it can change, not on a constant it happens to
+    take up (a current envelope is constant on a triangle)."""
+    out = []
+    for r, sl in segments:
+        e = (r.y - model.predict(r))[sl]
+        x = r.x[sl]
+        if r.kind != "step":
+            out.append(e - e.mean())
+            continue
+        top = float(np.max(np.abs(x))) or 1.0
+        after = np.zeros_like(x)
+        peak = int(np.argmax(np.abs(x)))
+        fall = np.flatnonzero(np.abs(x[peak:]) < 0.5 * top)
+        if fall.size:
+            after[peak + fall[0] :] = 1.0
+        A = np.column_stack([np.ones_like(x), x / top, after])
+        coef, *_ = np.linalg.lstsq(A, e, rcond=None)
+        out.append(e - A @ coef)
+    return rms(np.concatenate(out)) if out else float("nan")
+
+
+def _judge_dynamics(
+    ctx: Context,
+    cause: str,
+    evidence: str,
+    fit: list[Segment],
+    held: list[Segment],
+    extended: Model,
+    params: dict[str, float],
+    baseline: Model,
+) -> Finding:
+    """:func:`_judge` with each held-out segment's static levels taken out of both models'
+    residuals (:func:`_level_free`): for the causes of the fast dynamics."""
+    return _judge(ctx, cause, evidence, fit, held, extended, params, baseline, cost=_level_free)
+
+
+#: A second mode carrying less than this share of the response is none.
+MIN_MODE2_SHARE = 0.02

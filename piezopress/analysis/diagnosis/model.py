@@ -1,0 +1,242 @@
+"""The forward model a diagnosis judges (the bundle's, with every extension a cause adds), and
+the runs as it sees them."""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from piezopress import signals, units
+from piezopress.analysis import creep as creep_mod
+from piezopress.analysis import hysteresis as H
+from piezopress.analysis import profile
+from piezopress.analysis.mode import mode_response
+from piezopress.analysis.signatures import line_of
+
+# --------------------------------------------------------------------------- data
+
+
+@dataclass(frozen=True)
+class RunData:
+    """One measured run as the diagnosis sees it."""
+
+    name: str
+    kind: str
+    t_s: np.ndarray
+    x: np.ndarray  # command (V)
+    y: np.ndarray  # measured output
+    fs_hz: float
+    monitor: np.ndarray | None = None  # the drive actually applied, when recorded
+    meta: dict[str, Any] = field(default_factory=dict)
+    key: str = ""  # what identifies the run (its file's sha256, say): names may repeat, keys may not
+    judged_from: int = 0  # rows before it (a rest of unknown state the fit skipped) are not judged as misfit
+    held_out: tuple[int, int] | None = None  # the rows the fit held out (its held-out error's rows)
+
+    @property
+    def ident(self) -> str:
+        """The run's identity: its key, else its name."""
+        return self.key or self.name
+
+    @functools.cached_property
+    def freq_hz(self) -> float | None:
+        """The sweep frequency measured from the drive's reversals (None: the drive is no
+        regular sweep); what the run's metadata records is never used for a decision."""
+        p = profile.profile_signals(self.t_s, self.x)
+        return p.freq_hz if p.is_sweep else None
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0]) + 1.0 / self.fs_hz if self.t_s.size else 0.0
+
+    def estimated_freq_hz(self) -> float:
+        """The drive's frequency: the measured sweep frequency, else estimated from the
+        drive's crossings of its middle band (for texts, on drives that are no regular sweep)."""
+        if self.freq_hz is not None:
+            return self.freq_hz
+        x = np.asarray(self.x, float)
+        if x.size < 3 or np.ptp(x) == 0:
+            return 0.0
+        mid = 0.5 * (np.max(x) + np.min(x))
+        band = 0.1 * np.ptp(x)
+        side = np.where(x > mid + band, 1, np.where(x < mid - band, -1, 0))
+        idx = np.flatnonzero(side)
+        flips = idx[1:][np.diff(side[idx]) != 0]  # where the drive has crossed its middle band
+        if flips.size < 2:
+            return 0.0
+        return (flips.size - 1) / 2.0 / float(self.t_s[flips[-1]] - self.t_s[flips[0]])
+
+    @property
+    def step_v(self) -> float:
+        return float(np.max(self.x) - np.min(self.x))
+
+    @property
+    def drive(self) -> np.ndarray:
+        """The drive actually applied: the amplifier monitor when recorded, else the command."""
+        return self.monitor if self.monitor is not None else self.x
+
+
+#: Static predictions of recent (run, static map) pairs: (run, prediction) by (id(run), map parameters).
+_STATIC_MEMO: dict[tuple, tuple[RunData, np.ndarray]] = {}
+_CREEP_MEMO: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # (static prediction, its creep response)
+
+
+@dataclass(frozen=True)
+class Model:
+    """The bundle's forward model, and every extension the catalogue can add to it.
+
+    An extension at its default value is absent: the base model is ``Model(hysteresis,
+    creep, wn, zeta, sensor_lowpass_hz)``.
+    """
+
+    hysteresis: H.PIModel
+    creep: creep_mod.CreepModel | None = None
+    wn: float | None = None
+    zeta: float | None = None
+    sensor_lowpass_hz: float | None = None  # the load cell's analog RC filter, a known part of the chain
+    # extensions
+    slew_v_per_s: float | None = None  # amplifier_slew_limit (or the identified drive chain's slew)
+    drive_tau_s: float = 0.0  # the drive chain's first-order lag, identified by fit when no monitor was recorded
+    # rate_dependent_hysteresis: every play threshold grows by rate_v_per_kv_s V per kV/s of the
+    # drive rate (smoothed over rate_tau_s), or the loop's width (the plays' lag behind the
+    # drive) by rate_loss_per_kv_s of itself per kV/s; the rate saturating at
+    # rate_saturation_v_per_s (None: linear)
+    rate_v_per_kv_s: float = 0.0
+    rate_loss_per_kv_s: float = 0.0
+    rate_saturation_v_per_s: float | None = None
+    rate_tau_s: float = 5e-4
+    # drive_coupled_interference: (gain output unit per V/s above a threshold of the unsigned rate
+    # envelope, threshold V/s, tau s[, gain output unit per V/s of the signed rate (the drive current's sign)])
+    interference: tuple[float, ...] | None = None
+    mode2: tuple[float, float, float] | None = None  # (share, wn, zeta): second_resonance
+    delay_s: float = 0.0  # input_delay
+    drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second ...
+    # ... and a warm-up: (rate at the run's start, output unit per second; time constant over which it settles, s)
+    drift_warmup: tuple[float, float] | None = None
+    # mains_pickup: lines in the reading, fitted run by run: (run identity, Hz, sine, cosine amplitude)
+    hum: tuple[tuple[str, float, float, float], ...] = ()
+
+    @property
+    def unit(self) -> str:
+        """The output unit code (``N`` or ``um``)."""
+        return self.hysteresis.output_unit
+
+    def static(self, run: RunData, x: np.ndarray | None = None) -> np.ndarray:
+        """``H(x) - y0`` with the slew limit and the rate dependence, if any."""
+        key = None
+        if x is None:  # the search evaluates one static map on one run many times (only later stages change)
+            key = (
+                id(run),
+                self.hysteresis,
+                self.slew_v_per_s,
+                self.drive_tau_s,
+                self.rate_v_per_kv_s,
+                self.rate_loss_per_kv_s,
+                self.rate_saturation_v_per_s,
+                self.rate_tau_s,
+            )
+            hit = _STATIC_MEMO.get(key)
+            if hit is not None and hit[0] is run:
+                return hit[1]
+        x = run.x if x is None else x
+        if self.drive_tau_s > 0:  # the amplifier's own bandwidth (a held command through a first-order lag)
+            x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
+        if self.slew_v_per_s:
+            x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
+        rate = None
+        if self.rate_v_per_kv_s > 0 or self.rate_loss_per_kv_s > 0:
+            rate = signals.rate_envelope(x, run.fs_hz, self.rate_tau_s)
+            if self.rate_saturation_v_per_s:
+                rate = self.rate_saturation_v_per_s * np.tanh(rate / self.rate_saturation_v_per_s)
+        h = self.static_at_rate(x, rate)
+        if key is not None:
+            if len(_STATIC_MEMO) >= 64:
+                _STATIC_MEMO.pop(next(iter(_STATIC_MEMO)))
+            h.setflags(write=False)
+            _STATIC_MEMO[key] = (run, h)
+        return h
+
+    def static_at_rate(self, x: np.ndarray, rate: np.ndarray | None) -> np.ndarray:
+        """``H(x) - y0`` for a drive ``x`` (after any slew limit) when the stack feels the drive
+        rate ``rate`` (V/s, smoothed and saturated; ``None``: no rate dependence)."""
+        m = self.hysteresis
+        widen = self.rate_v_per_kv_s * rate / 1000.0 if self.rate_v_per_kv_s > 0 and rate is not None else None
+        u = np.asarray(x, float) - m.x0
+        Y = m.columns(u, widen=widen)
+        w = np.array(m.w)
+        p = Y[:, : m.n_play] @ w
+        if self.rate_loss_per_kv_s > 0 and rate is not None:  # the plays' lag behind the drive, scaled
+            p = p + self.rate_loss_per_kv_s * rate / 1000.0 * (p - w.sum() * u)
+        if m.plane is not None:
+            p = p + Y[:, m.n_play :] @ np.array(m.plane.weights)
+        return H.dead_zone_superposition(p, np.array(m.d), np.array(m.s))
+
+    def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
+        """Creep, mode(s), sensor low-pass and contact applied to the static prediction."""
+        c = self._crept(run, h)
+        modes = []
+        if self.wn:
+            modes.append((1.0 - (self.mode2[0] if self.mode2 else 0.0), self.wn, self.zeta))
+        if self.mode2:
+            modes.append(self.mode2)
+        out = sum(share * mode_response(c, run.fs_hz, wn, z, hold="zoh") for share, wn, z in modes) if modes else c
+        if self.sensor_lowpass_hz:
+            out = out[0] + signals.first_order(out - out[0], 1.0 / (2 * np.pi * self.sensor_lowpass_hz), run.fs_hz)
+        y = self.hysteresis.y0 + out
+        # a press only pushes: a force reads no less than 0 N; a displacement is never clipped
+        return np.maximum(y, 0.0) if units.is_force(self.unit) else y
+
+    def _crept(self, run: RunData, h: np.ndarray) -> np.ndarray:
+        """The creep model's response to the static prediction ``h``; memoised for a read-only
+        ``h`` (the static memo's): a search varies later stages on one static prediction."""
+        if self.creep is None:
+            return h
+        if h.flags.writeable:
+            return self.creep.response(h, run.fs_hz)[0]
+        key = (id(h), self.creep, run.fs_hz)
+        hit = _CREEP_MEMO.get(key)
+        if hit is not None and hit[0] is h:
+            return hit[1]
+        c = self.creep.response(h, run.fs_hz)[0]
+        c.setflags(write=False)
+        if len(_CREEP_MEMO) >= 64:
+            _CREEP_MEMO.pop(next(iter(_CREEP_MEMO)))
+        _CREEP_MEMO[key] = (h, c)
+        return c
+
+    def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
+        """What the sensor reads of the force ``f``: interference, delay, drift, hum."""
+        y = f
+        if self.interference:
+            y = y - interference_reading(run, *self.interference)
+        if self.delay_s > 0:
+            t = np.arange(y.size) / run.fs_hz
+            y = np.interp(t - self.delay_s, t, y, left=y[0])
+        y = y + self.drift(run) if self.drift_per_s or self.drift_warmup else y
+        for ident, hz, a, b in self.hum:
+            if ident == run.ident:
+                y = y + line_of(run.t_s, hz, a, b)
+        return y
+
+    def drift(self, run: RunData) -> np.ndarray | float:
+        """The drift of the reading over ``run`` (0 without one)."""
+        out = self.drift_per_s * run.t_s if self.drift_per_s else 0.0
+        if self.drift_warmup:
+            rate, tau = self.drift_warmup
+            out = out - rate * tau * np.expm1(-run.t_s / tau)
+        return out
+
+    def predict(self, run: RunData) -> np.ndarray:
+        return self.reading(run, self.force(run, self.static(run)))
+
+
+def interference_reading(run: RunData, g: float, e0: float, tau: float, g_signed: float = 0.0) -> np.ndarray:
+    """The artefact the drive current puts into the reading (subtracted from it): ``g`` per V/s
+    of the unsigned rate envelope above ``e0``, and ``g_signed`` per V/s of the signed rate
+    (both smoothed over ``tau``; the current is ``C dV/dt`` of the drive actually applied)."""
+    out = g * np.maximum(signals.rate_envelope(run.drive, run.fs_hz, tau) - e0, 0.0) if g else 0.0
+    if g_signed:
+        out = out + g_signed * signals.first_order(np.diff(run.drive, prepend=run.drive[0]) * run.fs_hz, tau, run.fs_hz)
+    return out * np.ones(run.drive.size)

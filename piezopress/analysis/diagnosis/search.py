@@ -1,0 +1,309 @@
+"""The greedy search over the catalogue, and the diagnosis it returns."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from piezopress import units
+from piezopress.analysis import creep as creep_mod
+from piezopress.analysis import hysteresis as H
+from piezopress.analysis.diagnosis.causes import CAUSES
+from piezopress.analysis.diagnosis.judging import (
+    MAX_FINDINGS,
+    MIN_RESIDUAL_TO_FLOOR,
+    UNEXPLAINED_RATIO,
+    Context,
+    Finding,
+)
+from piezopress.analysis.diagnosis.model import Model, RunData
+from piezopress.analysis.diagnosis.needs import POOR_FIT_RATIO, Testability, testability
+from piezopress.analysis.diagnosis.residuals import ResidualStats, judged, noise_floor, residual_stats, rms
+
+# --------------------------------------------------------------------------- the diagnosis
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    findings: list[Finding]
+    considered: list[Finding]
+    unexplained: list[dict[str, Any]]
+    before: list[ResidualStats]
+    after: list[ResidualStats]
+    residual_rms: float
+    noise_floor: float
+    summary: str
+    model: Model
+    tested: list[dict[str, Any]] = field(default_factory=list)  # {cause, runs, result, gain_pct, heldout}
+    not_tested: list[Testability] = field(default_factory=list)  # each with needs and have
+    base_fit: dict[str, Any] = field(default_factory=dict)  # the base model on the slow sweeps it was fitted on
+    signatures: list[dict[str, Any]] = field(default_factory=list)  # structure no cause explains, in its own terms
+
+    @property
+    def unit(self) -> str:
+        """The output unit code of every figure (``N`` or ``um``)."""
+        return self.model.unit
+
+    def as_dict(self) -> dict[str, Any]:
+        k = units.key(self.unit)
+        return {
+            "summary": self.summary,
+            "output_unit": self.unit,
+            f"residual_rms_{k}": self.residual_rms,
+            f"noise_floor_{k}": self.noise_floor,
+            "base_fit": self.base_fit,
+            "findings": [f.as_dict() for f in self.findings],
+            "tested": self.tested,
+            "not_tested": [t.as_dict() for t in self.not_tested],
+            "unexplained": self.unexplained,
+            "signatures": self.signatures,
+            "considered_not_found": [f.as_dict() for f in self.considered],
+            "runs_before": [s.as_dict() for s in self.before],
+            "runs_after": [s.as_dict() for s in self.after],
+        }
+
+
+def _unique_names(runs: list[RunData]) -> list[RunData]:
+    """Runs whose names repeat (two imports of one file, say) get ``#2``, ``#3``... so every
+    text, table and figure tells them apart; their identity stays their key."""
+    seen: dict[str, int] = {}
+    out = []
+    taken = {r.name for r in runs}
+    for r in runs:
+        n = seen.get(r.name, 0) + 1
+        seen[r.name] = n
+        if n > 1:
+            name = f"{r.name}#{n}"
+            while name in taken:
+                n += 1
+                name = f"{r.name}#{n}"
+            taken.add(name)
+            r = replace(r, name=name, key=r.key or r.name + f"#{n}")
+        out.append(r)
+    return out
+
+
+def _base_fit(ctx: Context, floor: float) -> dict[str, Any]:
+    """How well the base model fits the sweeps it was fitted on, at whatever frequency they
+    were measured (any slow sweep when the fitted runs are not known): RMS, its ratio to the
+    noise floor, where it is largest."""
+    fitted = [r for r in ctx.sweeps() if ctx.is_fitted(r)]
+    runs = fitted or ([] if ctx.fitted_runs else ctx.sweeps(0.0, ctx.slow_hz))
+    if not runs:
+        return {}
+    res = {r.name: (r.y - ctx.pred(r))[min(r.judged_from, r.y.size - 1) :] for r in runs}
+    total = rms(np.concatenate(list(res.values())))
+    worst = max(runs, key=lambda r: rms(res[r.name]))
+    k = units.key(ctx.model.unit)
+    return {
+        "runs": [r.name for r in runs],
+        f"rms_{k}": total,
+        f"noise_floor_{k}": floor,
+        "ratio": total / floor,
+        "poor": bool(total > POOR_FIT_RATIO * floor),
+        "worst_run": worst.name,
+        "worst_at_s": float(
+            worst.t_s[min(worst.judged_from, worst.y.size - 1) + int(np.argmax(np.abs(res[worst.name])))]
+        ),
+        "judged_from_row": {r.name: r.judged_from for r in runs if r.judged_from},
+        **_held_out_rms(ctx, runs, k),
+    }
+
+
+def _held_out_rms(ctx: Context, runs: list[RunData], k: str) -> dict[str, float]:
+    """The base model's RMS on the rows its fit held out (the figure ``fit`` prints), when known."""
+    parts = [(r.y - ctx.pred(r))[a:b] for r in runs if r.held_out is not None for a, b in [r.held_out] if 0 <= a < b]
+    return {f"holdout_rms_{k}": rms(np.concatenate(parts))} if parts else {}
+
+
+@dataclass(frozen=True)
+class CauseProgress:
+    """Reported before a cause is tried (``done`` false) and after it (``done``, with its
+    held-out gain in percent when it had something to fit, and whether it is a finding so
+    far). ``round`` counts the search's passes (each accepted finding starts another);
+    ``index`` of ``total`` counts the causes of this pass."""
+
+    round: int
+    index: int
+    total: int
+    cause: str
+    done: bool
+    gain_pct: float | None = None
+    accepted: bool = False
+
+
+def diagnose(
+    base: Model,
+    runs: Sequence[RunData],
+    fitted_runs: Sequence[str] = (),
+    causes: Sequence[str] | None = None,
+    on_progress: Callable[[CauseProgress], None] | None = None,
+) -> Diagnosis:
+    """Simulate every run with ``base``, analyse the residuals, extend the model cause by cause.
+
+    ``fitted_runs`` names the runs the base model was fitted on (their keys or names);
+    causes judge their gain on the others where they can. A cause whose needs the runs do not
+    meet (:func:`testability`) is not tried: it is listed in ``not_tested`` with what it
+    needs and what the runs offer. ``on_progress`` hears of every cause tried
+    (:class:`CauseProgress`). An id not in :data:`CAUSES` raises ``ValueError``.
+    """
+    unknown = [c for c in (causes or ()) if c not in CAUSES]
+    if unknown:
+        raise ValueError(
+            f"cause {', '.join(map(repr, unknown))} is not in the catalogue; expected one of {', '.join(CAUSES)}"
+        )
+    runs = _unique_names(list(runs))
+    floor = {r.name: noise_floor(r.y) for r in runs}
+    ctx = Context(runs, base, frozenset(fitted_runs), floor)
+    before = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
+    total_rms = rms(np.concatenate([judged(r, r.y - ctx.pred(r)) for r in runs]))
+    total_floor = float(np.median(list(floor.values())))
+    base_fit = _base_fit(ctx, total_floor)
+    findings: list[Finding] = []
+    last_try: dict[str, Finding] = {}
+    failed: dict[str, str] = {}  # causes whose fit raised: why (never a traceback; said under "tested")
+    asked = list(causes or CAUSES)
+    checks = {cid: testability(CAUSES[cid], ctx) for cid in asked}
+    todo = [cid for cid in asked if checks[cid].testable]
+    rnd = 0
+    while todo and len(findings) < MAX_FINDINGS:
+        tried = []
+        rnd += 1
+        for i, cid in enumerate(todo, 1):
+            if on_progress:
+                on_progress(CauseProgress(rnd, i, len(todo), cid, False))
+            try:
+                f = CAUSES[cid].run(ctx)
+            except (ValueError, np.linalg.LinAlgError, H.HysteresisFitError, creep_mod.FitError):
+                f = None
+            except Exception as exc:  # noqa: BLE001 - a cause that cannot be fitted is a result, never a traceback
+                failed[cid] = f"{type(exc).__name__}: {str(exc)[:200]}"
+                f = None
+            if f is not None and np.isfinite(f.gain_pct):
+                tried.append(f)
+                last_try[cid] = f
+            else:
+                f = None
+            if on_progress:
+                on_progress(
+                    CauseProgress(
+                        rnd, i, len(todo), cid, True, None if f is None else f.gain_pct, f is not None and f.accepted
+                    )
+                )
+        ok = [f for f in tried if f.accepted]
+        if not ok:
+            break
+        best = max(ok, key=lambda f: f.gain_pct)
+        findings.append(best)
+        todo.remove(best.cause)
+        last_try.pop(best.cause, None)
+        ctx = Context(runs, best.model, ctx.fitted_runs, floor)  # extend and look again
+    findings.sort(key=lambda f: -f.gain_pct)
+    after = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
+    k, u = units.key(base.unit), units.label(base.unit)
+    unexplained = [
+        {
+            "run": s.run,
+            f"rms_{k}": s.rms,
+            f"noise_floor_{k}": s.floor,
+            "ratio": s.ratio,
+            "where_s": s.t_max_s,
+            "dominant_freq_hz": s.dominant_freq_hz,
+        }
+        for s in after
+        if s.ratio > UNEXPLAINED_RATIO
+    ]
+    from piezopress.analysis.signatures import drive_independent_lines
+
+    lines = drive_independent_lines(
+        [(judged(r, r.t_s), judged(r, r.x), judged(r, r.y - ctx.pred(r)), r.fs_hz, r.name) for r in runs]
+    )
+    signatures = [
+        {
+            "kind": "drive_independent_line",
+            "freq_hz": ln.freq_hz,
+            f"amplitude_{k}": ln.amplitude,
+            "quiet_runs": list(ln.quiet_runs),
+            "driven_runs": list(ln.driven_runs),
+            "driven_tried": ln.driven_tried,
+            "mains": ln.mains,
+            "text": ln.text(u),
+        }
+        for ln in lines
+    ]
+    found = {f.cause: f for f in findings}
+    tested: list[dict[str, Any]] = []
+    for cid in asked:
+        if not checks[cid].testable:
+            continue
+        f = found.get(cid) or last_try.get(cid)
+        entry: dict[str, Any] = {
+            "cause": cid,
+            "runs": checks[cid].runs,
+            "result": "found"
+            if cid in found
+            else "not found"
+            if f is not None
+            else f"not fitted ({failed[cid]})"
+            if cid in failed
+            else "not found (no sign of it to fit)",
+        }
+        if f is not None:
+            entry.update(
+                gain_pct=f.gain_pct, parameters={k_: float(v) for k_, v in f.parameters.items()}, heldout=f.heldout
+            )
+        tested.append(entry)
+    not_tested = [checks[cid] for cid in asked if not checks[cid].testable]
+    names = [t["cause"] for t in tested]
+    numbers = f"{total_rms:.3g} {u} RMS against a noise floor of {total_floor:.3g} {u}"
+    if findings:
+        head = (
+            "; ".join(f"{f.cause} (held-out gain {f.gain_pct:.0f} %)" for f in findings)
+            + f"; the base model's residual was {numbers}"
+        )
+    elif not tested:
+        head = f"No cause could be tried on these runs (the residual is {numbers})"
+    elif total_rms <= MIN_RESIDUAL_TO_FLOOR * total_floor or not unexplained:
+        among = f" among the {len(names)} causes tried" if not_tested else ""
+        head = (
+            f"No findings{among}: the residual ({total_rms:.3g} {u} RMS) is near the noise floor "
+            f"({total_floor:.3g} {u})"
+        )
+    elif not not_tested:
+        head = f"No cause in the catalogue explains the residual ({numbers}; all {len(names)} tried)"
+    elif len(names) == 1:
+        head = f"The one cause tried ({names[0]}) does not explain the residual ({numbers})"
+    else:
+        head = f"None of the {len(names)} causes tried ({', '.join(names)}) explains the residual ({numbers})"
+    weak = [f for f in findings if f.strength == "weak"]
+    if weak:  # how sure: a finding backed by one held-out run, or not by a third of them, is said to be
+        head += "; weak evidence for " + ", ".join(f"{f.cause} ({f.strength_text().split(': ', 1)[1]})" for f in weak)
+    if unexplained:
+        head += "; unexplained structure in " + ", ".join(u_["run"] for u_ in unexplained)
+    for sig in signatures:
+        head += f"; {sig['text']}"
+    if not_tested:
+        head += f"; not tested ({len(not_tested)}, the runs do not allow it): " + ", ".join(t.cause for t in not_tested)
+    if base_fit.get("poor"):
+        head += (
+            f"; the base fit is poor: {base_fit[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on, "
+            f"{base_fit['ratio']:.0f} x the noise floor (every cause the runs allow was still tried)"
+        )
+    return Diagnosis(
+        findings,
+        list(last_try.values()),
+        unexplained,
+        before,
+        after,
+        total_rms,
+        total_floor,
+        head,
+        ctx.model,
+        tested,
+        not_tested,
+        base_fit,
+        signatures,
+    )

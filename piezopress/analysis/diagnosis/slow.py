@@ -1,0 +1,136 @@
+"""Slow judging: residuals averaged over drive cycles, the long runs, and the drift fit (sensor drift and log creep)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from piezopress import signals
+from piezopress.analysis.diagnosis.judging import Context
+from piezopress.analysis.diagnosis.model import Model, RunData
+from piezopress.analysis.diagnosis.residuals import rms
+
+
+def _slow_residual(run: RunData, v: np.ndarray, window_s: float, step_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """``v`` averaged over the trailing ``window_s`` (a drive cycle: the loop's shape and the
+    noise average out), every ``step_s`` from ``window_s`` on: (times, averages)."""
+    n = max(1, int(round(window_s * run.fs_hz)))
+    c = np.concatenate([[0.0], np.cumsum(v)])
+    idx = np.arange(n, v.size + 1, max(1, int(round(step_s * run.fs_hz))))
+    return run.t_s[idx - 1], (c[idx] - c[idx - n]) / n
+
+
+#: A drift may settle over this time constant (a warm-up) rather than go on steadily; it is
+#: also the form of the drift a log creep is judged against when the runs evidence one.
+DRIFT_WARMUP_TAU_S = 300.0
+#: A drift that would move the reading by more than this share of its range over the longest
+#: run is not a sensor's slow drift (the documented ones move a 300 N reading by about 1 N a
+#: minute): such a fit leans on terms that cancel each other.
+DRIFT_MAX_OF_RANGE = 0.2
+#: Time constants of the slow creep element a drift is judged against (creep that the base
+#: model's creep got wrong, in proportion to the drive, is not drift).
+DRIFT_CREEP_TAUS_S = (10.0, 30.0, 100.0, 300.0, 1000.0)
+
+
+@dataclass(frozen=True)
+class _DriftFit:
+    """The drift against the slow creep element on the long runs' cycle-averaged residuals."""
+
+    runs: list[RunData]
+    baseline: float  # held-out RMS without the drift
+    extended: float  # with it
+    drift_per_s: float  # at a run's start ...
+    drift_tau_s: float  # ... settling over this (inf: steady)
+    creep_tau_s: float
+    creep_gain: float
+    floor: float
+
+    @property
+    def gain_pct(self) -> float:
+        return 100.0 * (self.baseline - self.extended) / self.baseline if self.baseline > 0 else 0.0
+
+
+def _long_runs(ctx: Context, steady: bool = False) -> list[tuple[RunData, float]]:
+    """Runs long enough to show a trend, each with its averaging window (a drive cycle, or 5 s);
+    with ``steady`` only those whose drive repeats (a rest, a hold, a sweep of one amplitude):
+    averaged over a cycle, the base model's loop misfit is then the same in every cycle, and a
+    trend stands out (on a sweep whose amplitude changes from cycle to cycle the averaged misfit
+    changes with it)."""
+    out = []
+    for r in ctx.runs:
+        f = r.freq_hz
+        window = 1.0 / f if f and np.ptp(r.x) > 0 else 5.0
+        if r.t_s[-1] < max(10.0, 2.5 * window):
+            continue
+        _, level = _slow_residual(r, r.x, window)
+        _, swing = _slow_residual(r, np.abs(r.x - np.mean(r.x)), window)
+        late = r.t_s[-1] > 2.0 * window  # the hold's step and the first cycle aside
+        keep = slice(1, None) if late else slice(None)
+        if not steady or np.ptp(level[keep]) + np.ptp(swing[keep]) <= 0.1 * max(float(np.ptp(r.x)), 1e-9):
+            out.append((r, window))
+    return out
+
+
+def _slow_judge(ctx: Context, model: Model) -> tuple[float, float]:
+    """Held-out RMS of ``model``'s cycle-averaged residual on the steady long runs (each with an
+    offset fitted on its first 60 %, judged on the rest), and the noise floor of such averages."""
+    held, floors = [], []
+    for r, window in _long_runs(ctx, steady=True):
+        t, res = _slow_residual(r, r.y - model.predict(r), window)
+        fit_m = t <= 0.6 * r.t_s[-1]
+        if fit_m.sum() < 2 or (~fit_m).sum() < 2:
+            continue
+        held.append(res[~fit_m] - res[fit_m].mean())
+        floors.append(ctx.floor[r.name] / math.sqrt(window * r.fs_hz))
+    return (rms(np.concatenate(held)), float(np.median(floors))) if held else (float("nan"), float("nan"))
+
+
+def _drift_fit(ctx: Context) -> _DriftFit | None:
+    """See :func:`cause_sensor_offset_drift`."""
+    rows = []  # (run, t, slow residual, slow creep responses per tau, floor of the averages)
+    for r, window in _long_runs(ctx):
+        t, res = _slow_residual(r, r.y - ctx.pred(r), window)
+        h = ctx.model.static(r)
+        creeps = [_slow_residual(r, signals.first_order(h, tau, r.fs_hz), window)[1] for tau in DRIFT_CREEP_TAUS_S]
+        rows.append((r, t, res, creeps, ctx.floor[r.name] / math.sqrt(window * r.fs_hz)))
+    if not rows:
+        return None
+    n_runs = len(rows)
+    fit_m = np.concatenate([t <= 0.6 * r.t_s[-1] for r, t, _, _, _ in rows])
+    onehot = np.zeros((fit_m.size, n_runs))
+    k = 0
+    for j, (_, t, _, _, _) in enumerate(rows):
+        onehot[k : k + t.size, j] = 1.0
+        k += t.size
+    T = np.concatenate([t for _, t, _, _, _ in rows])
+    R = np.concatenate([res for _, _, res, _, _ in rows])
+    if fit_m.sum() < n_runs + 3 or (~fit_m).sum() < 3:
+        return None
+
+    def solve(warmups):
+        best = None
+        for j, tau in enumerate(DRIFT_CREEP_TAUS_S):
+            S = np.concatenate([c[j] for _, _, _, c, _ in rows])
+            for w in warmups:  # None: no drift; inf: a steady one; else it settles over w
+                D = [] if w is None else [T if np.isinf(w) else -w * np.expm1(-T / w)]
+                A = np.column_stack([onehot, S] + D)
+                coef, *_ = np.linalg.lstsq(A[fit_m], R[fit_m], rcond=None)
+                e = rms(R[fit_m] - A[fit_m] @ coef)
+                if best is None or e < best[0]:
+                    best = (e, tau, coef, rms(R[~fit_m] - A[~fit_m] @ coef), w)
+        return best
+
+    _, _, _, b, _ = solve([None])
+    _, tau1, coef1, e, w = solve([math.inf, 1000.0, DRIFT_WARMUP_TAU_S])
+    return _DriftFit(
+        [r for r, _, _, _, _ in rows],
+        b,
+        e,
+        float(coef1[-1]),
+        w,
+        tau1,
+        float(coef1[n_runs]),
+        float(np.median([fl for _, _, _, _, fl in rows])),
+    )
