@@ -43,7 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 import piezopress  # noqa: E402,F401
 
@@ -66,13 +67,19 @@ PAIRS = (
 )
 
 
+def _repeat_plan(effect: str) -> Path | None:
+    """A drifting sensitivity shows only between runs of one drive apart in time: its cases play the
+    default plan with the slowest triangle again at the end (tests/plans/characterize-repeat.toml)."""
+    return ROOT / "tests" / "plans" / "characterize-repeat.toml" if "sensitivity_drift" in effect.split("+") else None
+
+
 def _third_press(effect: str, seed: int):
     """The third test press (tests/third_press.py) with ``effect`` hidden (``none``: clean); the default plan."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     import third_press as tp
 
     rng = np.random.default_rng([seed, 97])
-    return (tp.clean_press(rng) if effect == "none" else tp.hidden_press(effect, rng)), None
+    return (tp.clean_press(rng) if effect == "none" else tp.hidden_press(effect, rng)), _repeat_plan(effect)
 
 
 def _backend(rig: str, effect: str, seed: int):
@@ -91,7 +98,7 @@ def _backend(rig: str, effect: str, seed: int):
             if effect == "none"
             else hidden_effect(effect, rng)
         ),
-        None,
+        _repeat_plan(effect),
     )
 
 

@@ -124,6 +124,7 @@ GAIN_MAGNITUDES: dict[str, dict[str, dict[str, Any]]] = {
     "input_delay": {"press": {"delay_s": 3e-4}},
     "hysteresis_order": {"hysteresis": {"saturation": 0.6}},
     "mains_pickup": {"load_cell": {"mains_n": 1.0}},
+    "sensitivity_drift": {"load_cell": {"sensitivity_drift_per_h": 0.1}},
 }
 
 

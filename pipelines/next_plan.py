@@ -93,6 +93,11 @@ class Group:
         return sum(_samples(p) for p in self.protocols)
 
 
+#: The time at rest between a repeat's two triangles (s): a gain drift of 1 % per hour moves the
+#: second by 0.17 % of its swing, 0.5 N of a 300 N loop.
+REPEAT_GAP_S = 600.0
+
+
 def _samples(p: dict[str, Any]) -> int:
     """How many samples a protocol records (its cost)."""
     fs = float(p["sample_rate_hz"])
@@ -206,6 +211,25 @@ def _groups(lo: float, hi: float, rest: float, fs_max: float) -> list[Group]:
                 ],
             )
         )
+    if span > 0 and fs_max >= 500.0:
+        slow = {"kind": "triangle", "freq_hz": 0.1, "cycles": 3, "low_v": lo, "peak_v": hi, "sample_rate_hz": 500.0}
+        out.append(
+            Group(
+                "repeat",
+                f"a slow triangle {lo:g} -> {hi:g} V, {REPEAT_GAP_S / 60:g} min at rest, and the same triangle again "
+                "(a gain that drifts over the test scales the second; hysteresis and creep read both alike)",
+                [
+                    {"name": "triangle-0.1hz-first", **slow},
+                    {
+                        "name": "rest-between",
+                        "kind": "custom",
+                        "points": [[0.0, rest], [REPEAT_GAP_S, rest]],
+                        "sample_rate_hz": min(100.0, fs_max),
+                    },
+                    {"name": "triangle-0.1hz-again", **slow},
+                ],
+            )
+        )
     return sorted(out, key=lambda g: g.samples)
 
 
@@ -224,7 +248,7 @@ def _as_runs(protocols: Sequence[dict[str, Any]], limits: DriveLimits) -> list[d
                 x,
                 np.zeros_like(x),
                 p.sample_rate_hz,
-                meta={"protocol": p.as_dict()},
+                meta={"protocol": p.as_dict(), "started_utc": "planned"},  # played in order, each timed
                 key=f"next-plan:{p.name}",
             )
         )

@@ -91,3 +91,18 @@ def import_args(which: str, out) -> list[str]:
     """``piezopress import`` arguments for a shared data set into ``out``."""
     source, options = IMPORTS[which]
     return ["import", str(DATASETS / source), "--out", str(out), *options.split()]
+
+
+@pytest.fixture(scope="session")
+def sample_base_bundle(tmp_path_factory):
+    """``fit --base`` on ``sample_runs/characterization``, written once per session (the base
+    model the diagnosis tests extend)."""
+    from pathlib import Path
+
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import fit as F
+
+    char = Path(__file__).resolve().parents[1] / "sample_runs" / "characterization"
+    out = tmp_path_factory.mktemp("sample-base") / "base.json"
+    B.write_document(F.fit_bundle([char], base=True).doc, out)
+    return out

@@ -170,6 +170,8 @@ class IndependentPress:
         capacitance_uf: float = 5.5,
         mains_n: float = 0.0,
         mains_hz: float = 59.97,
+        gain_settle: float = 0.0,
+        gain_settle_s: float = 1800.0,
     ):
         self.seed = int(seed)
         self._plays: dict[str, int] = {}  # a label played again draws new noise, as on a real press
@@ -195,6 +197,9 @@ class IndependentPress:
         self.capacitance_uf = float(capacitance_uf)
         self.mains_n = float(mains_n)
         self.mains_hz = float(mains_hz)
+        self.gain_settle = float(gain_settle)
+        self.gain_settle_s = float(gain_settle_s)
+        self.clock_s = 0.0  # the press's clock: every run, and 3 s between runs
         self.amp_gain = 15.0
         self.amp_bandwidth_hz = 20_000.0
         self.dac_bits, self.dac_range_v = 16, 10.0
@@ -256,6 +261,7 @@ class IndependentPress:
             channels = self.simulate(u, float(sample_rate_hz), float(preload_n), rng)
         finally:
             self.zero_output()
+            self.clock_s += u.size / sample_rate_hz + 3.0
         measured = Measurement(channels=channels, info={"seed": self.seed, "label": label})
         if progress is not None:
             try:
@@ -370,6 +376,8 @@ class IndependentPress:
         drift = (
             self.drift_n_per_min / 60.0 * self.drift_tau_s * -np.expm1(-t / self.drift_tau_s)
         )  # rate drift_n_per_min at t = 0
+        if self.gain_settle:  # the bridge's gain settles by gain_settle over the test (its own clock)
+            reading = reading * (1.0 - self.gain_settle * np.expm1(-(self.clock_s + t) / self.gain_settle_s))
         reading = reading + drift + self.noise_n * rng.standard_normal(amp.size)
         if self.mains_n:  # 60 Hz mains, a little off, with a third harmonic; its size wanders slowly
             phase = rng.uniform(0.0, 2.0 * math.pi, 2)
@@ -419,7 +427,9 @@ NUISANCE: dict[str, tuple[float, float]] = {"mode_hz": (950.0, 1100.0), "mode_da
 #: - ``input_delay``: a delay between the amplifier and the stack (the virtual rig delays the reading);
 #: - ``hysteresis_order``: an S-shaped static map (soft contact, steep middle, saturating top);
 #: - ``mains_pickup``: 60 Hz mains a little off (59.97 Hz) with a third harmonic, its size
-#:   wandering by 20 % over 20 s (the virtual rig: a steady 50 Hz line).
+#:   wandering by 20 % over 20 s (the virtual rig: a steady 50 Hz line);
+#: - ``sensitivity_drift``: the gain settles by 2-5 % over half an hour of the test's clock (the
+#:   virtual rig: a steady drift), characterized with :data:`PLAN_WITH_REPEAT`.
 DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "rate_dependent_hysteresis": {"rate_dependence": (0.3, 1.0)},
     "amplifier_slew_limit": {"slew_v_per_ms": (20.0, 60.0)},
@@ -434,6 +444,7 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "input_delay": {"input_delay_s": (1e-4, 6e-4)},
     "hysteresis_order": {"s_curve": (0.2, 0.5)},
     "mains_pickup": {"mains_n": (0.6, 1.5)},
+    "sensitivity_drift": {"gain_settle": (0.02, 0.05)},
 }
 
 #: The default characterization plan without its rest run (``protocols/characterize.toml``
@@ -456,12 +467,20 @@ def hidden_press(effect: str, rng: np.random.Generator) -> IndependentPress:
     draw: dict[str, float] = {}
     for one in effect.split("+"):
         d = _draw(rng, DETECTABLE[one])
-        if one == "sensor_offset_drift":
-            d["drift_n_per_min"] *= float(rng.choice([-1.0, 1.0]))
+        if one in ("sensor_offset_drift", "sensitivity_drift"):
+            key = next(iter(d))
+            d[key] *= float(rng.choice([-1.0, 1.0]))
         draw.update(d)
     return clean_press(rng, **draw)
 
 
+#: The default characterization plan with its slowest triangle played again at the end: a
+#: drifting sensitivity shows only between two runs of the same drive, apart in time.
+PLAN_WITH_REPEAT = Path(__file__).resolve().parent / "plans" / "characterize-repeat.toml"
+
+
 def plan_for(effect: str) -> Path | None:
     """The plan a hidden effect (or pair) is characterized with (``None``: the default plan)."""
+    if "sensitivity_drift" in effect.split("+"):
+        return PLAN_WITH_REPEAT
     return PLAN_WITHOUT_REST if "sensor_offset_drift" in effect.split("+") else None

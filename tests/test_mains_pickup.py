@@ -61,22 +61,12 @@ def _with_hum(src: Path, dst: Path, amp: float, hz: float, seed: int = 0) -> Pat
     return dst
 
 
-@pytest.fixture(scope="module")
-def base_bundle(tmp_path_factory):
-    from piezopress.pipelines import bundle as B
-    from piezopress.pipelines import fit as F
-
-    out = tmp_path_factory.mktemp("base") / "base.json"
-    B.write_document(F.fit_bundle([CHAR], base=True).doc, out)
-    return out
-
-
 @pytest.mark.parametrize("hz", [50.0, 60.0])
-def test_diagnose_names_a_hum_added_to_the_reading(tmp_path, base_bundle, hz):
+def test_diagnose_names_a_hum_added_to_the_reading(tmp_path, sample_base_bundle, hz):
     from piezopress.pipelines import diagnose as D
 
     runs = _with_hum(CHAR, tmp_path / "runs", 0.6, hz)
-    res, _ = D.diagnose([runs], base_bundle, tmp_path / "diag", causes=["mains_pickup"])
+    res, _ = D.diagnose([runs], sample_base_bundle, tmp_path / "diag", causes=["mains_pickup"])
     (f,) = [f for f in res.findings if f.cause == "mains_pickup"]
     assert f.parameters["line1_hz"] == pytest.approx(hz, abs=0.05)
     assert f.parameters["line1_amplitude_n"] == pytest.approx(0.6, rel=0.2)
@@ -85,12 +75,12 @@ def test_diagnose_names_a_hum_added_to_the_reading(tmp_path, base_bundle, hz):
     assert not res.signatures  # named, so no longer said as structure no cause explains
 
 
-def test_no_hum_no_mains_finding(tmp_path, base_bundle):
+def test_no_hum_no_mains_finding(tmp_path, sample_base_bundle):
     from piezopress.pipelines import diagnose as D
 
     runs = tmp_path / "runs"
     shutil.copytree(CHAR, runs)
-    res, _ = D.diagnose([runs], base_bundle, tmp_path / "diag", causes=["mains_pickup"])
+    res, _ = D.diagnose([runs], sample_base_bundle, tmp_path / "diag", causes=["mains_pickup"])
     assert "mains_pickup" not in [f.cause for f in res.findings]
 
 

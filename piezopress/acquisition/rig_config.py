@@ -93,6 +93,9 @@ class LoadCellSection:
     drift_n_per_min: float = param(
         0.0, "effect sensor_offset_drift: slow drift of the offset, in newtons per minute", "N/min", -100, 100
     )
+    sensitivity_drift_per_h: float = param(
+        0.0, "effect sensitivity_drift: the cell's gain drifts on the rig's clock, per hour", "1/h", -10, 10
+    )
     mains_n: float = param(
         0.0, "effect mains_pickup: mains hum on the reading (amplitude, random phase per run)", "N", 0, 1000
     )
@@ -261,6 +264,9 @@ EFFECTS: dict[str, Effect] = {
     "input_delay": Effect("press", "delay_s", 0.0, 2e-4, "pure delay between command and response"),
     "hysteresis_order": Effect("hysteresis", "saturation", 0.0, 0.35, "saturating, asymmetric static map"),
     "mains_pickup": Effect("load_cell", "mains_n", 0.0, 0.5, "mains hum on the load-cell reading"),
+    "sensitivity_drift": Effect(
+        "load_cell", "sensitivity_drift_per_h", 0.0, 0.1, "the load cell's gain drifts over the test"
+    ),
 }
 
 
@@ -364,6 +370,7 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "input_delay": {"delay_s": (1e-4, 5e-4)},
     "hysteresis_order": {"saturation": (0.25, 0.6)},
     "mains_pickup": {"mains_n": (0.3, 1.0)},
+    "sensitivity_drift": {"sensitivity_drift_per_h": (0.03, 0.1)},
 }
 #: The slew limit's magnitude lives in the actuator: I/C with C in this range is 25-67 V/ms.
 DETECTABLE_ACTUATOR = {"capacitance_uf": (3.0, 8.0)}
@@ -377,6 +384,8 @@ def hidden_effect(effect: str, rng, base: RigConfig | None = None) -> RigConfig:
     draw = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DETECTABLE[effect].items()}
     if effect == "sensor_offset_drift":
         draw["drift_n_per_min"] *= float(rng.choice([-1.0, 1.0]))
+    if effect == "sensitivity_drift":
+        draw["sensitivity_drift_per_h"] *= float(rng.choice([-1.0, 1.0]))
     changes: dict[str, dict[str, Any]] = {EFFECTS[effect].section: draw} if draw else {}
     if effect == "amplifier_slew_limit":
         changes["actuator"] = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DETECTABLE_ACTUATOR.items()}

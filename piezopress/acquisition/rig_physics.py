@@ -296,9 +296,15 @@ def fine_windows(u: np.ndarray, fs_hz: float, cfg: RigConfig) -> tuple[int, list
 
 
 def simulate(
-    command_v: np.ndarray, fs_hz: float, preload_n: float, cfg: RigConfig, rng: np.random.Generator
+    command_v: np.ndarray,
+    fs_hz: float,
+    preload_n: float,
+    cfg: RigConfig,
+    rng: np.random.Generator,
+    clock_s: float = 0.0,
 ) -> dict[str, np.ndarray]:
-    """The whole chain for one run: the measured channels ``force_n`` and ``monitor_v``."""
+    """The whole chain for one run: the measured channels ``force_n`` and ``monitor_v``
+    (``clock_s``: the run's start on the rig's clock, for a sensitivity that drifts over the test)."""
     amp, daq, lc = cfg.amplifier, cfg.daq, cfg.load_cell
     dac_v = quantize(np.asarray(command_v, dtype=np.float64) / amp.gain, daq.dac_bits, daq.dac_range_v)
     u = np.clip(dac_v * amp.gain, amp.output_min_v, amp.output_max_v)
@@ -317,6 +323,8 @@ def simulate(
     reading_n = rc_lowpass(reading_n, lc.lowpass_hz, fs_hz)
     reading_n = delay(reading_n, cfg.press.delay_s, fs_hz)
     t = np.arange(u.size) / fs_hz
+    if lc.sensitivity_drift_per_h:  # the cell's gain drifts on the rig's clock
+        reading_n = reading_n * (1.0 + lc.sensitivity_drift_per_h * (clock_s + t) / 3600.0)
     reading_n = reading_n + lc.drift_n_per_min * t / 60.0
     sensed_v = lc.sensitivity_v_per_n * reading_n + lc.offset_v + lc.noise_v * rng.standard_normal(u.size)
     if lc.mains_n:  # hum picked up after the load cell, at a phase of its own in every run

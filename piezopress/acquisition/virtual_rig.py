@@ -27,6 +27,10 @@ def _label_seed(label: str) -> int:
     return int.from_bytes(hashlib.sha256(label.encode()).digest()[:8], "little")
 
 
+#: The pause between two runs on the virtual rig's clock (s): a drift over the test advances by it.
+PAUSE_S = 5.0
+
+
 class VirtualRig:
     """Simulated press. See :mod:`piezopress.acquisition.rig_physics` for the signal chain.
 
@@ -45,6 +49,7 @@ class VirtualRig:
         self.config = parse_rig(config, source="rig file") if isinstance(config, Mapping) else (config or RigConfig())
         self.output_v = 0.0
         self._plays: dict[str, int] = {}  # label -> times played on this rig object (a repeat's new noise)
+        self.clock_s = 0.0  # the rig's own clock: every run, and a pause of PAUSE_S after each
 
     @classmethod
     def limits_of(cls, document: Mapping[str, Any]) -> DriveLimits:
@@ -62,7 +67,7 @@ class VirtualRig:
         self, command_v: np.ndarray, sample_rate_hz: float, preload_n: float, rng: np.random.Generator
     ) -> dict[str, np.ndarray]:
         """The physics, without the backend bookkeeping: returns the measured channels."""
-        return phys.simulate(command_v, sample_rate_hz, preload_n, self.config, rng)
+        return phys.simulate(command_v, sample_rate_hz, preload_n, self.config, rng, self.clock_s)
 
     def run(
         self,
@@ -86,6 +91,7 @@ class VirtualRig:
             channels = self.simulate(command_v, sample_rate_hz, preload_n, rng)
         finally:
             self.zero_output()
+            self.clock_s += command_v.size / sample_rate_hz + PAUSE_S
         factor, segments = phys.fine_windows(command_v, sample_rate_hz, self.config)
         info = {"seed": seed, "fine_factor": factor, "fine_segments": sum(1 for s in segments if s[2] > 1)}
         measured = Measurement(channels=channels, info=info)

@@ -137,7 +137,13 @@ def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list
                     den = a0 - 2 * a1 + a2
                     shift = 0.5 * (a0 - a2) / den if den else 0.0
                     fr = float(f[i] + shift * res)
-                    peaks.append((fr, _sine_amplitude(seg_t, seg_e, fr), name, float(res)))
+                    if seg_t[-1] - seg_t[0] >= 8 * DEMOD_BLOCK_S:
+                        # refined again by demodulation: off by 0.04 Hz, a fit over two minutes turns
+                        # by five periods and finds a tenth of the line
+                        fr, a, b = fit_line(seg_t, seg_e, fr, fs)
+                        peaks.append((fr, math.hypot(a, b), name, float(res)))
+                    else:
+                        peaks.append((fr, _sine_amplitude(seg_t, seg_e, fr), name, float(res)))
     if not peaks:
         return []
     peaks.sort()

@@ -78,6 +78,12 @@ from piezopress.analysis.diagnosis.causes.rate_dependent_hysteresis import (  # 
 from piezopress.analysis.diagnosis.causes.second_resonance import (  # noqa: F401
     cause_second_resonance,
 )
+from piezopress.analysis.diagnosis.causes.sensitivity_drift import (  # noqa: F401
+    REPEAT_FROM,
+    cause_sensitivity_drift,
+    repeats,
+    test_clock,
+)
 from piezopress.analysis.diagnosis.causes.sensor_offset_drift import (  # noqa: F401
     cause_sensor_offset_drift,
 )

@@ -33,6 +33,11 @@ class Cause:
     needs: tuple[Need, ...] = ()
     extend: Callable[[dict[str, Any], dict[str, Any], Finding], None] | None = None
     targets: tuple[str, ...] = ()
+    #: Among the findings a round accepts, those of a higher precedence are taken first (then the
+    #: largest gain): a cause judged where the press's physics cannot act (the same drive played
+    #: twice reads alike whatever the loop, the creep or the mode) goes before the causes of the
+    #: physics, which would otherwise take what it explains (a gain drift read as creep in a hold).
+    precedence: int = 0
 
     @property
     def in_compensator(self) -> bool:

@@ -115,6 +115,11 @@ class Model:
     drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second ...
     # ... and a warm-up: (rate at the run's start, output unit per second; time constant over which it settles, s)
     drift_warmup: tuple[float, float] | None = None
+    # sensitivity_drift: the reading's gain drifts on the test's clock: (rate per second, the clock
+    # at which the base model's gain holds, per run by its identity: its start on the clock, and
+    # whether the drift goes on inside it: not inside the hold the base model's creep was fitted
+    # on, which holds that trend already)
+    gain_drift: tuple[float, float, tuple[tuple[str, float, bool], ...]] | None = None
     # mains_pickup: lines in the reading, fitted run by run: (run identity, Hz, sine, cosine amplitude)
     hum: tuple[tuple[str, float, float, float], ...] = ()
 
@@ -207,18 +212,30 @@ class Model:
         return c
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
-        """What the sensor reads of the force ``f``: interference, delay, drift, hum."""
+        """What the sensor reads of the force ``f``: interference, delay, gain drift, drift, hum."""
         y = f
         if self.interference:
             y = y - interference_reading(run, *self.interference)
         if self.delay_s > 0:
             t = np.arange(y.size) / run.fs_hz
             y = np.interp(t - self.delay_s, t, y, left=y[0])
+        if self.gain_drift:
+            y = y * self.reading_gain(run)
         y = y + self.drift(run) if self.drift_per_s or self.drift_warmup else y
         for ident, hz, a, b in self.hum:
             if ident == run.ident:
                 y = y + line_of(run.t_s, hz, a, b)
         return y
+
+    def reading_gain(self, run: RunData) -> np.ndarray | float:
+        """The reading's gain over ``run`` relative to the base model's (1 without a gain drift)."""
+        if not self.gain_drift:
+            return 1.0
+        rate, ref, starts = self.gain_drift
+        for ident, start, inside in starts:
+            if ident == run.ident:
+                return 1.0 + rate * (start - ref + (run.t_s if inside else 0.5 * run.duration_s))
+        return 1.0
 
     def drift(self, run: RunData) -> np.ndarray | float:
         """The drift of the reading over ``run`` (0 without one)."""

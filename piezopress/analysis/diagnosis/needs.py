@@ -36,7 +36,18 @@ _KIND_WORDS = {
     "creep": ("a creep run (a step held long)", "creep runs"),
     "rest": ("a rest run (zero drive)", "rest runs"),
     "any": ("a run", "runs"),
+    "repeat": (
+        "a run played again later in the test (the same drive, with its start time recorded)",
+        "runs played again later in the test (the same drive, with their start times recorded)",
+    ),
 }
+
+
+def same_drive(a: RunData, b: RunData) -> bool:
+    """Whether ``a`` and ``b`` were driven alike (the same moving drive, rate and length: a repeat)."""
+    if a is b or a.fs_hz != b.fs_hz or a.x.size != b.x.size or np.ptp(a.x) <= 0:
+        return False
+    return bool(np.max(np.abs(a.x - b.x)) <= 1e-6 * float(np.ptp(a.x)))
 
 
 def _hz(f: float) -> str:
@@ -75,6 +86,10 @@ class RunSpec:
             ok = not moving
         elif self.kind == "any":
             ok = True
+        elif self.kind == "repeat":
+            # two runs of one drive, each with its start time (a simulated press may start both within
+            # one second: the test's clock orders them by their recorded order and lengths)
+            ok = "started_utc" in run.meta and any(same_drive(o, run) and "started_utc" in o.meta for o in ctx.runs)
         else:
             ok = run.kind == self.kind
         ok = ok and run.fs_hz >= self.min_fs_hz and float(run.t_s[-1]) >= self.min_duration_s

@@ -196,7 +196,7 @@ def diagnose(
         ok = [f for f in tried if f.accepted]
         if not ok:
             break
-        best = max(ok, key=lambda f: f.gain_pct)
+        best = max(ok, key=lambda f: (CAUSES[f.cause].precedence, f.gain_pct))
         findings.append(best)
         todo.remove(best.cause)
         last_try.pop(best.cause, None)

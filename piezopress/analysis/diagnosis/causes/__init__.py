@@ -16,6 +16,7 @@ from piezopress.analysis.diagnosis.causes import (
     mains_pickup,
     rate_dependent_hysteresis,
     second_resonance,
+    sensitivity_drift,
     sensor_offset_drift,
 )
 
@@ -29,6 +30,7 @@ CAUSES: dict[str, Cause] = {
         logarithmic_creep.CAUSE,
         second_resonance.CAUSE,
         sensor_offset_drift.CAUSE,
+        sensitivity_drift.CAUSE,
         mains_pickup.CAUSE,
         input_delay.CAUSE,
         hysteresis_order.CAUSE,

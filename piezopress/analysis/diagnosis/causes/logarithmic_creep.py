@@ -83,7 +83,8 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         d = _drift_fit(ctx)
         ramp = d is not None and d.gain_pct >= MIN_GAIN_PCT
     # the force as the accepted reading terms (drift) leave it
-    _, y = _slow(run, run.y - drift * run.t_s - ctx.model.hysteresis.y0)
+    # (and a drifting gain of the reading: the force the hold applied)
+    _, y = _slow(run, run.y / ctx.model.reading_gain(run) - drift * run.t_s - ctx.model.hysteresis.y0)
     if t.size < 50:
         return None
     k = int(t.size * 0.6)

@@ -1,0 +1,182 @@
+"""The catalogue's cause ``sensitivity_drift``: its fit (the signature it keys on, the extension judged
+on held-out data) and its entry in the catalogue (:data:`CAUSE`).
+
+A drifting sensitivity changes the reading's gain over the hours of a test. Inside one run it
+cannot be told from an offset drift plus a creep the model got wrong (the three move a held
+level alike), so it is judged where only a gain change can move the reading: the same drive
+played again later in the test (a repeat). The press's hysteresis and creep give the repeat
+the same response, whatever the time between; a drifting gain scales it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import datetime
+
+import numpy as np
+
+from piezopress import units
+from piezopress.analysis import creep as creep_mod
+from piezopress.analysis.diagnosis.cause import Cause
+from piezopress.analysis.diagnosis.judging import Context, Finding
+from piezopress.analysis.diagnosis.model import RunData
+from piezopress.analysis.diagnosis.needs import Need, RunSpec, same_drive
+from piezopress.analysis.diagnosis.residuals import rms
+from piezopress.errors import CompensatorUnstableError
+
+#: A repeat is compared from this share of its samples on: the first cycle wipes out the
+#: memory of what was played before it (a loop's state, the creep of the run before).
+REPEAT_FROM = 0.3
+#: A repeat is judged when it lasts this long (s): a step's tenth of a second holds too few blocks.
+REPEAT_MIN_S = 10.0
+#: A repeat is compared averaged over this many blocks per drive period.
+BLOCKS_PER_PERIOD = 20
+
+
+def test_clock(runs: list[RunData]) -> dict[str, float]:
+    """Each run's start on the test's clock (seconds from the first run's start), from the start
+    time its metadata records (``started_utc``); a run starts no earlier than the run before it
+    ended (a simulated press is played faster than real time). Runs without one are left out."""
+    timed = []
+    for r in runs:
+        try:
+            ts = datetime.fromisoformat(str(r.meta.get("started_utc")).replace("Z", "+00:00")).timestamp()
+        except ValueError:
+            continue
+        timed.append((ts, r))
+    timed.sort(key=lambda p: p[0])
+    clock: dict[str, float] = {}
+    end = None
+    for ts, r in timed:
+        t = ts - timed[0][0] if end is None else max(ts - timed[0][0], end)
+        clock[r.ident] = t
+        end = t + r.duration_s
+    return clock
+
+
+def repeats(runs: list[RunData], clock: dict[str, float]) -> list[list[RunData]]:
+    """Runs of the same drive played at different times (each group in time order, two or more)."""
+    groups: list[list[RunData]] = []
+    for r in sorted((r for r in runs if r.ident in clock), key=lambda r: clock[r.ident]):
+        for g in groups:
+            if same_drive(g[0], r):
+                g.append(r)
+                break
+        else:
+            groups.append([r])
+    return [g for g in groups if len(g) > 1]
+
+
+def _blocks(a: np.ndarray, n: int) -> np.ndarray:
+    """``a`` averaged over blocks of ``n`` samples (the noise averages out, a loop's shape stays)."""
+    m = a.size // n
+    return a[: m * n].reshape(m, n).mean(axis=1)
+
+
+def _detrended(a: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``a`` with its least-squares offset and slope over ``t`` removed."""
+    A = np.column_stack([np.ones_like(t), t - t.mean()])
+    return a - A @ np.linalg.lstsq(A, a, rcond=None)[0]
+
+
+def _creep_without_drift(ctx: Context, hold: RunData, rate: float, clock: dict[str, float], ref: float):
+    """The base model's creep fitted again, in its form, on ``hold`` with the gain drift taken out
+    (None where its form is not one a held step fits, or the fit fails)."""
+    creep = ctx.model.creep
+    if creep is None or creep.form not in creep_mod.FORMS + ("spectrum",):
+        return None
+    gain = 1.0 + rate * (clock[hold.ident] + hold.t_s - ref)
+    try:
+        fit = creep_mod.fit_held_step(
+            hold.t_s, ctx.model.static(hold), hold.x, hold.y / gain, hold.fs_hz, forms=(creep.form,)
+        )
+        fit.model.check_stable(hold.fs_hz)
+    except (creep_mod.FitError, CompensatorUnstableError, ValueError, np.linalg.LinAlgError):
+        return None
+    return fit.model
+
+
+def cause_sensitivity_drift(ctx: Context) -> Finding | None:
+    """A drifting gain keys on the test's clock and on the level read: a repeat reads the first
+    run scaled by ``1 + k dT`` (``dT`` the time between them), where an offset drift only shifts
+    it (taken out: each repeat's offset and slope against its first run are free). ``k`` is
+    fitted on the other repeats and judged on each in turn (leave one out); with one repeat
+    only, on itself, and the evidence says so (weak)."""
+    clock = test_clock(ctx.runs)
+    pairs = []  # (first run, repeat, time between, first detrended, difference detrended, floor)
+    for g in repeats([r for r in ctx.runs if r.t_s[-1] >= REPEAT_MIN_S], clock):
+        for r in g[1:]:
+            first = g[0]
+            k0 = int(REPEAT_FROM * r.t_s.size)
+            # averaged over a twentieth of the drive's period: the gain scales the loop, the noise averages out
+            f = r.estimated_freq_hz()
+            n = max(1, int(round(r.fs_hz / (BLOCKS_PER_PERIOD * f)))) if f > 0 else max(1, int(r.fs_hz * 0.5))
+            t, yi, yj = (_blocks(a[k0:], n) for a in (r.t_s, first.y, r.y))
+            if t.size < 8:
+                continue
+            floor = float(np.hypot(ctx.floor[first.name], ctx.floor[r.name])) / np.sqrt(n)
+            pairs.append(
+                (first, r, clock[r.ident] - clock[first.ident], _detrended(yi, t), _detrended(yj - yi, t), floor)
+            )
+    if not pairs:
+        return None
+
+    def rate(use):
+        num = sum(dt * float(yi @ d) for _, _, dt, yi, d, _ in use)
+        den = sum(dt * dt * float(yi @ yi) for _, _, dt, yi, _, _ in use)
+        return num / den if den > 0 else 0.0
+
+    k_all = rate(pairs)
+    base_e, ext_e, by_run = [], [], {}
+    for i, (_, r, dt, yi, d, _) in enumerate(pairs):
+        k = rate(pairs[:i] + pairs[i + 1 :]) if len(pairs) > 1 else k_all
+        e = d - k * dt * yi
+        base_e.append(d)
+        ext_e.append(e)
+        by_run[r.name] = 100.0 * (rms(d) - rms(e)) / rms(d) if rms(d) > 0 else 0.0
+    baseline, extended = rms(np.concatenate(base_e)), rms(np.concatenate(ext_e))
+    fitted = [clock[r.ident] for r in ctx.runs if r.ident in clock and ctx.is_fitted(r)]
+    ref = float(np.mean(fitted)) if fitted else float(np.mean(list(clock.values())))
+    # The drift goes on inside every run. The hold the base model's creep was fitted on holds its
+    # share of it already (a static loop holds none of a sweep's): that creep is fitted again, in
+    # its own form, on the hold with the drift taken out; where it cannot be, the drift is left
+    # out of that hold instead (it would be counted twice there, and read as creep by the next cause).
+    creep, holds = ctx.model.creep, [r for r in ctx.runs if r.kind == "creep" and ctx.is_fitted(r) and r.ident in clock]
+    refit = _creep_without_drift(ctx, max(holds, key=lambda r: r.duration_s), k_all, clock, ref) if holds else None
+    inside = {r.ident: refit is not None or not (r.kind == "creep" and ctx.is_fitted(r)) for r in ctx.runs}
+    starts = tuple(sorted((ident, start, inside[ident]) for ident, start in clock.items()))
+    ext = replace(ctx.model, gain_drift=(k_all, ref, starts), creep=refit or creep)
+    u = ctx.model.unit
+    said = ", ".join(f"{r.name} {dt / 60:.3g} min after {f.name}" for f, r, dt, *_ in pairs[:3])
+    ev = (
+        f"the reading's gain drifts {100 * 3600 * k_all:.3g} % per hour: the same drive played again later reads "
+        f"the first run scaled ({said}{', ...' if len(pairs) > 3 else ''}), beyond an offset and a slope; "
+        f"held-out RMS of the repeats' differences {extended:.3g} {units.label(u)} with the gain drift, "
+        f"{baseline:.3g} without"
+    )
+    return Finding(
+        "sensitivity_drift",
+        ev,
+        baseline,
+        extended,
+        100.0 * (baseline - extended) / baseline if baseline > 0 else 0.0,
+        {"gain_drift_per_h": 3600.0 * k_all, "repeats": float(len(pairs))},
+        sorted({p[0].name for p in pairs} | {p[1].name for p in pairs}),
+        [p[1].name for p in pairs],
+        max(float(np.ptp(p[1].y)) for p in pairs),
+        float(np.median([p[5] for p in pairs])),
+        ext,
+        by_run if len(by_run) > 1 else {},
+    )
+
+
+#: The catalogue's entry for this cause (read by every place that names causes).
+CAUSE = Cause(
+    "sensitivity_drift",
+    "the load cell's sensitivity drifts over the hours of a test (bridge excitation, the gauges' temperature): "
+    "the reading's gain changes with time",
+    "a gain-drift term of the reading on the test's clock (the runs' recorded start times)",
+    cause_sensitivity_drift,
+    needs=(Need((RunSpec("repeat", min_duration_s=REPEAT_MIN_S),), 2),),
+    precedence=1,  # judged on repeats of one drive: no cause of the press's physics explains it
+)
