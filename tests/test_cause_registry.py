@@ -111,3 +111,43 @@ def test_the_test_presses_hide_two_effects_at_once():
                 assert lo <= abs(params[key]) <= hi, (mod.__name__, key, params[key])
     assert ip.plan_for("amplifier_slew_limit+sensor_offset_drift") == ip.PLAN_WITHOUT_REST
     assert ip.plan_for("input_delay+drive_coupled_interference") is None
+
+
+def test_a_finding_names_the_cause_it_could_be_when_that_one_explained_the_same_residual(monkeypatch):
+    """Issue 20, how sure: a cause that cleared the bar beside the one taken, and that nothing
+    was left for once it was taken, is said as what the finding could also be (with its gain);
+    a cause named after it (a second effect) is not."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from piezopress.analysis.diagnosis import search
+    from piezopress.analysis.hysteresis import PIModel
+
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    t = np.arange(0, 10, 1e-3)
+    x = 50 + 50 * np.sin(2 * np.pi * 0.5 * t)
+    run = dg.RunData("sweep", "sine", t, x, np.zeros_like(t), 1000.0)
+    y = model.predict(run) + 3.0 * np.sin(2 * np.pi * 7 * t) + np.random.default_rng(0).normal(0, 0.1, t.size)
+    run = replace(run, y=y)
+
+    def fake(cause: str, first: float, after_a: float):
+        def fit(ctx):
+            g = after_a if ctx.model.delay_s > 0 else first
+            ext = replace(ctx.model, delay_s=1e-3) if cause == "a" else ctx.model
+            return dg.Finding(cause, "t", 1.0, 1 - g / 100, g, {}, ["sweep"], ["sweep"], 10.0, 0.1, ext)
+
+        return fit
+
+    causes = {
+        "a": dg.Cause("a", "p", "e", fake("a", 60.0, 60.0)),
+        "b": dg.Cause("b", "p", "e", fake("b", 50.0, 5.0)),  # took nothing once a was in the model
+        "c": dg.Cause("c", "p", "e", fake("c", 40.0, 40.0)),  # a second effect: named after a
+    }
+    monkeypatch.setattr(search, "CAUSES", causes)
+    res = search.diagnose(model, [run], causes=list(causes))
+    assert [f.cause for f in res.findings] == ["a", "c"]
+    a, c = res.findings
+    assert a.could_also_be == {"b": 50.0} and c.could_also_be == {}
+    assert "a could also be b (held-out gain 50 % before a was taken)" in res.summary
+    assert a.as_dict()["could_also_be_gain_pct"] == {"b": 50.0}

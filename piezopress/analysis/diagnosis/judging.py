@@ -103,6 +103,9 @@ class Finding:
     model: Model
     #: the held-out gain (%) on each held-out run alone, where more than one run judges it
     gain_by_run: dict[str, float] = field(default_factory=dict)
+    #: causes that also cleared the bar in the round this one was taken and were never named
+    #: after it: what they explained, this finding explained too (cause -> its held-out gain then, %)
+    could_also_be: dict[str, float] = field(default_factory=dict)
 
     @property
     def unit(self) -> str:
@@ -165,6 +168,7 @@ class Finding:
             "gain_by_heldout_run_pct": {r: float(g) for r, g in self.gain_by_run.items()},
             "evidence_strength": self.strength,
             "evidence_strength_text": self.strength_text(),
+            "could_also_be_gain_pct": {c: float(g) for c, g in self.could_also_be.items()},
         }
 
 

@@ -169,6 +169,7 @@ def diagnose(
     checks = {cid: testability(CAUSES[cid], ctx) for cid in asked}
     todo = [cid for cid in asked if checks[cid].testable]
     rnd = 0
+    rivals: dict[str, tuple[str, float]] = {}  # a cause accepted beside a winner -> (that winner, its gain then)
     while todo and len(findings) < MAX_FINDINGS:
         tried = []
         rnd += 1
@@ -197,10 +198,18 @@ def diagnose(
         if not ok:
             break
         best = max(ok, key=lambda f: (CAUSES[f.cause].precedence, f.gain_pct))
+        rivals.update({f.cause: (best.cause, f.gain_pct) for f in ok if f is not best})
         findings.append(best)
         todo.remove(best.cause)
         last_try.pop(best.cause, None)
         ctx = Context(runs, best.model, ctx.fitted_runs, floor)  # extend and look again
+    # a cause that cleared the bar beside a winner and was never named after it: the winner took
+    # what it explained, so the finding could be that cause instead (said, with its gain then)
+    named = {f.cause for f in findings}
+    findings = [
+        replace(f, could_also_be={c: g for c, (w, g) in rivals.items() if w == f.cause and c not in named})
+        for f in findings
+    ]
     findings.sort(key=lambda f: -f.gain_pct)
     after = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
     k, u = units.key(base.unit), units.label(base.unit)
@@ -278,6 +287,11 @@ def diagnose(
         head = f"The one cause tried ({names[0]}) does not explain the residual ({numbers})"
     else:
         head = f"None of the {len(names)} causes tried ({', '.join(names)}) explains the residual ({numbers})"
+    for f in findings:
+        if f.could_also_be:  # how sure: another cause explained the same residual before this one was taken
+            head += f"; {f.cause} could also be " + " or ".join(
+                f"{c} (held-out gain {g:.0f} % before {f.cause} was taken)" for c, g in f.could_also_be.items()
+            )
     weak = [f for f in findings if f.strength == "weak"]
     if weak:  # how sure: a finding backed by one held-out run, or not by a third of them, is said to be
         head += "; weak evidence for " + ", ".join(f"{f.cause} ({f.strength_text().split(': ', 1)[1]})" for f in weak)
