@@ -70,7 +70,10 @@ PAIRS = (
 def _repeat_plan(effect: str) -> Path | None:
     """A drifting sensitivity shows only between runs of one drive apart in time: its cases play the
     default plan with the slowest triangle again at the end (tests/plans/characterize-repeat.toml)."""
-    return ROOT / "tests" / "plans" / "characterize-repeat.toml" if "sensitivity_drift" in effect.split("+") else None
+    sys.path.insert(0, str(ROOT / "tests"))
+    import independent_press as ip
+
+    return ip.PLAN_WITH_REPEAT if "sensitivity_drift" in effect.split("+") else None
 
 
 def _third_press(effect: str, seed: int):

@@ -115,8 +115,9 @@ def fit_shaper_section(paths: Iterable[str | Path], *, names: Iterable[str] = ()
     """``fit-shaper``: :func:`~piezopress.analysis.identification.shaper_section` on the
     low-amplitude steps among ``paths`` (or those named), the drive chain told apart on every step."""
     names = list(names)
-    runs = select_shaper_runs(paths, names)
-    steps = [r for r in collect_runs(paths) if ident.kind_of(r) == "step"] if not names else runs
+    given = collect_runs(paths, names=names)
+    runs = ident.shaper_runs(given, bool(names))
+    steps = [r for r in given if ident.kind_of(r) == "step"] if not names else runs
     body, fit = ident.shaper_section(runs, steps, fs_hz=fs_hz)
     return section("shaper", body, runs, shaper_digest(runs, fs_hz)), fit
 

@@ -14,8 +14,8 @@ and ``bench/bench_diagnose.py`` is the full measurement over 20 seeds.
 
 import json
 import re
-from pathlib import Path
 
+import independent_press as ip
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -36,7 +36,7 @@ SEED = 20261121
 
 #: A drifting sensitivity shows only between two runs of one drive apart in time: the default
 #: plan with its slowest triangle played again at the end.
-REPEAT_PLAN = Path(__file__).resolve().parent / "plans" / "characterize-repeat.toml"
+REPEAT_PLAN = ip.PLAN_WITH_REPEAT
 
 
 def run_diagnosis(tmp, cfg, plan=None):

@@ -46,7 +46,7 @@ def test_the_tests_clock_orders_runs_and_never_overlaps_them():
         return dg.RunData(name, "triangle", t, t, t, 100.0, meta={"started_utc": started})
 
     a, b, c = run("a", "2026-01-01T10:00:00Z"), run("b", "2026-01-01T10:00:00Z"), run("c", "2026-01-01T10:05:00Z")
-    clock = dg.test_clock([c, a, b, dg.RunData("x", "triangle", t, t, t, 100.0)])
+    clock = dg.run_starts([c, a, b, dg.RunData("x", "triangle", t, t, t, 100.0)])
     assert clock == {"a": 0.0, "b": pytest.approx(10.0), "c": pytest.approx(300.0)}  # b after a ends; x untimed
 
 

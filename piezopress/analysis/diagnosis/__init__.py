@@ -82,14 +82,13 @@ from piezopress.analysis.diagnosis.causes.sensitivity_drift import (  # noqa: F4
     REPEAT_FROM,
     cause_sensitivity_drift,
     repeats,
-    test_clock,
+    run_starts,
 )
 from piezopress.analysis.diagnosis.causes.sensor_offset_drift import (  # noqa: F401
     cause_sensor_offset_drift,
 )
 from piezopress.analysis.diagnosis.judging import (  # noqa: F401
     CHAIN_LAG_S,
-    MAX_FINDINGS,
     MIN_GAIN_PCT,
     MIN_IMPROVEMENT_TO_FLOOR,
     MIN_MODE2_SHARE,

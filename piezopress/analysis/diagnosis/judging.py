@@ -23,8 +23,6 @@ MIN_RESIDUAL_TO_FLOOR = 1.5
 MIN_IMPROVEMENT_TO_FLOOR = 0.5
 #: Residual structure above this many noise floors that no finding covers is "unexplained".
 UNEXPLAINED_RATIO = 2.5
-#: At most this many findings: the whole catalogue (each accepted one extends the model for the next round).
-MAX_FINDINGS = len(("rate", "slew", "interference", "creep", "mode2", "drift", "delay", "order", "mains", "gain"))
 
 
 # --------------------------------------------------------------------------- the search

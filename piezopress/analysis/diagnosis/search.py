@@ -13,7 +13,6 @@ from piezopress.analysis import creep as creep_mod
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis.diagnosis.causes import CAUSES
 from piezopress.analysis.diagnosis.judging import (
-    MAX_FINDINGS,
     MIN_RESIDUAL_TO_FLOOR,
     UNEXPLAINED_RATIO,
     Context,
@@ -170,7 +169,7 @@ def diagnose(
     todo = [cid for cid in asked if checks[cid].testable]
     rnd = 0
     rivals: dict[str, tuple[str, float]] = {}  # a cause accepted beside a winner -> (that winner, its gain then)
-    while todo and len(findings) < MAX_FINDINGS:
+    while todo:  # at most one finding per cause: each accepted one leaves the list and extends the model
         tried = []
         rnd += 1
         for i, cid in enumerate(todo, 1):

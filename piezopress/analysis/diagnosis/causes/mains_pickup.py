@@ -14,7 +14,7 @@ from piezopress.analysis.diagnosis.cause import Cause
 from piezopress.analysis.diagnosis.judging import Context, Finding
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import judged, noise_floor, rms
-from piezopress.analysis.signatures import fit_line, line_of, quiet_stretches
+from piezopress.analysis.signatures import drive_independent_lines, fit_line, line_of, quiet_stretches
 
 #: A mains line is fitted in a run only where the drive puts less than this share of the line's
 #: size at its frequency (through the model's gain): where the drive moves there (a 10 Hz
@@ -27,8 +27,6 @@ MAINS_FIT_FRACTION = 0.6
 def _mains_lines(ctx: Context) -> list:
     """The lines of the current residual at a mains frequency or harmonic, independent of the
     drive (:func:`piezopress.analysis.signatures.drive_independent_lines`)."""
-    from piezopress.analysis.signatures import drive_independent_lines
-
     found = drive_independent_lines(
         [(judged(r, r.t_s), judged(r, r.x), judged(r, r.y - ctx.pred(r)), r.fs_hz, r.name) for r in ctx.runs]
     )

@@ -33,7 +33,7 @@ REPEAT_MIN_S = 10.0
 BLOCKS_PER_PERIOD = 20
 
 
-def test_clock(runs: list[RunData]) -> dict[str, float]:
+def run_starts(runs: list[RunData]) -> dict[str, float]:
     """Each run's start on the test's clock (seconds from the first run's start), from the start
     time its metadata records (``started_utc``); a run starts no earlier than the run before it
     ended (a simulated press is played faster than real time). Runs without one are left out."""
@@ -102,7 +102,7 @@ def cause_sensitivity_drift(ctx: Context) -> Finding | None:
     it (taken out: each repeat's offset and slope against its first run are free). ``k`` is
     fitted on the other repeats and judged on each in turn (leave one out); with one repeat
     only, on itself, and the evidence says so (weak)."""
-    clock = test_clock(ctx.runs)
+    clock = run_starts(ctx.runs)
     pairs = []  # (first run, repeat, time between, first detrended, difference detrended, floor)
     for g in repeats([r for r in ctx.runs if r.t_s[-1] >= REPEAT_MIN_S], clock):
         for r in g[1:]:
