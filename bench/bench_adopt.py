@@ -129,7 +129,7 @@ def main() -> None:
         )
         for cause, why in r["reasons"].items():
             print(f"      {cause}: {why}")
-        if a.table == f"{r['effect']}-{r['seed']}":
+        if a.table == f"{r['effect']}-{r['seed']}" or r["rec_worse"]:  # a case that failed: its tables
             print("\n" + r["gain_table"] + "\n\n" + r["final_table"] + "\n")
     print(f"\nRecommended worse than fitted on some row beyond the spread: {worse_cases} of {len(results)} cases")
 

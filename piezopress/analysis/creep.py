@@ -57,7 +57,7 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from scipy import signal
+from scipy import fft, signal
 from scipy.optimize import least_squares
 from scipy.signal import lfilter
 
@@ -113,6 +113,29 @@ POLE_TAU_MAX_RECORDS = 10.0
 MAX_MODAL_CONDITION = 1e6
 #: A term whose decay per sample is below this has no memory at that rate (tau < dt / 36).
 STATIC_DECAY = 1e-16
+
+#: :meth:`CreepModel.output` convolves through FFTs from this many terms on this many samples
+#: (below them, the terms one by one cost less than the transforms).
+FFT_MIN_TERMS = 6
+FFT_MIN_SAMPLES = 4096
+
+
+@lru_cache(maxsize=8)
+def _impulse_spectrum(
+    taus_s: tuple[float, ...], gains: tuple[float, ...], static_gain: float, fs_hz: float, n: int, size: int
+) -> np.ndarray:
+    """The real FFT (``size`` points) of the creep model's response to a unit sample held over
+    one period, over ``n`` samples: ``K_c + sum_k g_k (1 - a_k)`` at 0, ``sum_k g_k (1 - a_k) a_k^j`` after."""
+    a, one_minus_a = _decays(np.asarray(taus_s), fs_hz)
+    j = np.arange(n, dtype=np.float64)
+    h = np.zeros(n)
+    for ak, ck in zip(a, np.asarray(gains) * one_minus_a):
+        h += ck * np.power(ak, j)
+    h[0] += static_gain
+    out = fft.rfft(h, size)
+    out.setflags(write=False)
+    return out
+
 
 # the thesis's creep model (Eq. 6.1) with K_c = 1 (Section 6.3.1)
 _THESIS = {"K": 0.0246, "T_z_s": 29.074, "T1_s": 46.223, "T2_s": 1.5618, "T3_s": 0.001}
@@ -370,6 +393,20 @@ class CreepModel:
             y = y + xk
             x_end[k] = xk[-1]
         return y, x_end
+
+    def output(self, u, fs_hz: float) -> np.ndarray:
+        """:meth:`response`'s output from rest (no state returned). A model of many terms on a
+        long input is simulated by one convolution with its impulse response through FFTs
+        (:data:`FFT_MIN_TERMS`, :data:`FFT_MIN_SAMPLES`): the same output to rounding (about
+        1e-13 of its largest value) in a fraction of the time the terms take one by one."""
+        u = _signal("CreepModel.output", "u", u)
+        fs = _positive("CreepModel.output", "fs_hz", fs_hz)
+        n = u.size
+        if len(self.taus_s) < FFT_MIN_TERMS or n < FFT_MIN_SAMPLES:
+            return self.response(u, fs)[0]
+        size = fft.next_fast_len(2 * n - 1, real=True)
+        spectrum = _impulse_spectrum(tuple(self.taus_s), tuple(self.gains), float(self.static_gain), fs, n, size)
+        return fft.irfft(fft.rfft(u, size) * spectrum, size)[:n]
 
     def closed_loop_poles(self, fs_hz: float) -> np.ndarray:
         """Discrete poles of the compensator ``1 / (K_c + C)`` at ``fs_hz``: the eigenvalues of its

@@ -48,7 +48,8 @@ predict them :data:`FAMILY_MARGIN` better than the best modified PI model.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -133,8 +134,26 @@ def invert_dead_zone_weights(d: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, 
 
 
 def dead_zone_superposition(p: np.ndarray, d: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """``sum_j s_j S_{d_j}[p]`` (thesis Eq. 3.7)."""
-    return operators.dead_zone(p, d) @ np.asarray(s, float)
+    """``sum_j s_j S_{d_j}[p]`` (thesis Eq. 3.7).
+
+    The sum is piecewise linear in ``p`` with its corners at the thresholds: evaluated as the
+    line through its values there (and its end slopes beyond them) rather than as ``m``
+    operators on every sample, which costs ``m`` times as much for the same result (within
+    rounding; thresholds not in increasing order are summed operator by operator)."""
+    p = np.asarray(p, dtype=np.float64)
+    d = np.atleast_1d(np.asarray(d, dtype=np.float64))
+    s = np.atleast_1d(np.asarray(s, dtype=np.float64))
+    if d.size > 1 and not np.all(np.diff(d) > 0):
+        return operators.dead_zone(p, d) @ s
+    if p.size == 0:
+        return np.zeros(p.shape)
+    # the corners, and a point beyond the input on each side (every dead zone of that side open)
+    lo, hi = min(float(p.min()), d[0]) - 1.0, max(float(p.max()), d[-1]) + 1.0
+    if not (math.isfinite(lo) and math.isfinite(hi)):  # a gap (NaN) stays a gap
+        return operators.dead_zone(p, d) @ s
+    knots = np.concatenate([[lo], d, [hi]])
+    at = operators.dead_zone(knots, d) @ s
+    return np.interp(p, knots, at)
 
 
 # --------------------------------------------------------------------------- the model
@@ -737,6 +756,82 @@ def _partial_sums(idx0: int, n_neg: int, n_pos: int) -> np.ndarray:
         M[n_pos + j, idx0 - j : idx0 + 1] = 1.0
     return M
 
+@dataclass(frozen=True)
+class _Program:
+    """A quadratic program compiled once (cvxpy's parametrized form) and solved again with new
+    values of its parameters: the structure search solves programs of a few shapes many times,
+    and building each anew cost cvxpy more than solving it."""
+
+    problem: Any
+    params: dict[str, Any]
+    variables: dict[str, Any]
+
+
+#: Compiled programs by shape, one set per thread (a program's parameters are its state).
+_PROGRAMS = threading.local()
+#: Shapes kept per thread (the oldest leaves first).
+PROGRAMS_KEPT = 64
+
+
+def _template(key: tuple, build: Callable[[], _Program]) -> _Program:
+    """The program of this shape, compiled on first use and solved once then with placeholder
+    values (a feasible identity problem), so that every solve of real data takes the same path:
+    cvxpy's first solve of a program builds its data another way, and the solution moves by the
+    solver's tolerance, so a fit would depend on what was fitted before it in the process."""
+    import cvxpy as cp
+
+    programs = _PROGRAMS.__dict__.setdefault("by_shape", {})
+    if key not in programs:
+        if len(programs) >= PROGRAMS_KEPT:
+            programs.pop(next(iter(programs)))
+        program = build()
+        for param in program.params.values():
+            param.value = np.eye(*param.shape) if len(param.shape) == 2 else np.ones(param.shape)
+        try:
+            program.problem.solve(solver=cp.CLARABEL)
+        except cp.error.SolverError:  # the real data's solve says what went wrong
+            pass
+        programs[key] = program
+    return programs[key]
+
+
+def _plays_program(nr: int, nd: int, M: np.ndarray) -> _Program:
+    """QP 1 of :func:`fit_structure` without a plane: ``min |L theta|^2`` over ``theta = (w, c, v)``
+    with the plays' and the inverse dead zones' slope bounds and the loading curve through ``u_max``."""
+    import cvxpy as cp
+
+    n = nr + 1 + nd
+    params = {
+        "L": cp.Parameter((n, n)),
+        "load": cp.Parameter(nr, nonneg=True),
+        "u_max": cp.Parameter(),
+        "lo": cp.Parameter(),
+        "hi": cp.Parameter(),
+    }
+    theta = cp.Variable(n)
+    w, v = theta[:nr], theta[nr + 1 :]
+    cons = [
+        w[0] >= PLAY_SLOPE_MIN,
+        w[1:] >= 0,
+        M @ v >= params["lo"],
+        M @ v <= params["hi"],
+        cp.sum(w) <= PLAY_SLOPE_MAX,
+        params["load"] @ w == params["u_max"],
+    ]
+    return _Program(cp.Problem(cp.Minimize(cp.sum_squares(params["L"] @ theta)), cons), params, {"theta": theta})
+
+
+def _dead_zone_program(M: np.ndarray) -> _Program:
+    """QP 2 of :func:`fit_structure`: ``min |L (s, offset, 1)|^2`` with the dead zones' slopes in ``[lo, hi]``."""
+    import cvxpy as cp
+
+    params = {"L": cp.Parameter((M.shape[0] + 2, M.shape[0] + 2)), "lo": cp.Parameter(), "hi": cp.Parameter()}
+    s, offset = cp.Variable(M.shape[0]), cp.Variable(1)
+    obj = cp.sum_squares(params["L"] @ cp.hstack([s, offset, np.ones(1)]))
+    problem = cp.Problem(cp.Minimize(obj), [M @ s >= params["lo"], M @ s <= params["hi"]])
+    return _Program(problem, params, {"s": s, "offset": offset})
+
+
 
 def _check_rising(data: HysteresisData) -> None:
     """Refuse runs whose output falls as the input rises: each run on its own (one reversed run
@@ -794,14 +889,24 @@ def fit_structure(
     # weights mu, inverse dead-zone weights v and an offset c (the rest level is an estimate)
     G = _gram([(a, np.ones((a.shape[0], 1)), -b) for a, b in zip(A, B)])
     L = _factor(G)
-    theta = cp.Variable(nr + nc + 1 + d_inv.size)
-    w, v = theta[:nr], theta[nr + nc + 1 :]
-    load = np.maximum(u_max - r, 0.0) @ w
-    objective = cp.sum_squares(L @ theta)
-    cons = [w[0] >= PLAY_SLOPE_MIN, w[1:] >= 0, M @ v >= 1.0 / (k * g), M @ v <= k / g]
-    if plane is None:
-        cons.append(cp.sum(w) <= PLAY_SLOPE_MAX)
+    what = (
+        f"play/dead-zone fit ({nr} plays, {nc} plane cells, {d_inv.size} dead zones)"
+        if nc
+        else f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)"
+    )
+    if plane is None:  # one compiled program per shape, its data as parameters
+        qp = _template(("plays", nr, d_inv.size, idx0), lambda: _plays_program(nr, d_inv.size, M))
+        for name, value in (("L", L), ("load", np.maximum(u_max - r, 0.0)), ("u_max", u_max)):
+            qp.params[name].value = value
+        qp.params["lo"].value, qp.params["hi"].value = 1.0 / (k * g), k / g
+        _solve(qp.problem, what)
+        theta = qp.variables["theta"]
     else:
+        theta = cp.Variable(nr + nc + 1 + d_inv.size)
+        w, v = theta[:nr], theta[nr + nc + 1 :]
+        load = np.maximum(u_max - r, 0.0) @ w
+        objective = cp.sum_squares(L @ theta)
+        cons = [w[0] >= PLAY_SLOPE_MIN, w[1:] >= 0, M @ v >= 1.0 / (k * g), M @ v <= k / g]
         mu = theta[nr : nr + nc]
         rows_a, rows_b = plane._membership()
         rest = plane.rest_state()
@@ -816,13 +921,9 @@ def fit_structure(
             cp.sum(w) + rows_a @ mu / plane.width <= PLAY_SLOPE_MAX,
             cp.sum(w) + rows_b @ mu / plane.width <= PLAY_SLOPE_MAX,
         ]
-    cons.append(load == u_max)
-    _solve(
-        cp.Problem(cp.Minimize(objective), cons),
-        f"play/dead-zone fit ({nr} plays, {nc} plane cells, {d_inv.size} dead zones)"
-        if nc
-        else f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)",
-    )
+        cons.append(load == u_max)
+        _solve(cp.Problem(cp.Minimize(objective), cons), what)
+    w, v = theta[:nr], theta[nr + nc + 1 :]
     w_val = np.maximum(np.asarray(w.value, float), 0.0)
     w_val[0] = max(w_val[0], PLAY_SLOPE_MIN)
     mu_val = np.maximum(np.asarray(theta.value[nr : nr + nc], float), 0.0)
@@ -842,10 +943,11 @@ def fit_structure(
     zt = [z[m] for z, m in zip(data.z, masks)]
     # columns: dead zones, a free output offset (the rest level is only an estimate), -z
     L2 = _factor(_gram([(dm, np.ones((dm.shape[0], 1)), -zz[:, None]) for dm, zz in zip(D, zt)]))
-    s = cp.Variable(d_fwd.size)
-    offset = cp.Variable(1)
-    obj = cp.sum_squares(L2 @ cp.hstack([s, offset, np.ones(1)]))
-    _solve(cp.Problem(cp.Minimize(obj), [M @ s >= g / k, M @ s <= g * k]), "forward dead-zone refit")
+    qp = _template(("dead zones", d_fwd.size, idx0), lambda: _dead_zone_program(M))
+    qp.params["L"].value = L2
+    qp.params["lo"].value, qp.params["hi"].value = g / k, g * k
+    _solve(qp.problem, "forward dead-zone refit")
+    s, offset = qp.variables["s"], qp.variables["offset"]
     s_val = np.asarray(s.value, float)
     if not np.all(np.isfinite(s_val)) or not np.isfinite(offset.value[0]):
         raise HysteresisFitError(

@@ -80,14 +80,11 @@ def quiet_stretches(t: np.ndarray, x: np.ndarray, fs: float) -> list[slice]:
     moving[0] = True  # a run's start: the state before it is unknown
     settle = int(math.ceil(SETTLE_S * fs))
     need = int(math.ceil(QUIET_MIN_S * fs))
-    out = []
     starts = np.flatnonzero(moving)
     ends = np.append(starts[1:], x.size)
-    for s, e in zip(starts, ends):
-        a = s + 1 + settle
-        if e - a >= need:
-            out.append(slice(int(a), int(e)))
-    return out
+    begins = starts + 1 + settle  # each stretch from SETTLE_S after the drive's last change
+    keep = ends - begins >= need
+    return [slice(int(a), int(e)) for a, e in zip(begins[keep], ends[keep])]
 
 
 def _spectrum(e: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:

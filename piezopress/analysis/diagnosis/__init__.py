@@ -113,6 +113,7 @@ from piezopress.analysis.diagnosis.judging import (  # noqa: F401
 )
 from piezopress.analysis.diagnosis.model import (  # noqa: F401
     _CREEP_MEMO,
+    _PLAY_MEMO,
     _STATIC_MEMO,
     Model,
     RunData,

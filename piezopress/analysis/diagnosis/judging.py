@@ -40,6 +40,8 @@ class Context:
     fitted_runs: frozenset[str]
     floor: dict[str, float]
     cache: dict[str, np.ndarray] = field(default_factory=dict)
+    #: what the causes of one round compute alike on this context (the fast causes' baseline)
+    shared: dict[tuple, Any] = field(default_factory=dict)
 
     def pred(self, run: RunData) -> np.ndarray:
         # keyed by the run's identity (its file), never its name alone: two runs may share a name
@@ -190,8 +192,32 @@ def _err(segments: list[Segment], predict: Callable[[RunData], np.ndarray]) -> n
     return np.concatenate([(r.y - predict(r))[sl] for r, sl in segments]) if segments else np.zeros(0)
 
 
+def _reach(sl: slice | np.ndarray) -> int | None:
+    """How far into its run a segment reaches (None: to the end, or rows picked by a mask)."""
+    ends = isinstance(sl, slice) and sl.step in (None, 1) and sl.stop is not None and sl.stop >= 0
+    return sl.stop if ends else None
+
+
+def _cut(segments: list[Segment]) -> list[Segment]:
+    """The segments on their runs cut where they end (:meth:`RunData.prefix`): what a causal model
+    predicts there is the same, for fewer samples. Only for work that never mixes a cut run with
+    its whole (the context's predictions are the whole runs')."""
+    return [(r if _reach(sl) is None else r.prefix(_reach(sl)), sl) for r, sl in segments]
+
+
+def _model_err(segments: list[Segment], model: Model) -> np.ndarray:
+    """:func:`_err` of ``model``, each run simulated only as far as its segment reaches."""
+    if not segments:
+        return np.zeros(0)
+    out = []
+    for r, sl in segments:
+        stop = _reach(sl)  # None: a mask of rows, or a slice from the end: the whole run
+        out.append((r.y[:stop] - model.predict_until(r, stop))[sl])
+    return np.concatenate(out)
+
+
 def _cost(segments: list[Segment], model: Model) -> float:
-    return rms(_err(segments, model.predict))
+    return rms(_model_err(segments, model))
 
 
 def _search(objective: Callable[[float], float], lo: float, hi: float, n: int = 25, log: bool = False) -> float:
@@ -228,7 +254,7 @@ def _refit_mode(
         x0_e = np.clip(list(extra_x0), lo_e, hi_e)
         try:
             sol = optimize.least_squares(
-                lambda p: _err(fit, extra(model, p).predict), x0_e, bounds=(lo_e, hi_e), max_nfev=40
+                lambda p: _model_err(fit, extra(model, p)), x0_e, bounds=(lo_e, hi_e), max_nfev=40
             )
             return extra(model, sol.x)
         except ValueError:
@@ -244,7 +270,7 @@ def _refit_mode(
     x0 = np.clip([wn, z, *extra_x0], lo, hi)
     try:
         sol = optimize.least_squares(
-            lambda p: _err(fit, build(p).predict),
+            lambda p: _model_err(fit, build(p)),
             x0,
             bounds=(lo, hi),
             max_nfev=40,
@@ -313,17 +339,27 @@ def _forces(model: Model, runs: Sequence[RunData]) -> dict[int, np.ndarray]:
     return {id(r): model.force(r, model.static(r)) for r in runs}
 
 
+def _reading_cost(fit: list[Segment], forces: dict[int, np.ndarray]) -> Callable[[Model], float]:
+    """:func:`_cost` of models that differ from the one ``forces`` were computed with
+    (:func:`_forces`) only in what the sensor reads (delay, interference, drift): the forces
+    are not simulated again."""
+
+    def cost(model: Model) -> float:
+        return rms(np.concatenate([(r.y - model.reading(r, forces[id(r)]))[sl] for r, sl in fit]))
+
+    return cost
+
+
 def _with_chain_lag(model: Model, fit: list[Segment], n: int = 7) -> Model:
     """``model`` with the lag up to :data:`CHAIN_LAG_S` that best predicts the fitting
     segments (a model with a delay found already: that delay moved by up to as much either
     way, for it was fitted with the chain's lag in it)."""
     if not fit:
         return model
-    forces = _forces(model, {id(r): r for r, _ in fit}.values())
+    reading_cost = _reading_cost(fit, _forces(model, {id(r): r for r, _ in fit}.values()))
 
     def cost(d):
-        m = replace(model, delay_s=d)
-        return rms(np.concatenate([(r.y - m.reading(r, forces[id(r)]))[sl] for r, sl in fit]))
+        return reading_cost(replace(model, delay_s=d))
 
     grid = np.linspace(0.0, CHAIN_LAG_S, n)
     if model.delay_s > 0:
@@ -346,8 +382,11 @@ def _fast_split(ctx: Context) -> tuple[list[Segment], list[Segment]]:
 def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
     """The baseline of the fast causes: the mode refitted on the fitting steps within its
     bounds (:func:`_refit_mode`), with the chain's own lag (:func:`_with_chain_lag`)."""
-    steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
-    return _with_chain_lag(_refit_mode(ctx.model, steps_fit) if steps_fit else ctx.model, fit)
+    key = ("fast_base", tuple((id(r), sl.start, sl.stop) for r, sl in fit))
+    if key not in ctx.shared:  # the fast causes of one round share it
+        steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
+        ctx.shared[key] = _with_chain_lag(_refit_mode(ctx.model, steps_fit) if steps_fit else ctx.model, fit)
+    return ctx.shared[key]
 
 
 def _level_free(segments: list[Segment], model: Model) -> float:

@@ -4,7 +4,8 @@ the runs as it sees them."""
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -77,10 +78,52 @@ class RunData:
         """The drive actually applied: the amplifier monitor when recorded, else the command."""
         return self.monitor if self.monitor is not None else self.x
 
+    def prefix(self, stop: int) -> RunData:
+        """The run's first ``stop`` samples, as one run (the same identity); the same object
+        for the same ``stop`` while it is recent, so that predictions of it are memoised."""
+        if stop >= self.t_s.size:
+            return self
+
+        def cut() -> RunData:
+            return replace(
+                self,
+                t_s=self.t_s[:stop],
+                x=self.x[:stop],
+                y=self.y[:stop],
+                monitor=None if self.monitor is None else self.monitor[:stop],
+                judged_from=min(self.judged_from, stop),
+                held_out=None,
+            )
+
+        return _memo(_PREFIX_MEMO, (id(self), stop), self, cut)
+
 
 #: Static predictions of recent (run, static map) pairs: (run, prediction) by (id(run), map parameters).
-_STATIC_MEMO: dict[tuple, tuple[RunData, np.ndarray]] = {}
-_CREEP_MEMO: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # (static prediction, its creep response)
+_STATIC_MEMO: dict[tuple, tuple[Any, Any]] = {}
+#: The drive felt and its plays' sums, by (id(run), hysteresis, slew, lag): every rate
+#: dependence of the loop's width and every later stage reuse them.
+_PLAY_MEMO: dict[tuple, tuple[Any, Any]] = {}
+_CREEP_MEMO: dict[tuple, tuple[Any, Any]] = {}  # (static prediction, its creep response)
+_PREFIX_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a run's first samples, by (id(run), samples)
+_RATE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive rate felt, by (id(run), chain, smoothing, saturation)
+#: Entries each memo keeps (the oldest leaves first).
+MEMO_SIZE = 64
+
+
+def _memo(store: dict[tuple, tuple[Any, Any]], key: tuple, owner: Any, compute: Callable[[], Any]) -> Any:
+    """``compute()``, kept in ``store`` under ``key`` while ``owner`` (whose ``id`` the key
+    holds) is the same object; an array kept is made read-only (a tuple's parts are the
+    caller's to protect)."""
+    hit = store.get(key)
+    if hit is not None and hit[0] is owner:
+        return hit[1]
+    value = compute()
+    if isinstance(value, np.ndarray):
+        value.setflags(write=False)
+    if len(store) >= MEMO_SIZE:
+        store.pop(next(iter(store)))
+    store[key] = (owner, value)
+    return value
 
 
 @dataclass(frozen=True)
@@ -130,53 +173,74 @@ class Model:
 
     def static(self, run: RunData, x: np.ndarray | None = None) -> np.ndarray:
         """``H(x) - y0`` with the slew limit and the rate dependence, if any."""
-        key = None
-        if x is None:  # the search evaluates one static map on one run many times (only later stages change)
-            key = (
-                id(run),
-                self.hysteresis,
-                self.slew_v_per_s,
-                self.drive_tau_s,
-                self.rate_v_per_kv_s,
-                self.rate_loss_per_kv_s,
-                self.rate_saturation_v_per_s,
-                self.rate_tau_s,
-            )
-            hit = _STATIC_MEMO.get(key)
-            if hit is not None and hit[0] is run:
-                return hit[1]
-        x = run.x if x is None else x
+        if x is not None:
+            felt = self.felt(run, x)
+            return self.static_at_rate(felt, self._rate(run, felt))
+        # the search evaluates one static map on one run many times (only later stages change),
+        # and many rate dependences on one drive felt (only the plays' widening changes)
+        chain = (self.hysteresis, self.slew_v_per_s, self.drive_tau_s)
+        rate_form = (self.rate_v_per_kv_s, self.rate_loss_per_kv_s, self.rate_saturation_v_per_s, self.rate_tau_s)
+
+        def compute() -> np.ndarray:
+            def felt_plays() -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                felt = self.felt(run, run.x)
+                return felt, self._plays(felt)
+
+            felt, plays = _memo(_PLAY_MEMO, (id(run), *chain), run, felt_plays)
+            rate = None
+            if self.rate_v_per_kv_s > 0 or self.rate_loss_per_kv_s > 0:
+                rate = _memo(_RATE_MEMO, (id(run), *chain, *rate_form[2:]), run, lambda: self._rate(run, felt))
+            return self.static_at_rate(felt, rate, plays=None if self.rate_v_per_kv_s else plays)
+
+        return _memo(_STATIC_MEMO, (id(run), *chain, *rate_form), run, compute)
+
+    def felt(self, run: RunData, x: np.ndarray) -> np.ndarray:
+        """The drive the stack feels for the command ``x``: through the amplifier's own lag and
+        its slew limit, when the model has them."""
         if self.drive_tau_s > 0:  # the amplifier's own bandwidth (a held command through a first-order lag)
             x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
         if self.slew_v_per_s:
             x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
-        rate = None
-        if self.rate_v_per_kv_s > 0 or self.rate_loss_per_kv_s > 0:
-            rate = signals.rate_envelope(x, run.fs_hz, self.rate_tau_s)
-            if self.rate_saturation_v_per_s:
-                rate = self.rate_saturation_v_per_s * np.tanh(rate / self.rate_saturation_v_per_s)
-        h = self.static_at_rate(x, rate)
-        if key is not None:
-            if len(_STATIC_MEMO) >= 64:
-                _STATIC_MEMO.pop(next(iter(_STATIC_MEMO)))
-            h.setflags(write=False)
-            _STATIC_MEMO[key] = (run, h)
-        return h
+        return x
 
-    def static_at_rate(self, x: np.ndarray, rate: np.ndarray | None) -> np.ndarray:
-        """``H(x) - y0`` for a drive ``x`` (after any slew limit) when the stack feels the drive
-        rate ``rate`` (V/s, smoothed and saturated; ``None``: no rate dependence)."""
+    def _rate(self, run: RunData, felt: np.ndarray) -> np.ndarray | None:
+        """The drive rate the stack feels (smoothed and saturated; None without a rate dependence)."""
+        if not (self.rate_v_per_kv_s > 0 or self.rate_loss_per_kv_s > 0):
+            return None
+        rate = signals.rate_envelope(felt, run.fs_hz, self.rate_tau_s)
+        if self.rate_saturation_v_per_s:
+            rate = self.rate_saturation_v_per_s * np.tanh(rate / self.rate_saturation_v_per_s)
+        return rate
+
+    def _plays(self, x: np.ndarray, widen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(u, plays, plane)``: the input relative to the map's origin, the plays' weighted sum
+        (thresholds widened by ``widen``) and the plane's (0 without one)."""
         m = self.hysteresis
-        widen = self.rate_v_per_kv_s * rate / 1000.0 if self.rate_v_per_kv_s > 0 and rate is not None else None
         u = np.asarray(x, float) - m.x0
         Y = m.columns(u, widen=widen)
-        w = np.array(m.w)
-        p = Y[:, : m.n_play] @ w
+        p = Y[:, : m.n_play] @ np.array(m.w)
+        plane = Y[:, m.n_play :] @ np.array(m.plane.weights) if m.plane is not None else np.zeros_like(p)
+        for a in (u, p, plane):
+            a.setflags(write=False)
+        return u, p, plane
+
+    def static_at_rate(
+        self,
+        x: np.ndarray,
+        rate: np.ndarray | None,
+        plays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """``H(x) - y0`` for a drive ``x`` (after any slew limit) when the stack feels the drive
+        rate ``rate`` (V/s, smoothed and saturated; ``None``: no rate dependence). ``plays``:
+        :meth:`_plays` of ``x`` already computed (unwidened; not for a threshold widening)."""
+        m = self.hysteresis
+        widen = self.rate_v_per_kv_s * rate / 1000.0 if self.rate_v_per_kv_s > 0 and rate is not None else None
+        if plays is None or widen is not None:
+            plays = self._plays(x, widen)
+        u, p, plane = plays
         if self.rate_loss_per_kv_s > 0 and rate is not None:  # the plays' lag behind the drive, scaled
-            p = p + self.rate_loss_per_kv_s * rate / 1000.0 * (p - w.sum() * u)
-        if m.plane is not None:
-            p = p + Y[:, m.n_play :] @ np.array(m.plane.weights)
-        return H.dead_zone_superposition(p, np.array(m.d), np.array(m.s))
+            p = p + self.rate_loss_per_kv_s * rate / 1000.0 * (p - float(np.sum(m.w)) * u)
+        return H.dead_zone_superposition(p + plane, np.array(m.d), np.array(m.s))
 
     def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
         """Creep, mode(s), sensor low-pass and contact applied to the static prediction."""
@@ -199,17 +263,8 @@ class Model:
         if self.creep is None:
             return h
         if h.flags.writeable:
-            return self.creep.response(h, run.fs_hz)[0]
-        key = (id(h), self.creep, run.fs_hz)
-        hit = _CREEP_MEMO.get(key)
-        if hit is not None and hit[0] is h:
-            return hit[1]
-        c = self.creep.response(h, run.fs_hz)[0]
-        c.setflags(write=False)
-        if len(_CREEP_MEMO) >= 64:
-            _CREEP_MEMO.pop(next(iter(_CREEP_MEMO)))
-        _CREEP_MEMO[key] = (h, c)
-        return c
+            return self.creep.output(h, run.fs_hz)
+        return _memo(_CREEP_MEMO, (id(h), self.creep, run.fs_hz), h, lambda: self.creep.output(h, run.fs_hz))
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, gain drift, drift, hum."""
@@ -247,6 +302,19 @@ class Model:
 
     def predict(self, run: RunData) -> np.ndarray:
         return self.reading(run, self.force(run, self.static(run)))
+
+    @property
+    def causal(self) -> bool:
+        """Whether the prediction at a sample depends only on the run up to it: every stage is
+        causal but a drifting gain judged over a run's middle (its whole length)."""
+        return not self.gain_drift
+
+    def predict_until(self, run: RunData, stop: int | None) -> np.ndarray:
+        """The prediction of the run's first ``stop`` samples (all: ``None``), equal to the
+        whole run's prediction cut there; a causal model simulates only those samples."""
+        if stop is None or stop >= run.t_s.size:
+            return self.predict(run)
+        return self.predict(run.prefix(stop)) if self.causal else self.predict(run)[:stop]
 
 
 def interference_reading(run: RunData, g: float, e0: float, tau: float, g_signed: float = 0.0) -> np.ndarray:

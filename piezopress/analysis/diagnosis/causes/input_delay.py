@@ -17,8 +17,10 @@ from piezopress.analysis.diagnosis.judging import (
     _cost,
     _fast_base,
     _fast_split,
+    _forces,
     _judge,
     _judge_dynamics,
+    _reading_cost,
     _refit_mode,
     _search,
 )
@@ -108,7 +110,8 @@ def cause_input_delay(ctx: Context) -> Finding | None:
     steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
     # the baseline: the mode refitted within its bounds, and the chain's own lag (CHAIN_LAG_S)
     base = _fast_base(ctx, fit)
-    d = _search(lambda d: _cost(fit, replace(ctx.model, delay_s=d)), 0.0, 5e-3, 41)
+    delayed = _reading_cost(fit, _forces(ctx.model, [r for r, _ in fit]))  # a delay changes only the reading
+    d = _search(lambda d: delayed(replace(ctx.model, delay_s=d)), 0.0, 5e-3, 41)
     ext = replace(ctx.model, delay_s=d)
     if steps_fit:  # the mode and the delay together, on the steps and the sweeps (which pin the delay down)
         # a delay distorts the identified mode (the identification has no delay): refit both

@@ -17,6 +17,7 @@ from piezopress.analysis.diagnosis.judging import (
     Finding,
     Segment,
     _cost,
+    _cut,
     _fast_base,
     _fast_split,
     _judge_dynamics,
@@ -43,6 +44,8 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
     effect, scaled sample by sample by the form's rate and passed through creep, mode and
     sensor), then the best forms are refined on the model itself. Returns (cost, model),
     best first."""
+    if model.causal:  # every sample after a segment's end is work for nothing
+        fit = _cut(fit)
     runs = list({id(r): r for r, _ in fit}.values())
     h0 = {id(r): model.static(r) for r in runs}
     p0 = {id(r): model.reading(r, model.force(r, h0[id(r)])) for r in runs}
