@@ -52,8 +52,8 @@ def compare_cmd(bundles, out_dir, rig_path, backend_name, repeats, plans, labels
     warm-up falls on all alike. Per row of Table 6.13 and the tracking rows: each bundle's
     mean and spread over the repeats, and for each bundle after the first its change and a
     verdict: better or worse when every repeat of one beats every repeat of the other,
-    Welch's t-test gives p < 0.05 and the change is at least 5 %, else no difference beyond
-    the spread.
+    Welch's t-test gives p < 0.05 with Holm's correction over the rows and the change is at
+    least 5 %, else no difference beyond the spread.
 
     \b
     Examples:

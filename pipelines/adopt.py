@@ -4,7 +4,7 @@ press the runs came from, and the recommended bundle.
 The base bundle, each finding's extension alone (when there are several) and the extended
 bundle (every finding) are played on the press, interleaved and repeated
 (:func:`piezopress.pipelines.compare.compare`); the recommended bundle is the measured one
-that wins the most rows against the base and loses none beyond the spread
+that wins the most rows against the base and on no row is, or may be, worse
 (:func:`piezopress.analysis.ab.recommend`), the base itself when no extension does. A
 combination that was not played is never recommended.
 
@@ -148,7 +148,9 @@ def measure_on_press(
         on_warning=on_warning,
     )
     candidates = tuple(
-        ab.Candidate(lbl, c, comparison.verdicts(lbl, reference)) for lbl, c in zip(labels, causes) if lbl != reference
+        ab.Candidate.judged(lbl, c, comparison.judged(lbl, reference))
+        for lbl, c in zip(labels, causes)
+        if lbl != reference
     )
     rec = ab.recommend(candidates, f"the {reference} bundle")
     chosen = bundles[labels.index(rec.label)] if rec.label else reference_path
@@ -161,7 +163,9 @@ def measure_on_press(
         "repeats": comparison.repeats,
         "rule": (
             "better/worse: every repeat of one beats every repeat of the other, Welch's p < "
-            f"{ab.ALPHA:g} and a change of at least {ab.MIN_CHANGE_PCT:g} %"
+            f"{ab.ALPHA:g} with Holm's correction over the rows and a change of at least {ab.MIN_CHANGE_PCT:g} %; "
+            f"adopted only where no row may be worse (a change for the worse of {ab.MIN_CHANGE_PCT:g} % or more "
+            f"with Welch's p < {ab.DOUBT_ALPHA:g})"
         ),
     }
     doc["recommendation"] = {
@@ -178,12 +182,13 @@ def measure_on_press(
     write_document(doc, out, replace=True)
     # the extended bundle says what the press said of it
     ext = read_document(ext_path, "bundle")
-    c = ab.Candidate(EXTENDED_LABEL, (), comparison.verdicts(EXTENDED_LABEL))  # against the base it extends
+    c = ab.Candidate.judged(EXTENDED_LABEL, (), comparison.judged(EXTENDED_LABEL))  # against the base it extends
     ext["gain_on_press"] = {
         **measured,
         "verdicts": c.verdicts,
         "better_on": list(c.wins),
         "worse_on": list(c.losses),
+        "may_be_worse_on": c.doubts,
     }
     write_json_atomic(ext_path, ext, null_nonfinite=True)
     return Adoption(comparison, rec, out, candidates, reference)
@@ -203,12 +208,13 @@ def format_adoption(a: Adoption) -> str:
             f"Recommended: {a.recommended_path} = the {rec.label} bundle"
             + (f" ({', '.join(rec.causes)})" if rec.causes else "")
             + f", better than the {a.reference} bundle on the press on "
-            f"{', '.join(next(c for c in a.candidates if c.label == rec.label).wins)} and worse on none."
+            f"{', '.join(next(c for c in a.candidates if c.label == rec.label).wins)} and on no row worse or "
+            "possibly worse."
         )
     else:
         lines.append(
             f"Recommended: {a.recommended_path} = the {a.reference} bundle: no other bundle won a row on the press "
-            "without losing another beyond the spread."
+            "without a row where it is, or may be, worse."
         )
     for cause, why in rec.reasons.items():
         lines.append(f"  {cause}: {why}")

@@ -83,19 +83,29 @@ class Comparison:
     values: pd.DataFrame  # repeats.csv
     warnings: list[str] = field(default_factory=list)
 
+    def judged(self, label: str, against: str | None = None) -> dict[str, ab.Judged]:
+        """Each row of ``label`` against the first bundle (or ``against``), from the repeats,
+        the rows judged together (:func:`piezopress.analysis.ab.judge_rows`)."""
+        return _judged_rows(self.values, against or self.labels[0], label)
+
     def verdicts(self, label: str, against: str | None = None) -> dict[str, str]:
         """Each row's verdict for ``label`` against the first bundle (or ``against``, judged
         from the same repeats by the same rule)."""
         if against is None or against == self.labels[0]:
             t = self.table[self.table["bundle"] == label]
             return dict(zip(t["row"], t["verdict"]))
-        out = {}
-        for row, of in self.values.groupby("row", sort=False):
-            a = of[of["bundle"] == against]["value"].tolist()
-            b = of[of["bundle"] == label]["value"].tolist()
-            if a and b:
-                out[str(row)] = ab.judge(a, b).verdict
-        return out
+        return {row: j.verdict for row, j in self.judged(label, against).items()}
+
+
+def _judged_rows(values: pd.DataFrame, against: str, label: str) -> dict[str, ab.Judged]:
+    a: dict[str, list[float]] = {}
+    b: dict[str, list[float]] = {}
+    for row, of in values.groupby("row", sort=False):
+        va = of[of["bundle"] == against]["value"].tolist()
+        vb = of[of["bundle"] == label]["value"].tolist()
+        if va and vb:
+            a[str(row)], b[str(row)] = va, vb
+    return ab.judge_rows(a, b)
 
 
 def _labels(bundles: Sequence[Path], labels: Sequence[str] | None) -> list[str]:
@@ -176,8 +186,8 @@ def compare(
         "order": [],
         "rule": (
             f"each bundle against the first: lower is better; a difference counts when every repeat of one beats "
-            f"every repeat of the other, Welch's t-test gives p < {ab.ALPHA:g} and it is at least "
-            f"{ab.MIN_CHANGE_PCT:g} % of the first bundle's value"
+            f"every repeat of the other, Welch's t-test gives p < {ab.ALPHA:g} with Holm's correction over the rows "
+            f"and it is at least {ab.MIN_CHANGE_PCT:g} % of the first bundle's value"
         ),
     }
     write_json_atomic(out / COMPARE_JSON, doc, null_nonfinite=True)
@@ -227,6 +237,7 @@ def judge_table(values: pd.DataFrame, labels: Sequence[str]) -> pd.DataFrame:
     rows = sorted(set(values["row"]), key=lambda r: (order.index(r) if r in order else len(order), r))
     out = []
     ref = labels[0]
+    judged = {label: _judged_rows(values, ref, label) for label in labels}  # each bundle's rows together
     for row in rows:
         of = values[values["row"] == row]
         a = of[of["bundle"] == ref]["value"].tolist()
@@ -243,7 +254,7 @@ def judge_table(values: pd.DataFrame, labels: Sequence[str]) -> pd.DataFrame:
             if not b or not a:
                 out.append({**base, "mean": math.nan, "spread": math.nan, "verdict": "not measured"})
                 continue
-            j = ab.judge(a, b)
+            j = judged[label].get(str(row)) or ab.judge(a, b)
             if label == ref:
                 out.append({**base, "mean": j.mean_b, "spread": j.spread_b, "verdict": "reference"})
                 continue

@@ -109,11 +109,11 @@ def recommendation_blocks(diag_dir: str | Path, missing: list[str]) -> list[Bloc
     head = (
         f"Recommended bundle: `{diag / RECOMMENDED}`, the {rec.get('bundle', '?')} bundle"
         + (f" (adopts {', '.join(adopted)})" if adopted else "")
-        + f": better than the {ref} bundle on {', '.join(rec.get('better_on') or [])}, worse on no row beyond the "
-        "spread."
+        + f": better than the {ref} bundle on {', '.join(rec.get('better_on') or [])}, and on no row worse or "
+        "possibly worse (a loss the repeats do not exclude)."
         if rec.get("bundle") != ref
         else f"Recommended bundle: `{diag / RECOMMENDED}` = the {ref} bundle: no other bundle won a row on the press "
-        "without losing another beyond the spread."
+        "without a row where it is, or may be, worse."
     )
     blocks.append(Para(head))
     reasons = rec.get("reasons") or {}

@@ -756,6 +756,7 @@ def _partial_sums(idx0: int, n_neg: int, n_pos: int) -> np.ndarray:
         M[n_pos + j, idx0 - j : idx0 + 1] = 1.0
     return M
 
+
 @dataclass(frozen=True)
 class _Program:
     """A quadratic program compiled once (cvxpy's parametrized form) and solved again with new
@@ -830,7 +831,6 @@ def _dead_zone_program(M: np.ndarray) -> _Program:
     obj = cp.sum_squares(params["L"] @ cp.hstack([s, offset, np.ones(1)]))
     problem = cp.Problem(cp.Minimize(obj), [M @ s >= params["lo"], M @ s <= params["hi"]])
     return _Program(problem, params, {"s": s, "offset": offset})
-
 
 
 def _check_rising(data: HysteresisData) -> None:
