@@ -12,6 +12,7 @@ import numpy as np
 
 from piezopress import plotting, runformat, units
 from piezopress.analysis import diagnosis as dg
+from piezopress.analysis import identification
 from piezopress.analysis.bundle import (
     Bundle,
     creep_for_compensator,  # noqa: F401 (moved there)
@@ -265,6 +266,8 @@ def diagnose(
     checked = read_bundle(bundle_path)
     bundle = checked.to_dict()
     loaded = collect_runs(paths)
+    below = identification.below_rest_runs(loaded)  # the base model is judged on the range it was fitted on
+    loaded = [r for r in loaded if all(r is not b for b in below)]
     for r in loaded:  # one unit: a displacement run is not judged by a force model
         checked.check_unit(r.output_unit, f"{r.path} ({r.output_column})")
     runs = diagnosis_runs(loaded, checked, judged)
@@ -281,7 +284,9 @@ def diagnose(
     out = new_output_dir(out_dir)  # refused (or created) before the diagnosis's minutes of work
     mark_status(out, RUNNING, "started; a diagnosis that stays 'running' did not finish (killed or crashed)")
     try:
-        result = _diagnose_into(out, paths, bundle_path, checked, loaded, runs, base, fitted, causes, on_progress)
+        result = _diagnose_into(
+            out, paths, bundle_path, checked, loaded, runs, base, fitted, causes, on_progress, left_out=below
+        )
     except KeyboardInterrupt as exc:
         mark_status(out, INTERRUPTED, str(exc) or "interrupted by the user (Ctrl-C)")
         raise
@@ -335,8 +340,16 @@ def _diagnose_into(
     fitted: list[str],
     causes: list[str] | None,
     on_progress: Callable[[dg.CauseProgress], None] | None,
+    left_out: list[runformat.Run] = (),
 ) -> dg.Diagnosis:
     result = dg.diagnose(base, runs, fitted, causes, on_progress)
+    if left_out:
+        result = replace(
+            result,
+            summary=result.summary
+            + f" Left out: {', '.join(r.name for r in left_out)} (below the rest drive the other sweeps keep to: "
+            "measured for the compensator; the base model is judged on the range it was fitted on).",
+        )
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})
     plan = next_plan.next_plan(loaded, ctx, result, out, [str(p) for p in paths])
     from piezopress.pipelines.sources import group_by_rig

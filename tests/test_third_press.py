@@ -166,8 +166,10 @@ def test_fit_on_the_third_press_keeps_its_creep_and_finds_its_mode(tmp_path):
 @pytest.mark.parametrize("effect", ["input_delay", "hysteresis_order"])
 def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
     """The thesis's creep form fitted two poles cancelling each other (a gain of 4.3e6) on a
-    delayed or S-shaped press, which the bundle then refused: ``fit --base`` failed. Now an
-    implausible element is no fit, and the creep is kept in the simplest stable form, said."""
+    delayed or S-shaped press, which the bundle then refused: ``fit --base`` failed. An
+    implausible element is no fit (the creep is then kept in the simplest stable form, said),
+    and the held step's edge is aligned before the fit (the lag at the edge is not creep), so
+    the thesis's form now fits with plausible elements."""
     from piezopress.pipelines import characterize as char
     from piezopress.pipelines import fit as F
 
@@ -175,8 +177,9 @@ def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
     char.characterize(tmp_path / "char", backend=press)
     doc = F.fit_bundle([tmp_path / "char"], base=True).doc
     creep = doc["creep"]
-    assert creep["model"]["form"] == "spectrum" and max(abs(g) for g in creep["model"]["gains"]) <= 1.0
-    assert "could not be fitted" in creep["fit"]["reason"] and "plausible elements" in creep["fit"]["reason"]
+    assert max(abs(g) for g in creep["model"]["gains"]) <= 1.0
+    if creep["model"]["form"] != "poles":  # kept in the simplest stable form: said why
+        assert creep["model"]["form"] == "spectrum" and "plausible elements" in creep["fit"]["reason"]
 
 
 @pytest.mark.slow
@@ -208,7 +211,14 @@ def test_the_chain_draws_the_preisach_loop_and_aims_at_the_preload(tmp_path):
         for r in summary.validation_table(tmp_path / "val").itertuples()
         if r.metric == "max_hysteresis" and r.run.endswith("0.1hz")
     }
-    # measured: 0.48-0.70 % on every loop but the 75 N one, 1.64 % (its drive goes below the fitted range to
-    # reach the preload); the modified PI model alone leaves 8.1 % (bench/bench_family.py)
-    assert max(static.values()) < 2.5, static
-    assert sorted(static.values())[-2] < 1.0, static
+    # measured: 0.46-0.74 % on the 225 N and larger loops, 1.02 % at 150 N, 2.63 % at 75 N (its drive goes
+    # below the rest, -22 V, to reach the preload; the model measured there by the default plan's
+    # below-rest run). Before that run the 75 N loop read 1.64 % but sat 12 N under the preload at its
+    # bottom, which a loop's width does not show; the modified PI model alone leaves 8.1 %
+    assert max(static.values()) < 3.0, static
+    assert sorted(static.values())[-2] < 1.2, static
+    tri = runformat.read_run(tmp_path / "val" / "tri-75n-0.1hz.parquet")
+    ref = tri.data["reference_n"].to_numpy()
+    bottom = ref <= ref.min() + 2.0
+    # measured: -1.3 N at the bottom of the 75 N loop (-11.1 N before the below-rest run)
+    assert float(np.mean(tri.output[bottom] - ref[bottom])) > -5.0

@@ -81,6 +81,7 @@ class Key:
 
 REQUIRED = object()
 DRIVE_MAX = object()  # default resolved to the backend's maximum drive
+DRIVE_MIN = object()  # default resolved to the backend's lowest drive
 _NUM = (int, float)
 
 COMMON_KEYS: dict[str, Key] = {
@@ -117,21 +118,47 @@ def _build_triangle(p: Mapping[str, Any], fs: float) -> np.ndarray:
     return waveforms.triangle(p["freq_hz"], _triangle_peaks(p), p["low_v"], fs)
 
 
-def _check_periodic(p: Mapping[str, Any], fs: float) -> list[str]:
-    problems = []
+def _check_frequency(p: Mapping[str, Any], fs: float) -> list[str]:
     if p["freq_hz"] <= 0:
-        problems.append(f"key 'freq_hz' = {p['freq_hz']} must be positive")
-    elif fs < 20 * p["freq_hz"]:
-        problems.append(
+        return [f"key 'freq_hz' = {p['freq_hz']} must be positive"]
+    if fs < 20 * p["freq_hz"]:
+        return [
             f"key 'sample_rate_hz' = {fs:g} is too low for freq_hz = {p['freq_hz']:g}: "
             f"expected at least 20 samples per cycle ({20 * p['freq_hz']:g} Hz)"
-        )
+        ]
+    return []
+
+
+def _check_periodic(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = _check_frequency(p, fs)
     if p.get("cycles") is not None and (not isinstance(p["cycles"], int) or p["cycles"] < 1):
         problems.append(f"key 'cycles' = {p['cycles']!r} must be a whole number of at least 1")
     if p.get("peaks_v") is None and p.get("random_peaks") is None and p["low_v"] >= p["peak_v"]:
         problems.append(
             f"key 'low_v' = {p['low_v']:g} is not below peak_v = {p['peak_v']:g}; expected low_v < peak_v (the sweep "
             "rises from low_v to peak_v)"
+        )
+    return problems
+
+
+def _check_below_rest(p: Mapping[str, Any], fs: float) -> list[str]:
+    problems = _check_frequency(p, fs)
+    peaks = p["peaks_v"]
+    if (
+        not isinstance(peaks, list)
+        or len(peaks) < 2
+        or not all(isinstance(v, _NUM) and not isinstance(v, bool) for v in peaks)
+    ):
+        problems.append(f"key 'peaks_v' = {peaks!r} must be a list of at least two voltages (low_v lies between peaks)")
+    elif min(peaks) <= max(p["low_v"], p["rest_v"]):
+        problems.append(
+            f"key 'peaks_v': {min(peaks):g} is not above low_v = {p['low_v']:g} and rest_v = {p['rest_v']:g}; "
+            "expected every peak above both"
+        )
+    if p["low_v"] > p["rest_v"]:
+        problems.append(
+            f"key 'low_v' = {p['low_v']:g} is above rest_v = {p['rest_v']:g}; expected the sweep to go down to or "
+            "below its rest"
         )
     return problems
 
@@ -278,6 +305,19 @@ KINDS: dict[str, KindSpec] = {
         _check_triangle,
         "triangular sweeps low_v -> peak -> low_v (hysteresis, Table 5.1)",
     ),
+    "below_rest": KindSpec(
+        "triangle",
+        {
+            "freq_hz": Key(_NUM, REQUIRED, "frequency of the sweep (one peak and one low per period)", "Hz"),
+            "peaks_v": Key(list, REQUIRED, "the peaks, in order", "V"),
+            "low_v": Key(_NUM, DRIVE_MIN, "the drive between the peaks", "V"),
+            "rest_v": Key(_NUM, 0.0, "the drive the sweep starts from and ends at, from above", "V"),
+        },
+        lambda p, fs: waveforms.below_rest(p["freq_hz"], np.asarray(p["peaks_v"], float), p["low_v"], p["rest_v"], fs),
+        _check_below_rest,
+        "triangular sweeps from rest_v up to each peak and down to low_v between them, back to rest_v from above "
+        "(the stack below its rest, where a compensator pulling the press down to the preload drives)",
+    ),
     "sine": KindSpec(
         "sine",
         dict(_PERIODIC_KEYS),
@@ -365,6 +405,8 @@ def estimated_duration_s(kind: str, p: Mapping[str, Any]) -> float:
         return float(p["pre_s"]) + float(p["count"]) * (float(p["ramp_s"]) + float(p["dwell_s"]))
     if kind == "random":
         return float(p["duration_s"])
+    if kind == "below_rest":
+        return float(len(p["peaks_v"])) / float(p["freq_hz"])
     return float(p["points"][-1][0])
 
 
@@ -461,6 +503,8 @@ def _resolve(
             problems.append(f"{where}: key '{k}' is missing ({spec.help})")
         elif spec.default is DRIVE_MAX:
             out[k] = float(limits.drive_max_v)
+        elif spec.default is DRIVE_MIN:
+            out[k] = float(limits.drive_min_v)
         else:
             out[k] = spec.default
     return out
@@ -690,6 +734,8 @@ def describe_kinds() -> str:
                 if key.default is REQUIRED
                 else "max drive"
                 if key.default is DRIVE_MAX
+                else "lowest drive"
+                if key.default is DRIVE_MIN
                 else repr(key.default)
             )
             unit = f" [{key.unit}]" if key.unit else ""

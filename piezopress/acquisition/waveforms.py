@@ -38,6 +38,26 @@ def triangle(freq_hz: float, peaks_v: np.ndarray, low_v: float, sample_rate_hz: 
     return low_v + (peaks_v[cycle] - low_v) * shape
 
 
+def below_rest(freq_hz: float, peaks_v: np.ndarray, low_v: float, rest_v: float, sample_rate_hz: float) -> np.ndarray:
+    """Triangular sweeps that take the stack below its rest: from ``rest_v`` up to the first
+    peak, down to ``low_v``, up to the next peak, ..., and from the last peak back down to
+    ``rest_v``, every half-sweep ``1 / (2 freq_hz)`` long. Ending from above leaves the stack
+    as every other run leaves it at rest.
+
+    Examples
+    --------
+    >>> below_rest(1.0, np.array([10.0, 6.0]), -2.0, 0.0, 4.0).tolist()
+    [0.0, 5.0, 10.0, 4.0, -2.0, 2.0, 6.0, 3.0, 0.0]
+    """
+    peaks_v = np.asarray(peaks_v, dtype=np.float64)
+    knots_v = [rest_v]
+    for k, p in enumerate(peaks_v):
+        knots_v += [float(p)] if k == 0 else [low_v, float(p)]
+    knots_v.append(rest_v)
+    knots_t = np.arange(len(knots_v)) / (2.0 * freq_hz)
+    return piecewise_linear(knots_t, np.array(knots_v), sample_rate_hz)
+
+
 def sine(freq_hz: float, cycles: int, low_v: float, peak_v: float, sample_rate_hz: float) -> np.ndarray:
     """Raised-cosine cycles from ``low_v`` up to ``peak_v`` and back, starting at ``low_v``."""
     n = n_samples(cycles / freq_hz, sample_rate_hz) + 1

@@ -377,6 +377,8 @@ class Settings:
     delay_lead_s: float = 0.0
     slew_v_per_s: float | None = None
     rate: RateDependence | None = None
+    #: the part of ``lead_s`` that is the identified drive chain's delay (led without a shaper too)
+    chain_lead_s: float = 0.0
 
 
 def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
@@ -408,6 +410,9 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
     delay = c.number(
         comp.get("delay_lead_s", 0.0), f"{w}.delay_lead_s", 0.0, MAX_LEAD_S, "the input delay's lead in s", hi_open=True
     )
+    chain = c.number(
+        comp.get("chain_lead_s", 0.0), f"{w}.chain_lead_s", 0.0, lead, "the drive chain's part of lead_s in s"
+    )
     slew = c.optional(
         comp.get("slew_v_per_s"),
         f"{w}.slew_v_per_s",
@@ -432,7 +437,7 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
             saturation_v_per_s=sat,
             tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True),
         )
-    return Settings(lo, hi, rate_limit, lead, delay, slew, rate)
+    return Settings(lo, hi, rate_limit, lead, delay, slew, rate, chain)
 
 
 def check_section(kind: str, doc: Any, source: str) -> None:
@@ -601,8 +606,8 @@ class Bundle:
     # ------------------------------------------------------------------ the models
 
     def compensator(self, *, use_shaper: bool = True, use_creep: bool = True) -> Compensator:
-        """The compensator the bundle describes (without the shaper, only a pure input
-        delay is led, not the mode's)."""
+        """The compensator the bundle describes (without the shaper, only the drive chain's
+        delay and a pure input delay are led, not the mode's)."""
         s = self.settings
         return Compensator(
             hysteresis=self.hysteresis,
@@ -611,7 +616,7 @@ class Bundle:
             drive_min_v=s.drive_min_v,
             drive_max_v=s.drive_max_v,
             max_rate_per_s=s.max_rate_per_s,
-            lead_s=s.lead_s if use_shaper else s.delay_lead_s,
+            lead_s=s.lead_s if use_shaper else s.delay_lead_s + s.chain_lead_s,
             shaper2=self.shaper2 if use_shaper else None,
             rate=s.rate,
             slew_v_per_s=s.slew_v_per_s,

@@ -1250,5 +1250,30 @@ def fit_held_step(
     the measured ``output`` above its level before the step out, both slowed to
     :data:`FIT_RATE_HZ` (:func:`slow_part`), then :func:`fit_creep`."""
     y = np.asarray(output, float) - rest_level(np.asarray(output, float), np.asarray(command_v, float))
-    t, u, y = slow_part(np.asarray(t_s, float), np.asarray(static, float), y, fs_hz)
+    u = _edge_aligned(np.asarray(static, float), y, fs_hz)
+    t, u, y = slow_part(np.asarray(t_s, float), u, y, fs_hz)
     return fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
+
+
+def _edge_aligned(u: np.ndarray, y: np.ndarray, fs_hz: float) -> np.ndarray:
+    """``u`` delayed by the lag of the output's step edge behind it (the time from ``u``'s
+    largest jump to ``y`` crossing half of it): the drive chain's delay and the mode's rise
+    (milliseconds) are not creep. Left unaligned, the fit's low-passed edge shows ``y`` behind
+    ``u`` and fast creep elements fit the lag: on the third test press 5.4 % of the step in
+    elements of 40-190 ms where the run shows 0.3 %, and a compensator that drove a 20 Hz
+    reference 7 % too hard."""
+    if u.size < 3:
+        return u
+    k = int(np.argmax(np.abs(np.diff(u)))) + 1
+    jump = float(u[k] - u[k - 1])
+    if jump == 0.0:
+        return u
+    before = float(np.median(y[max(0, k - max(3, int(0.01 * fs_hz))) : k]))
+    # the first sample after the edge where the output has made half of the model's jump
+    past = np.flatnonzero(np.sign(jump) * (y[k:] - before) >= 0.5 * abs(jump))
+    if past.size == 0:
+        return u
+    lag = int(past[0])
+    if lag == 0 or lag > int(0.05 * fs_hz):  # none, or no step edge (a slow ramp): leave it
+        return u
+    return np.concatenate([np.full(lag, u[0]), u[:-lag]])

@@ -204,13 +204,30 @@ class PreisachPlane:
         return np.array(self.alpha), np.array(self.beta), np.array(self.weights)
 
     def rest_state(self) -> np.ndarray:
-        """Every relay down as far as the rest input allows (the stack came up from below)."""
+        """The hysterons at the rest input as a stack that has been driven leaves them: the drive
+        came down to rest from above, so every relay that switches down below the rest input
+        (``beta < 0``) is up, every other down.
+
+        Runs start at rest after earlier runs, never on a virgin stack: a plane whose rest had
+        every relay down would switch the relays ``beta < 0 <= alpha`` up on every run's first
+        rise, which the press never shows, and a fit would zero them; a compensator pulling
+        the press below its rest would then find the plane's slope gone there. Up at rest, the
+        data never switch them, and the smoothness penalty continues the density into them."""
         a, b, _ = self.arrays()
-        return operators.kp_initial_state(0.0, a, b, self.width, 0.0)
+        return operators.kp_initial_state(0.0, a, b, self.width, 1.0)
+
+    def rest_output(self) -> float:
+        """The plane's output at rest (its columns are taken relative to it)."""
+        return float(np.array(self.weights) @ self.rest_state())
 
     def states(self, u: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
         a, b, _ = self.arrays()
         return operators.kp(u, a, b, self.width, self.rest_state() if state is None else state)
+
+    def columns(self, u: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+        """The hysterons' states for ``u`` relative to their rest states: 0 at rest, so the
+        model's output at rest is its rest output ``y0``."""
+        return self.states(u, state) - self.rest_state()
 
     def _membership(self) -> tuple[np.ndarray, np.ndarray]:
         """Rows: cells sharing a rising ramp (one alpha); and sharing a falling ramp (one beta)."""
@@ -232,7 +249,7 @@ class PreisachPlane:
         index = {(int(x), int(y)): k for k, (x, y) in enumerate(zip(i, j))}
         rows = []
         for (x, y), k in index.items():
-            for nb in ((x + 1, y), (x, y + 1)):
+            for nb in ((x + 1, y), (x + 1, y + 1)):
                 if nb in index:
                     row = np.zeros(len(index))
                     row[k], row[index[nb]] = 1.0, -1.0
@@ -328,7 +345,7 @@ class PIModel:
         Y = operators.play(u, np.array(self.r), st[: self.n_play], widen=widen)
         if self.plane is None:
             return Y
-        return np.hstack([Y, self.plane.states(u, st[self.n_play :])])
+        return np.hstack([Y, self.plane.columns(u, st[self.n_play :])])
 
     def column_weights(self) -> np.ndarray:
         w = np.array(self.w)
@@ -339,7 +356,10 @@ class PIModel:
         x = np.asarray(x, float)
         Y = self.columns(x - self.x0, state)
         p = Y @ self.column_weights()
-        return self.y0 + dead_zone_superposition(p, np.array(self.d), np.array(self.s)), Y[-1].copy()
+        last = Y[-1].copy()
+        if self.plane is not None:  # the plane's columns are relative to its rest: the state is not
+            last[self.n_play :] += self.plane.rest_state()
+        return self.y0 + dead_zone_superposition(p, np.array(self.d), np.array(self.s)), last
 
     def inverse(self, y_ref: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Input ``x`` that makes the model output ``y_ref``: analytic (Eq. 3.9) for the modified
@@ -354,7 +374,7 @@ class PIModel:
             d_inv, s_inv = invert_dead_zone_weights(np.array(self.d), np.array(self.s))
             p = dead_zone_superposition(y_ref - self.y0, d_inv, s_inv)
             st = self.rest_state() if state is None else np.asarray(state, float)
-            u, last = _invert_with_plane(self, p, st)
+            u, last = _invert_with_plane(self, p + self.plane.rest_output(), st)
             return self.x0 + u, last
         w = np.array(self.w)
         r_inv, w_inv = invert_play_weights(np.array(self.r), w)
@@ -1027,7 +1047,7 @@ def columns_for(
         return plays
     key = ("plane", plane.levels, plane.width, plane.alpha[0])
     if key not in cache:
-        cache[key] = [plane.states(u) for u in data.u]
+        cache[key] = [plane.columns(u) for u in data.u]
     return [np.hstack([p, k]) for p, k in zip(plays, cache[key])]
 
 
