@@ -1,0 +1,145 @@
+"""Benchmark of issue 19's acceptance on the presses written apart: the whole chain a new user
+runs, today's code beside a reference commit's, in the same run.
+
+For the second and third test presses (``tests/independent_press.py``, ``tests/third_press.py``),
+clean, per seed: the default characterization (each code's own default plan), ``fit``, and the
+bundle's compensated drives played on the same press (``piezopress compare``'s validation and
+tracking plans, one repeat). Each code runs in its own process with its tree first on
+``PYTHONPATH`` (the reference taken from git, as ``bench/bench_chain.py`` does); the presses are
+today's test presses for both. Prints per press the held-out error of the fit against the
+noise floor (the rest run's RMS, its drift removed) and every compensated row: the mean over
+the seeds and the range, reference beside now, beside issue 19's targets.
+
+Run: .venv/bin/python bench/bench_presses.py [--against COMMIT] [--rig second,third] [--seeds 3] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_chain import _env, code_tree  # noqa: E402
+
+#: The last commit before this benchmark's issue 19 work of stop 30.
+REFERENCE = "f92532c"
+
+#: Issue 19's acceptance on the second and third presses (compensated, %).
+TARGETS = {
+    "static_hysteresis": 1.0,
+    "creep": 0.3,
+    "tracking_staircase": 3.0,
+    "overshoot": 3.0,
+    "tracking_random": 0.5,
+}
+ROWS = (*TARGETS, "hysteresis_1hz", "hysteresis_10hz", "hysteresis_50hz")
+
+#: Run in the child process: one press through the chain with the code on PYTHONPATH.
+DRIVER = r"""
+import json, shutil, sys
+from pathlib import Path
+import numpy as np
+tests, rig, seed, work = sys.argv[1], sys.argv[2], int(sys.argv[3]), Path(sys.argv[4])
+sys.path.insert(0, tests)
+import independent_press as ip
+import third_press as tp
+from piezopress import runformat
+from piezopress.pipelines import bundle as B, characterize as char, compare, fit as F
+mod = tp if rig == "third" else ip
+press = mod.clean_press(np.random.default_rng([seed, 97 if rig == "third" else 98]))
+char.characterize(work / "char", backend=press)
+res = F.fit_bundle([work / "char"], press.limits)
+B.write_document(res.doc, work / "bundle.json")
+shutil.copy(work / "bundle.json", work / "same.json")
+c = compare.compare([work / "bundle.json", work / "same.json"], work / "cmp", backend=press, rig_path=None,
+                    repeats=1, labels=["a", "b"])
+t = c.table
+rows = {r: float(g["mean"].iloc[0]) for r, g in t[t["bundle"] == "a"].groupby("row")}
+rest = [p for p in sorted((work / "char").glob("*.parquet")) if p.stem.startswith("rest")]
+y = runformat.read_run(rest[0]).output
+k = np.arange(y.size)
+noise = float(np.std(y - np.polyval(np.polyfit(k, y, 2), k)))
+fit = res.doc["hysteresis"]["fit"]
+import piezopress
+print(json.dumps({"code": piezopress.__file__, "rows": rows, "holdout": fit["holdout_rms_n"], "noise": noise,
+                  "family": res.doc["hysteresis"]["model"].get("family", "modified_pi"),
+                  "creep": "creep" in res.doc}))
+"""
+
+
+def one(tree: Path | None, rig: str, seed: int, work: Path) -> dict:
+    work.mkdir(parents=True)
+    args = [str(ROOT / "tests"), rig, str(seed), str(work)]
+    # run from the job's folder: from the checkout, "" on sys.path would import today's code for both
+    out = subprocess.run(
+        [sys.executable, "-c", DRIVER, *args], env=_env(tree), cwd=work, capture_output=True, text=True
+    )
+    if out.returncode != 0:
+        raise SystemExit(f"{rig}-{seed} failed ({'reference' if tree else 'now'}):\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _cell(values: list[float]) -> str:
+    return f"{np.mean(values):6.2f} ({min(values):.2f}-{max(values):.2f})"
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--against", default=REFERENCE, help=f"the reference commit (default {REFERENCE})")
+    p.add_argument("--rig", default="second,third")
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--workers", type=int, default=2)
+    a = p.parse_args()
+    rigs = [r for r in a.rig.split(",") if r]
+    if not rigs or any(r not in ("second", "third") for r in rigs):
+        raise SystemExit(f"--rig {a.rig!r}; expected second, third or both, comma-separated")
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="bench-presses-") as tmp:
+        work = Path(tmp)
+        tree = code_tree(work, a.against)
+        if tree is None:
+            raise SystemExit(f"cannot take {a.against} from git; run inside the checkout or pass --against")
+        jobs = [(label, t, r, s) for r in rigs for s in range(a.seeds) for label, t in (("ref", tree), ("now", None))]
+        with ThreadPoolExecutor(max_workers=a.workers) as pool:
+            futures = {j: pool.submit(one, j[1], j[2], j[3], work / f"{j[0]}-{j[2]}{j[3]}") for j in jobs}
+            results = {(label, r, s): f.result() for (label, _, r, s), f in futures.items()}
+        wrong = [k for k, v in results.items() if (k[0] == "ref") != v["code"].startswith(str(tree))]
+        if wrong:
+            raise SystemExit(f"{wrong[0]} ran the wrong code ({results[wrong[0]]['code']}): no comparison")
+    print(
+        f"Issue 19 on the presses written apart: {a.against} beside now, {a.seeds} seed(s), "
+        f"{time.perf_counter() - t0:.0f} s on {a.workers} worker(s)\n"
+    )
+    for r in rigs:
+        ref = [results["ref", r, s] for s in range(a.seeds)]
+        now = [results["now", r, s] for s in range(a.seeds)]
+        print(f"{r} press (mean over seeds, range in brackets; compensated rows in %)")
+        print(f"  {'':28s} {a.against:>20s} {'now':>20s}  target")
+        rv = [x["holdout"] / x["noise"] for x in ref]
+        nv = [x["holdout"] / x["noise"] for x in now]
+        print(f"  {'fit held-out / noise floor':28s} {_cell(rv):>20s} {_cell(nv):>20s}  <= 3x")
+        print(
+            f"  {'family / creep kept':28s} {ref[0]['family'] + ' ' + str(all(x['creep'] for x in ref)):>20s} "
+            f"{now[0]['family'] + ' ' + str(all(x['creep'] for x in now)):>20s}"
+        )
+        for row in ROWS:
+            rv = [abs(x["rows"][row]) for x in ref if row in x["rows"]]
+            nv = [abs(x["rows"][row]) for x in now if row in x["rows"]]
+            if rv and nv:
+                target = f"<= {TARGETS[row]:g}" if row in TARGETS else ""
+                print(f"  {row:28s} {_cell(rv):>20s} {_cell(nv):>20s}  {target}")
+        print()
+
+
+if __name__ == "__main__":
+    main()
