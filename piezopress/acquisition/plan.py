@@ -155,6 +155,15 @@ def _check_below_rest(p: Mapping[str, Any], fs: float) -> list[str]:
             f"key 'peaks_v': {min(peaks):g} is not above low_v = {p['low_v']:g} and rest_v = {p['rest_v']:g}; "
             "expected every peak above both"
         )
+    depths = p.get("depths")
+    if depths is not None and (
+        not isinstance(depths, list)
+        or not isinstance(peaks, list)
+        or len(depths) != len(peaks) - 1
+        or not all(isinstance(v, _NUM) and not isinstance(v, bool) and 0.0 <= v <= 1.0 for v in depths)
+    ):
+        n = len(peaks) - 1 if isinstance(peaks, list) else "one fewer than the peaks"
+        problems.append(f"key 'depths' = {depths!r} must list {n} shares from 0 to 1, one per low between two peaks")
     if p["low_v"] > p["rest_v"]:
         problems.append(
             f"key 'low_v' = {p['low_v']:g} is above rest_v = {p['rest_v']:g}; expected the sweep to go down to or "
@@ -312,8 +321,18 @@ KINDS: dict[str, KindSpec] = {
             "peaks_v": Key(list, REQUIRED, "the peaks, in order", "V"),
             "low_v": Key(_NUM, DRIVE_MIN, "the drive between the peaks", "V"),
             "rest_v": Key(_NUM, 0.0, "the drive the sweep starts from and ends at, from above", "V"),
+            "depths": Key(
+                list, None, "per low between two peaks, how far from rest_v down to low_v it goes (0-1; default: 1)"
+            ),
         },
-        lambda p, fs: waveforms.below_rest(p["freq_hz"], np.asarray(p["peaks_v"], float), p["low_v"], p["rest_v"], fs),
+        lambda p, fs: waveforms.below_rest(
+            p["freq_hz"],
+            np.asarray(p["peaks_v"], float),
+            p["low_v"],
+            p["rest_v"],
+            fs,
+            None if p.get("depths") is None else np.asarray(p["depths"], float),
+        ),
         _check_below_rest,
         "triangular sweeps from rest_v up to each peak and down to low_v between them, back to rest_v from above "
         "(the stack below its rest, where a compensator pulling the press down to the preload drives)",

@@ -38,21 +38,32 @@ def triangle(freq_hz: float, peaks_v: np.ndarray, low_v: float, sample_rate_hz: 
     return low_v + (peaks_v[cycle] - low_v) * shape
 
 
-def below_rest(freq_hz: float, peaks_v: np.ndarray, low_v: float, rest_v: float, sample_rate_hz: float) -> np.ndarray:
+def below_rest(
+    freq_hz: float,
+    peaks_v: np.ndarray,
+    low_v: float,
+    rest_v: float,
+    sample_rate_hz: float,
+    depths: np.ndarray | None = None,
+) -> np.ndarray:
     """Triangular sweeps that take the stack below its rest: from ``rest_v`` up to the first
-    peak, down to ``low_v``, up to the next peak, ..., and from the last peak back down to
-    ``rest_v``, every half-sweep ``1 / (2 freq_hz)`` long. Ending from above leaves the stack
-    as every other run leaves it at rest.
+    peak, down to a low, up to the next peak, ..., and from the last peak back down to
+    ``rest_v``, every half-sweep ``1 / (2 freq_hz)`` long. The low between peaks ``k`` and
+    ``k + 1`` lies ``depths[k]`` of the way from ``rest_v`` down to ``low_v`` (all the way
+    by default). Ending from above leaves the stack as every other run leaves it at rest.
 
     Examples
     --------
     >>> below_rest(1.0, np.array([10.0, 6.0]), -2.0, 0.0, 4.0).tolist()
     [0.0, 5.0, 10.0, 4.0, -2.0, 2.0, 6.0, 3.0, 0.0]
+    >>> below_rest(1.0, np.array([10.0, 6.0, 8.0]), -2.0, 0.0, 2.0, np.array([1.0, 0.5])).tolist()
+    [0.0, 10.0, -2.0, 6.0, -1.0, 8.0, 0.0]
     """
     peaks_v = np.asarray(peaks_v, dtype=np.float64)
+    depths = np.ones(max(peaks_v.size - 1, 0)) if depths is None else np.asarray(depths, dtype=np.float64)
     knots_v = [rest_v]
     for k, p in enumerate(peaks_v):
-        knots_v += [float(p)] if k == 0 else [low_v, float(p)]
+        knots_v += [float(p)] if k == 0 else [rest_v + float(depths[k - 1]) * (low_v - rest_v), float(p)]
     knots_v.append(rest_v)
     knots_t = np.arange(len(knots_v)) / (2.0 * freq_hz)
     return piecewise_linear(knots_t, np.array(knots_v), sample_rate_hz)
