@@ -93,6 +93,8 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     ]
     if fit.get("family_reason"):
         blocks.append(Para(f"Model family: {fit['family_reason']}."))
+    if fit.get("below_rest"):
+        blocks.append(Para(f"Below the rest drive: {fit['below_rest']}."))
     if "creep" in bundle:
         c = bundle["creep"]
         cf = c.get("fit", {})
@@ -185,13 +187,20 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
         )
     comp = bundle.get("compensation")
     if comp:
-        rate = units.keyed(comp, "max_rate_", code)  # max_rate_n_per_s or max_rate_um_per_s; null: no limit
+        # max_rate_n_per_s or max_rate_um_per_s (null: no limit); a bundle without a unit: the first max_rate_ key
+        rate = comp.get(f"max_rate_{units.key(code)}_per_s") if code else units.keyed(comp, "max_rate_")
         rate_text = f"rate limit {_num(float(rate) / 1e3, 1)} {unit}/ms" if rate else "no rate limit"
         blocks.append(
             Para(
                 f"Compensation settings: drive {_num(comp.get('drive_min_v'), 0)} to "
                 f"{_num(comp.get('drive_max_v'), 0)} V, "
-                f"{rate_text}, lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms."
+                f"{rate_text}, lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms"
+                + (
+                    f" (of which {_num(1e3 * float(comp['chain_lead_s']), 4)} ms the drive chain identified with "
+                    "the mode: the reading's lag is led too)."
+                    if comp.get("chain_lead_s")
+                    else "."
+                )
             )
         )
     return blocks

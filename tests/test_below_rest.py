@@ -272,3 +272,21 @@ def test_base_and_diagnose_keep_to_the_range_the_thesis_model_was_fitted_on(thir
     assert "Left out: triangle-below-rest-0.1hz" in result.summary, result.summary
     full = F.fit_bundle([char_dir]).doc
     assert "triangle-below-rest-0.1hz" in full["hysteresis"]["fit"]["below_rest"]
+
+
+def test_the_report_says_what_the_fit_did_below_rest_and_how_much_of_the_lead_is_the_chain(tmp_path):
+    import json
+
+    from piezopress.pipelines.report_doc import render_markdown
+    from piezopress.pipelines.report_model import _model_quality
+
+    doc = json.loads((ROOT / "sample_runs" / "bundle.json").read_text())
+    doc["hysteresis"]["fit"]["below_rest"] = "triangle-below-rest-0.1hz kept (the stack below its rest): ..."
+    doc["compensation"].update(lead_s=4.1e-4, chain_lead_s=3.74e-4)
+    md = render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))
+    assert "Below the rest drive: triangle-below-rest-0.1hz kept" in md
+    assert "lead 0.4100 ms (of which 0.3740 ms the drive chain identified with the mode" in md
+    # the rate limit is read under its unit's key (max_rate_n_per_s): it read "no rate limit" before
+    assert "rate limit 40.0 N/ms" in md
+    doc["compensation"].pop("chain_lead_s")
+    assert "lead 0.4100 ms." in render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))
