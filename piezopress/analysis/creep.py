@@ -1245,12 +1245,15 @@ def fit_held_step(
     *,
     holdout_fraction: float = 0.3,
     forms: tuple[str, ...] = FORMS,
+    align: bool = True,
 ) -> CreepFit:
     """Creep of a held step: ``static`` (the hysteresis model's prediction above its rest) in,
     the measured ``output`` above its level before the step out, both slowed to
-    :data:`FIT_RATE_HZ` (:func:`slow_part`), then :func:`fit_creep`."""
+    :data:`FIT_RATE_HZ` (:func:`slow_part`), then :func:`fit_creep`. ``align``: the static
+    prediction delayed by the output's lag at the step edge first (:func:`_edge_aligned`);
+    ``fit --base`` fits the thesis's creep on the step as it is."""
     y = np.asarray(output, float) - rest_level(np.asarray(output, float), np.asarray(command_v, float))
-    u = _edge_aligned(np.asarray(static, float), y, fs_hz)
+    u = _edge_aligned(np.asarray(static, float), y, fs_hz) if align else np.asarray(static, float)
     t, u, y = slow_part(np.asarray(t_s, float), u, y, fs_hz)
     return fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
 

@@ -444,6 +444,7 @@ def creep_section(
     *,
     holdout_fraction: float = 0.3,
     forms: tuple[str, ...] = creep_mod.FORMS,
+    align: bool = True,
 ) -> tuple[dict[str, Any], creep_mod.CreepFit]:
     """Fit the creep of the hysteresis-compensated press from a held step: the static
     prediction of the hysteresis section's model (``hysteresis["model"]``) is the input, the
@@ -458,6 +459,7 @@ def creep_section(
         run.sample_rate_hz,
         holdout_fraction=holdout_fraction,
         forms=forms,
+        align=align,
     )
     fit.model.check_stable(run.sample_rate_hz)
     body = {
@@ -519,10 +521,10 @@ def hysteresis_and_creep(
     for form in forms:
         try:
             h, hfit = h0, h0fit
-            c, cfit = creep_section(hold, h, holdout_fraction=holdout_fraction, forms=(form,))
+            c, cfit = creep_section(hold, h, holdout_fraction=holdout_fraction, forms=(form,), align=not base)
             for _ in range(passes - 1):
                 h, hfit = hysteresis_section(sweeps, creep=creep_mod.CreepModel.from_dict(c["model"]), **kw)
-                c, cfit = creep_section(hold, h, holdout_fraction=holdout_fraction, forms=(form,))
+                c, cfit = creep_section(hold, h, holdout_fraction=holdout_fraction, forms=(form,), align=not base)
         except (FitError, CompensatorUnstableError) as exc:
             failed.append(f"{form}: {exc}")
             continue
@@ -531,7 +533,7 @@ def hysteresis_and_creep(
     def from_hold_alone() -> tuple:
         # the simplest stable form, fitted on the hold against the first hysteresis model, with
         # no alternation so that it cannot reshape the loop
-        c, cfit = creep_section(hold, h0, holdout_fraction=holdout_fraction, forms=("spectrum",))
+        c, cfit = creep_section(hold, h0, holdout_fraction=holdout_fraction, forms=("spectrum",), align=not base)
         return (
             CREEP_FALLBACK_FORM,
             h0,

@@ -80,15 +80,16 @@ def _detrended(a: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _creep_without_drift(ctx: Context, hold: RunData, rate: float, clock: dict[str, float], ref: float):
-    """The base model's creep fitted again, in its form, on ``hold`` with the gain drift taken out
-    (None where its form is not one a held step fits, or the fit fails)."""
+    """The base model's creep fitted again, in its form and as ``fit --base`` fits it (the step
+    as it is, its edge not aligned), on ``hold`` with the gain drift taken out (None where its
+    form is not one a held step fits, or the fit fails)."""
     creep = ctx.model.creep
     if creep is None or creep.form not in creep_mod.FORMS + ("spectrum",):
         return None
     gain = 1.0 + rate * (clock[hold.ident] + hold.t_s - ref)
     try:
         fit = creep_mod.fit_held_step(
-            hold.t_s, ctx.model.static(hold), hold.x, hold.y / gain, hold.fs_hz, forms=(creep.form,)
+            hold.t_s, ctx.model.static(hold), hold.x, hold.y / gain, hold.fs_hz, forms=(creep.form,), align=False
         )
         fit.model.check_stable(hold.fs_hz)
     except (creep_mod.FitError, CompensatorUnstableError, ValueError, np.linalg.LinAlgError):
