@@ -248,11 +248,11 @@ def test_the_below_rest_run_is_told_from_the_signals_and_kept_where_the_model_dr
     assert [r.name for r in below] == ["triangle-below-rest-0.1hz"]
     names = {r.name for r in below}
     assert identification.below_rest_runs([r for r in runs if r.name not in names]) == []
-    kept, why = identification.below_rest_choice(sweeps, below)
+    kept, why, _ = identification.below_rest_choice(sweeps, below)
     # measured: the other sweeps' held-out ends 0.579 N with it, 0.627 N without
     assert len(kept) == len(sweeps) and "kept" in why, why
     monkeypatch.setattr(identification, "BELOW_REST_TOLERANCE", -0.5)  # a rule it cannot pass: left out
-    kept, why = identification.below_rest_choice(sweeps, below)
+    kept, why, _ = identification.below_rest_choice(sweeps, below)
     assert [r.name for r in kept] == [r.name for r in sweeps if r.name not in names] and "left out" in why, why
 
 

@@ -642,21 +642,10 @@ class Bundle:
         if not isinstance(chain, dict):
             return None, None
 
-        def positive(v):
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-            return float(v) if ok else None
-
-        form = chain.get("form")
-        return (
-            positive(chain.get("slew_v_per_s")) if form == "slew" else None,
-            # a chain the steps read best as a pure delay (lags in series: an amplifier, a filter)
-            # enters the forward model as the first-order lag of the same low-frequency delay
-            positive(chain.get("tau_s"))
-            if form == "first_order"
-            else positive(chain.get("delay_s"))
-            if form == "delay"
-            else None,
-        )
+        slew = chain.get("slew_v_per_s") if chain.get("form") == "slew" else None
+        # a chain the steps read best as a pure delay (lags in series: an amplifier, a filter)
+        # enters the forward model as the first-order lag of the same low-frequency delay
+        return (float(slew) if _positive(slew) else None), (chain_delay_s(chain) or None)
 
     def remove_creep(self, run) -> np.ndarray:
         """A run's measured output with the creep taken out (the creep compensator applied
@@ -669,6 +658,20 @@ class Bundle:
         """The bundle with every diagnosis finding recorded; those the compensator applies change
         it (:func:`extend_document`)."""
         return Bundle.from_dict(extend_document(self.doc, list(findings), model), self.source)
+
+
+def _positive(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def chain_delay_s(chain: Any) -> float:
+    """The low-frequency delay of a drive chain identified with the mode (``drive_chain``): a
+    pure delay's ``delay_s``, a first-order lag's ``tau_s``; 0 for a slew limit or none."""
+    if not isinstance(chain, dict):
+        return 0.0
+    form = chain.get("form")
+    v = chain.get("delay_s") if form == "delay" else chain.get("tau_s") if form == "first_order" else None
+    return float(v) if _positive(v) else 0.0
 
 
 def creep_removed(creep: CreepModel | None, command_v: np.ndarray, output: np.ndarray, fs_hz: float) -> np.ndarray:
@@ -886,6 +889,7 @@ __all__ = [
     "SECTIONS",
     "LEAD_MAX_FRACTION",
     "creep_removed",
+    "chain_delay_s",
     "check_section",
     "extend_document",
     "second_shaper",

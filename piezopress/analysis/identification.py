@@ -39,7 +39,14 @@ from piezopress.analysis import hysteresis as H
 from piezopress.analysis import identify as sweeps_mod
 from piezopress.analysis import mode_fit, profile
 from piezopress.analysis import shaper as shaper_mod
-from piezopress.analysis.bundle import BUNDLE_VERSION, Bundle, BundleError, creep_removed, shaper_document
+from piezopress.analysis.bundle import (
+    BUNDLE_VERSION,
+    Bundle,
+    BundleError,
+    chain_delay_s,
+    creep_removed,
+    shaper_document,
+)
 from piezopress.errors import CompensatorUnstableError, FitError
 from piezopress.runformat import meta_number
 
@@ -143,8 +150,9 @@ def below_rest_choice(
     holdout_fraction: float = 0.3,
     skip_s: float | None = None,
     rows: tuple[int | None, int | None] | None = None,
-) -> tuple[list[Any], str]:
-    """The sweeps ``fit`` fits the hysteresis on, and why: the sweeps below rest (``below``)
+) -> tuple[list[Any], str, tuple[dict[str, Any], H.HysteresisFit]]:
+    """The sweeps ``fit`` fits the hysteresis on, why, and the hysteresis section fitted on them
+    (:func:`hysteresis_section`, what :func:`hysteresis_and_creep` starts from): the sweeps below rest (``below``)
     stay when the model family draws both ranges, judged on the other sweeps' held-out ends
     (:data:`BELOW_REST_TOLERANCE`). Measured on the test presses: the third's Preisach plane
     draws both (the other sweeps' held-out ends 8 % better with them: 0.579 against 0.627 N;
@@ -154,22 +162,24 @@ def below_rest_choice(
     6.9 %)."""
     above = [r for r in sweeps if all(r is not b for b in below)]
     names = ", ".join(r.name for r in below)
+    kw = {"holdout_fraction": holdout_fraction, "skip_s": skip_s, "rows": rows}
+    with_ = hysteresis_section(sweeps, **kw)
     if not above:
-        return list(sweeps), f"{names}: every sweep goes below rest; all kept"
-    _, with_fit = hysteresis_section(sweeps, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows)
-    _, without_fit = hysteresis_section(above, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows)
-    e_with = sweep_holdout_rms(above, with_fit.model, None, holdout_fraction)
-    e_without = sweep_holdout_rms(above, without_fit.model, None, holdout_fraction)
+        return list(sweeps), f"{names}: every sweep goes below rest; all kept", with_
+    without = hysteresis_section(above, **kw)
+    e_with = sweep_holdout_rms(above, with_[1].model, None, holdout_fraction)
+    e_without = sweep_holdout_rms(above, without[1].model, None, holdout_fraction)
     judged = (
         f"the other sweeps' held-out ends {e_with:.4g} fitted with them, {e_without:.4g} without "
         f"(kept when no worse{f' than {BELOW_REST_TOLERANCE:.0%}' if BELOW_REST_TOLERANCE else ''})"
     )
     if e_with <= (1.0 + BELOW_REST_TOLERANCE) * e_without:
-        return list(sweeps), f"{names} kept (the stack below its rest): {judged}"
-    return above, (
+        return list(sweeps), f"{names} kept (the stack below its rest): {judged}", with_
+    why = (
         f"{names} left out: the model cannot draw the stack below its rest and above it at once, {judged}; "
         "below rest the compensator extrapolates"
     )
+    return above, why, without
 
 
 def quasi_static_sweeps(runs: Sequence[Any], named: bool = False, note: Note | None = None) -> list[Any]:
@@ -485,6 +495,7 @@ def hysteresis_and_creep(
     base: bool = False,
     skip_s: float | None = None,
     rows: tuple[int | None, int | None] | None = None,
+    first: tuple[dict[str, Any], H.HysteresisFit] | None = None,
 ) -> tuple[dict[str, Any], H.HysteresisFit, dict[str, Any], creep_mod.CreepFit]:
     """Alternate: hysteresis on the ``sweeps``, creep on the held step ``hold`` given the
     hysteresis model, hysteresis again on the sweeps with that creep removed, ... (``passes``
@@ -515,7 +526,7 @@ def hysteresis_and_creep(
     grid = THESIS_GRID if base else None
     forms = THESIS_CREEP_FORMS if base else creep_mod.FORMS
     kw = {"holdout_fraction": holdout_fraction, "grid": grid, "skip_s": skip_s, "rows": rows}
-    h0, h0fit = hysteresis_section(sweeps, **kw)
+    h0, h0fit = first if first is not None and not base else hysteresis_section(sweeps, **kw)
     alone = sweep_holdout_rms(sweeps, h0fit.model, None, holdout_fraction)
     tried, failed = [], []
     for form in forms:
@@ -723,17 +734,6 @@ def compensation_settings(
     return out
 
 
-def chain_delay_s(chain: Any) -> float:
-    """The low-frequency delay of a drive chain identified with the mode (``drive_chain``): a
-    pure delay's ``delay_s``, a first-order lag's ``tau_s``; 0 for a slew limit or none."""
-    if not isinstance(chain, dict):
-        return 0.0
-    form = chain.get("form")
-    v = chain.get("delay_s") if form == "delay" else chain.get("tau_s") if form == "first_order" else None
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-    return float(v) if ok else 0.0
-
-
 # --------------------------------------------------------------------------- the entry point
 
 
@@ -820,11 +820,11 @@ def identify(
             )
             runs = [r for r in runs if all(r is not b for b in below)]
     sweeps = quasi_static_sweeps(runs, note=note)
-    below_why = None
+    below_why = first = None
     below = [] if base else below_rest_runs(sweeps)
     if below:
         stage("the sweeps below rest (kept where the model draws both ranges)")
-        sweeps, below_why = below_rest_choice(
+        sweeps, below_why, first = below_rest_choice(
             sweeps, below, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows
         )
         (note or _no_note)(below_why)
@@ -846,7 +846,7 @@ def identify(
         stage("hysteresis and creep (alternating, each creep form checked against the sweeps)")
         try:
             h, hfit, c, cfit = hysteresis_and_creep(
-                sweeps, hold, base=base, skip_s=skip_s, rows=rows, holdout_fraction=holdout_fraction
+                sweeps, hold, base=base, skip_s=skip_s, rows=rows, holdout_fraction=holdout_fraction, first=first
             )
             sections.update(hysteresis=h, creep=c)
             fits.update(hysteresis=hfit, creep=cfit)
