@@ -123,21 +123,13 @@ def run_as_batch(jobs: list[tuple[str, str, int]], workers: int, record: Path | 
     """The cases on one local Dask cluster: every characterization as a task, then
     ``piezopress batch diagnose`` (``fit --base`` + ``diagnose`` per press, the same functions as
     the commands) over the run sets, on the same cluster. Returns ``(effect, named, gain)`` per job."""
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
     from piezopress.pipelines import batch as BT
 
     results: dict[int, tuple] = {}
     with tempfile.TemporaryDirectory(prefix="bench-diagnose-") as work:
-        one_thread = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-        cluster = LocalCluster(
-            n_workers=workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",
-            silence_logs=40,
-            env=one_thread,
-        )
+        cluster = BT.local_cluster(workers)
         client = Client(cluster)
         try:
             dirs = client.gather(client.map(characterize_case, [(*j, work) for j in jobs], pure=False))

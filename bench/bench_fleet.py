@@ -27,13 +27,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-import piezopress  # noqa: E402,F401
+import piezopress  # noqa: E402,F401  (before numpy: one BLAS thread, as in the workers and the commands)
 
 #: The fleet: (rig, hidden effect) in turn, the seed the press's index.
 KINDS = [
@@ -82,6 +80,8 @@ def _peak_rss_mb(press_dir: Path, stage: str, out: Path) -> float:
 
 
 def main() -> None:
+    import numpy as np
+
     from piezopress.pipelines import batch as B
     from piezopress.pipelines.fleet_report import write_fleet_report
 

@@ -21,10 +21,13 @@ import os as _os
 
 # OpenBLAS sizes its thread pool from the machine, not from the CPUs this process may use;
 # in a container with 2 of many CPUs that oversubscription makes a small matrix product
-# hundreds of times slower (0.8 s instead of 2 ms for a 25000 x 41 Gram matrix). It reads
-# this variable when it loads, so set it (unless the user has) before numpy is imported.
-if hasattr(_os, "sched_getaffinity"):
-    _os.environ.setdefault("OPENBLAS_NUM_THREADS", str(len(_os.sched_getaffinity(0))))
+# hundreds of times slower (0.8 s instead of 2 ms for a 25000 x 41 Gram matrix). One thread:
+# on 2 cores two bought nothing (fit 4.36 s with two, 4.55 s with one; diagnose 10.6 s and
+# 10.3 s, on sample_runs), and with one thread a bundle's numbers do not depend on how many
+# CPUs the machine has, nor on whether ``batch`` ran the press here or on a Dask worker (the
+# partial sums of a threaded product differ in their last bits). OpenBLAS reads the variable
+# when it loads, so set it (unless the user has) before numpy is imported.
+_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 _here = _os.path.dirname(_os.path.abspath(__file__))
 _root = _os.path.dirname(_here)

@@ -413,7 +413,7 @@ def run_batch(
             if on_done:
                 on_done(i, len(presses), rows[-1])
     else:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, as_completed
 
         cluster = None
         if scheduler:
@@ -422,20 +422,7 @@ def run_batch(
         else:
             cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
             n = workers or cpus
-            # one press per worker process, each with one BLAS thread: n presses on n cores, not n x n threads
-            one = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
-            import dask
-
-            # Dask sets these before it spawns a worker, and by default MALLOC_TRIM_THRESHOLD_ too: an
-            # explicit trim threshold turns off glibc's adaptive mmap threshold, so every array of a
-            # run (160 kB and more) is mapped and faulted in anew; a diagnosis took 12.8 s instead
-            # of 8.2 s (4.6 s in the kernel). Nor does a press's task need the workers' profiler.
-            with dask.config.set(
-                {"distributed.nanny.pre-spawn-environ": one, "distributed.worker.profile.enabled": False}
-            ):
-                cluster = LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=40, env=one
-                )
+            cluster = local_cluster(n)
             client = Client(cluster)
             engine = f"dask local ({n} workers)"
         dashboard = getattr(client, "dashboard_link", None)
@@ -461,6 +448,47 @@ def run_batch(
                 cluster.close()
     path = write_fleet_csv(rows, out_root / FLEET_CSV)
     return BatchResult(rows, path, time.monotonic() - started, engine, dashboard, notes)
+
+
+#: One BLAS thread per worker process: n presses on n cores, not n x n threads.
+ONE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def local_cluster(n_workers: int):
+    """A local Dask cluster of ``n_workers`` processes, one thread and one BLAS thread each.
+
+    Dask reads ``distributed.nanny.pre-spawn-environ`` with the parent's environment first
+    (``os.environ.get(key, configured)``): where this process has ``OPENBLAS_NUM_THREADS=2``
+    (the user's shell, or piezopress's default before it was one thread), the workers each ran
+    OpenBLAS with 2 threads on 2 cores, and a press took 16-18 s on a worker against 10-12 s
+    alone. So the variables are set here while the nannies are made, and restored after.
+    Dask also sets ``MALLOC_TRIM_THRESHOLD_`` by default: an explicit trim threshold turns
+    off glibc's adaptive mmap threshold, so every array of a run (160 kB and more) is mapped
+    and faulted in anew (a diagnosis took 12.8 s instead of 8.2 s, 4.6 s in the kernel); it
+    is left out. Nor does a press's task need the workers' profiler."""
+    import dask
+    from dask.distributed import LocalCluster
+
+    saved = {k: os.environ.get(k) for k in ONE_THREAD}
+    os.environ.update(ONE_THREAD)
+    try:
+        with dask.config.set(
+            {"distributed.nanny.pre-spawn-environ": ONE_THREAD, "distributed.worker.profile.enabled": False}
+        ):
+            return LocalCluster(
+                n_workers=n_workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=40,
+                env=ONE_THREAD,
+            )
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 def write_fleet_csv(rows: Iterable[dict[str, Any]], path: Path) -> Path:
@@ -500,4 +528,5 @@ __all__ = [
     "read_fleet_csv",
     "inputs_digest",
     "dask_available",
+    "local_cluster",
 ]

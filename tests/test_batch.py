@@ -4,6 +4,7 @@ skip of unchanged presses, failures as rows, the fleet report's robust z."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -113,6 +114,44 @@ def test_batch_on_a_local_dask_cluster_gives_the_serial_rows(tmp_path):
     assert seen[0][0] == "dask local (2 workers)" and seen[0][1]  # the dashboard's address
     keep = ("press", "status", "holdout_rms", "plays", "dead_zones", "creep_form")
     assert [{k: r.get(k) for k in keep} for r in par.rows] == [{k: r.get(k) for k in keep} for r in serial.rows]
+
+
+def _worker_blas():
+    """``(OpenBLAS's thread count as loaded, MALLOC_TRIM_THRESHOLD_)`` in this process: the
+    count asked of the numpy wheel's OpenBLAS itself (``*openblas_get_num_threads*``)."""
+    import ctypes
+    import os
+
+    import numpy  # noqa: F401  (loads OpenBLAS)
+
+    with open("/proc/self/maps") as f:
+        libs = sorted({ln.split()[-1] for ln in f if "openblas" in ln.lower() and ln.split()[-1].startswith("/")})
+    names = ("scipy_openblas_get_num_threads64_", "openblas_get_num_threads64_", "openblas_get_num_threads")
+    for lib in map(ctypes.CDLL, libs):
+        for name in names:
+            if hasattr(lib, name):
+                return getattr(lib, name)(), os.environ.get("MALLOC_TRIM_THRESHOLD_")
+    raise AssertionError(f"no OpenBLAS thread count found in {libs}")
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").is_file(), reason="reads the loaded OpenBLAS from /proc (Linux)")
+def test_local_cluster_workers_run_one_blas_thread_whatever_this_process_says(monkeypatch):
+    """Dask prefers the parent's environment to its pre-spawn setting: with
+    OPENBLAS_NUM_THREADS=2 here (a user's shell), the workers ran 2 BLAS threads each on 2
+    cores (a press 16-18 s on a worker against 10-12 s alone). This process keeps its own."""
+    pytest.importorskip("dask.distributed")
+    from dask.distributed import Client
+
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    cluster = B.local_cluster(1)
+    try:
+        with Client(cluster) as client:
+            (worker,) = client.run(_worker_blas).values()
+    finally:
+        cluster.close()
+    assert worker == (1, None)
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "2"
 
 
 def test_batch_reads_runs_from_an_fsspec_url(tmp_path):
