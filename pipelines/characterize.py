@@ -9,6 +9,7 @@ complete. Existing data is never overwritten.
 
 from __future__ import annotations
 
+import json
 import signal
 import time
 from collections.abc import Callable
@@ -212,6 +213,25 @@ def _measured_run(
     return runformat.make_run(columns, meta)
 
 
+def rig_description(backend: Backend, rig_path: str | Path | None = None) -> dict[str, Any]:
+    """``backend.describe()`` for a run's metadata, with the rig file the backend was made from
+    where the description does not name it: ``source`` (the file's path) and ``config`` (its
+    parsed document). A plug-in press's runs then say which file made them, and the report's
+    provenance and the check that a bundle was fitted on this press have its digest."""
+    described = dict(backend.describe())
+    if rig_path is None:
+        return described
+    described.setdefault("source", str(rig_path))
+    if "config" not in described:
+        try:
+            doc = read_rig_document(rig_path)
+            json.dumps(doc)
+        except (ConfigError, TypeError, ValueError):  # a document JSON cannot hold (TOML dates): the path only
+            return described
+        described["config"] = doc
+    return described
+
+
 def characterize(
     out_dir: str | Path,
     *,
@@ -227,10 +247,19 @@ def characterize(
     touched. On any interruption (Ctrl-C, an error) the backend is told to bring the drive
     to zero, the runs finished so far stay listed, and the manifest says how it ended.
     """
+    made_from = None if backend is not None else rig_path
     backend = backend or make_backend(backend_name, rig_path)
     plan = load_plan(plan_path, backend.limits)
     check_drives(plan, backend)
-    return execute_plan(out_dir, plan, Path(plan_path), backend, kind="characterization", on_progress=on_progress)
+    return execute_plan(
+        out_dir,
+        plan,
+        Path(plan_path),
+        backend,
+        kind="characterization",
+        on_progress=on_progress,
+        rig_path=made_from,
+    )
 
 
 def execute_plan(
@@ -243,8 +272,10 @@ def execute_plan(
     drive_for: Callable[[Protocol], Drive] = plain_drive,
     manifest_extra: dict[str, Any] | None = None,
     on_progress: Callable[[ProgressEvent], None] | None = None,
+    rig_path: str | Path | None = None,
 ) -> CharacterizeResult:
-    """Play every protocol of a checked plan into a new run directory with a manifest."""
+    """Play every protocol of a checked plan into a new run directory with a manifest
+    (``rig_path``: the rig file ``backend`` was made from, see :func:`rig_description`)."""
     try:  # the folder is made (and written to) before the rig is touched: a read-only one is one line
         out = new_output_dir(out_dir)
     except OSError as exc:
@@ -264,7 +295,7 @@ def execute_plan(
             "description": plan.description,
             "document": plan.raw,
         },
-        "rig": backend.describe(),
+        "rig": rig_description(backend, rig_path),
         **(manifest_extra or {}),
         "runs": [],
     }
@@ -274,7 +305,7 @@ def execute_plan(
     except OSError as exc:
         raise output_error(manifest_path, exc) from None
     result = CharacterizeResult(out, manifest_path, plan=plan)
-    extra = {"software_version": piezopress.__version__, "rig": backend.describe()}
+    extra = {"software_version": piezopress.__version__, "rig": manifest["rig"]}
     total = len(plan.protocols)
     plan_s = plan.duration_s
     remaining = plan_s

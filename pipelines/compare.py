@@ -30,7 +30,7 @@ from piezopress import runformat
 from piezopress.acquisition.backend import Backend
 from piezopress.analysis import ab
 from piezopress.errors import PiezopressError
-from piezopress.pipelines.characterize import DEFAULT_RIG, ProgressEvent, make_backend
+from piezopress.pipelines.characterize import DEFAULT_RIG, ProgressEvent, make_backend, rig_description
 from piezopress.pipelines.files import new_output_dir, utc_now, write_json_atomic
 from piezopress.pipelines.gain import ROW_BY_ID, ROWS, TRACKING_PLAN, row_values
 from piezopress.pipelines.validate import DEFAULT_VALIDATION_PLAN, PreparedValidation, prepare_validation
@@ -159,6 +159,7 @@ def compare(
     stems = [p.stem for p in plan_paths]
     if len(set(stems)) < len(stems):
         raise CompareError(f"plans {', '.join(map(str, plan_paths))}: two plans of one name; expected distinct names")
+    made_from = None if backend is not None else rig_path
     backend = backend or make_backend(backend_name, rig_path)
     warnings: list[str] = []
 
@@ -182,7 +183,7 @@ def compare(
         "bundles": [{"label": n, "file": str(b), "sha256": runformat.sha256_file(b)} for n, b in zip(names, bundles)],
         "plans": [{"file": str(p), "sha256": runformat.sha256_file(p)} for p in plan_paths],
         "repeats": int(repeats),
-        "rig": backend.describe(),
+        "rig": rig_description(backend, made_from),
         "order": [],
         "rule": (
             f"each bundle against the first: lower is better; a difference counts when every repeat of one beats "
@@ -203,7 +204,7 @@ def compare(
                     where = out / f"rep{rep}" / _dir_name(label) / _dir_name(plan.stem)
                     if on_play:
                         on_play(Play(index, total, rep, label, plan.stem))
-                    prepared[label, plan.stem].play(where, backend, on_progress)
+                    prepared[label, plan.stem].play(where, backend, on_progress, rig_path=made_from)
                     doc["order"].append({"repeat": rep, "bundle": label, "plan": plan.stem, "dir": str(where)})
                     write_json_atomic(out / COMPARE_JSON, doc, null_nonfinite=True)
                     if on_play:

@@ -277,12 +277,24 @@ def _manifest_date(src: _Source | None) -> str:
     return f"unknown (imported {imported[0]})" if imported else "unknown"
 
 
+def _rig_name(meta: dict[str, Any]) -> str:
+    """The rig file's ``[rig] name``; else the file's name, else the backend's, else '?'."""
+    name = runformat.meta_get(meta, "rig", "config", "rig", "name", default=None)
+    if isinstance(name, str) and name:
+        return name
+    source = runformat.meta_get(meta, "rig", "source", default=None)
+    if isinstance(source, str) and source:
+        return Path(source).stem
+    backend = meta.get("backend")
+    return str(backend) if backend else "?"
+
+
 def provenance(
     char: _Source | None, val: _Source | None, bundle_path: Path | None, bundle: dict[str, Any] | None
 ) -> str:
     """One line: rig (name, file, configuration digest), backend, dates, software, bundle digest."""
     runs = _all_runs(char, val)
-    rig_names = sorted({str(runformat.meta_get(r.meta, "rig", "config", "rig", "name", default="?")) for r in runs})
+    rig_names = sorted({_rig_name(r.meta) for r in runs})
     sources = sorted({str(runformat.meta_get(r.meta, "rig", "source", default="?")) for r in runs})
     digests = sorted({config_digest(runformat.meta_get(r.meta, "rig", "config"))[:DIGEST_CHARS] for r in runs})
     backends = sorted({str(r.meta.get("backend", "?")) for r in runs})

@@ -54,8 +54,10 @@ class PreparedValidation:
         out_dir: str | Path,
         backend: Backend,
         on_progress: Callable[[ProgressEvent], None] | None = None,
+        rig_path: str | Path | None = None,
     ) -> CharacterizeResult:
-        """Play every compensated drive on ``backend`` into a new run directory."""
+        """Play every compensated drive on ``backend`` (made from the rig file ``rig_path``, if
+        from one) into a new run directory."""
 
         def drive_for(proto: Protocol) -> Drive:
             return self.drives[proto.name]
@@ -69,6 +71,7 @@ class PreparedValidation:
             drive_for=drive_for,
             manifest_extra=self.manifest_extra,
             on_progress=on_progress,
+            rig_path=rig_path,
         )
 
 
@@ -86,6 +89,7 @@ def validate(
     on_warning: Callable[[str], None] | None = None,
 ) -> CharacterizeResult:
     """Compensate every reference of the validation plan and run it; see the module docstring."""
+    made_from = None if backend is not None else rig_path
     backend = backend or make_backend(backend_name, rig_path)
     prepared = prepare_validation(
         bundle_path,
@@ -96,7 +100,7 @@ def validate(
         use_creep=use_creep,
         on_warning=on_warning,
     )
-    return prepared.play(out_dir, backend, on_progress)
+    return prepared.play(out_dir, backend, on_progress, rig_path=made_from)
 
 
 def prepare_validation(

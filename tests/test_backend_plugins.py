@@ -233,6 +233,48 @@ def test_a_plugin_in_a_folder_beside_its_rig_file_is_made_from_the_document(tmp_
     assert "[press] colour: unknown key" in str(err.value) and str(rig) in str(err.value)
 
 
+TINY_PLAN = """
+[plan]
+name = "tiny"
+preload_n = 50.0
+
+[[protocol]]
+name = "triangle-2hz"
+kind = "triangle"
+freq_hz = 2.0
+cycles = 1
+sample_rate_hz = 1000.0
+"""
+
+
+def test_runs_of_a_plugin_press_name_the_rig_file_that_made_it(tmp_path):
+    """A plug-in's describe() knows nothing of its rig file: the runs recorded the press as
+    "Rig ? (file ?" in the report, with no digest to tell one press from another."""
+    from piezopress import runformat
+    from piezopress.pipelines.report_verdict import _rig_name
+    from piezopress.pipelines.sources import rig_identity
+
+    rig = _plugin_press(tmp_path)
+    plan = tmp_path / "tiny.toml"
+    plan.write_text(TINY_PLAN)
+    char.characterize(tmp_path / "char", plan_path=plan, rig_path=rig)
+    (run,) = [runformat.read_run(f) for f in sorted((tmp_path / "char").glob("*.parquet"))]
+    assert run.meta["rig"]["source"] == str(rig) and run.meta["rig"]["backend"] == "labpress"
+    own = char.make_backend(None, rig).describe()
+    assert run.meta["rig"]["config"] == own["config"]  # the press's own description kept where it has one
+    assert _rig_name(run.meta) == "labpress" and rig_identity(run.meta) is not None
+    # where it has none, the rig file's document is the configuration
+    del own["config"]
+    doc = {"rig": {"backend": "labpress:LabPress"}, "press": {"seed": 11, "mode_hz": 1010.0}}
+    assert char.rig_description(type("Bare", (), {"describe": lambda self: dict(own)})(), rig)["config"] == doc
+    manifest = json.loads((tmp_path / "char" / "manifest.json").read_text())
+    assert manifest["rig"]["source"] == str(rig)
+    # a backend handed over in code was made from no file: nothing is said of one
+    char.characterize(tmp_path / "given", plan_path=plan, backend=char.make_backend(None, rig))
+    (given,) = [runformat.read_run(f) for f in sorted((tmp_path / "given").glob("*.parquet"))]
+    assert "source" not in given.meta["rig"] and _rig_name(given.meta) == "labpress"
+
+
 @pytest.mark.slow
 def test_a_backend_written_outside_the_package_runs_the_whole_chain(tmp_path):
     """Issue 21's acceptance: check-rig, characterize, fit, validate and report through a
