@@ -1178,11 +1178,11 @@ PLANE_LEVELS = (4, 8, 12)
 FAMILY_MARGIN = 0.30
 
 
-#: The fewest play operators a model of the modified PI family keeps when the search chooses
-#: (the thesis's 12). A PI model draws a minor loop of amplitude A with the plays whose
-#: thresholds lie below A / 2 only, and the held-out rows are each run's end, mostly its
-#: largest loops: they cannot see how coarsely fewer plays draw the smaller ones. On the
-#: second test press 6 plays (gamma 2) predicted the held-out ends 7 % better than 24, and
+#: The fewest play operators of the modified PI candidates the search chooses among (the
+#: thesis's 12; plays of no weight are still pruned after). A PI model draws a minor loop of
+#: amplitude A with the plays whose thresholds lie below A / 2 only, and the held-out rows are
+#: each run's end, mostly its largest loops: they cannot see how coarsely fewer plays draw
+#: the smaller ones. On the second test press 6 plays (gamma 2) predicted the held-out ends 7 % better than 24, and
 #: with at least 12 the compensated 0.1 Hz loops went from 1.62 % to 0.90 % (3 seeds,
 #: ``bench/bench_presses.py``), the 120 s creep from 0.23 % to 0.10 % (the hold's drive,
 #: lowered by the creep compensation, is such a small loop) and the 50 Hz loop from 1.58 %
@@ -1208,8 +1208,8 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
         if all_choice[2].n_play < min_plays:
             note = (
                 f"; {all_choice[2].label} predicted the held-out ends {100 * (1 - best_all / choose(fine)[0]):.0f} % "
-                f"better, but the family keeps at least {min_plays} plays (held-out ends are mostly the largest "
-                "loops, and fewer plays draw the smaller ones coarsely)"
+                f"better, but the family is chosen among candidates of at least {min_plays} plays (held-out ends "
+                "are mostly the largest loops, and fewer plays draw the smaller ones coarsely)"
             )
         pi = fine
     best_pi, pi_choice = choose(pi)
