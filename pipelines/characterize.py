@@ -213,6 +213,16 @@ def _measured_run(
     return runformat.make_run(columns, meta)
 
 
+def backend_from(
+    backend: Backend | None, backend_name: str | None, rig_path: str | Path | None
+) -> tuple[Backend, str | Path | None]:
+    """``(backend, the rig file it was made from)``: the one given (made from no file), else
+    :func:`make_backend`'s from ``rig_path``; the file goes to :func:`rig_description`."""
+    if backend is not None:
+        return backend, None
+    return make_backend(backend_name, rig_path), rig_path
+
+
 def rig_description(backend: Backend, rig_path: str | Path | None = None) -> dict[str, Any]:
     """``backend.describe()`` for a run's metadata, with the rig file the backend was made from
     where the description does not name it: ``source`` (the file's path) and ``config`` (its
@@ -247,8 +257,7 @@ def characterize(
     touched. On any interruption (Ctrl-C, an error) the backend is told to bring the drive
     to zero, the runs finished so far stay listed, and the manifest says how it ended.
     """
-    made_from = None if backend is not None else rig_path
-    backend = backend or make_backend(backend_name, rig_path)
+    backend, made_from = backend_from(backend, backend_name, rig_path)
     plan = load_plan(plan_path, backend.limits)
     check_drives(plan, backend)
     return execute_plan(

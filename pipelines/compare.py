@@ -30,7 +30,7 @@ from piezopress import runformat
 from piezopress.acquisition.backend import Backend
 from piezopress.analysis import ab
 from piezopress.errors import PiezopressError
-from piezopress.pipelines.characterize import DEFAULT_RIG, ProgressEvent, make_backend, rig_description
+from piezopress.pipelines.characterize import DEFAULT_RIG, ProgressEvent, backend_from, rig_description
 from piezopress.pipelines.files import new_output_dir, utc_now, write_json_atomic
 from piezopress.pipelines.gain import ROW_BY_ID, ROWS, TRACKING_PLAN, row_values
 from piezopress.pipelines.validate import DEFAULT_VALIDATION_PLAN, PreparedValidation, prepare_validation
@@ -159,8 +159,7 @@ def compare(
     stems = [p.stem for p in plan_paths]
     if len(set(stems)) < len(stems):
         raise CompareError(f"plans {', '.join(map(str, plan_paths))}: two plans of one name; expected distinct names")
-    made_from = None if backend is not None else rig_path
-    backend = backend or make_backend(backend_name, rig_path)
+    backend, made_from = backend_from(backend, backend_name, rig_path)
     warnings: list[str] = []
 
     def warn(text: str) -> None:

@@ -24,8 +24,8 @@ from piezopress.pipelines.characterize import (
     CharacterizeResult,
     Drive,
     ProgressEvent,
+    backend_from,
     execute_plan,
-    make_backend,
 )
 from piezopress.pipelines.compensate import ReachError
 from piezopress.pipelines.sources import rig_identity
@@ -89,8 +89,7 @@ def validate(
     on_warning: Callable[[str], None] | None = None,
 ) -> CharacterizeResult:
     """Compensate every reference of the validation plan and run it; see the module docstring."""
-    made_from = None if backend is not None else rig_path
-    backend = backend or make_backend(backend_name, rig_path)
+    backend, made_from = backend_from(backend, backend_name, rig_path)
     prepared = prepare_validation(
         bundle_path,
         backend,

@@ -1202,17 +1202,16 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
     title = FAMILY_TITLES[FAMILY_PI]
     if not pi:
         return None, f"{FAMILY_TITLES[FAMILY_PLANE]} (the only family tried)"
+    best_pi, pi_choice = choose(fine or pi)
     note = ""
     if fine and len(fine) < len(pi):
         best_all, all_choice = choose(pi)
         if all_choice[2].n_play < min_plays:
             note = (
-                f"; {all_choice[2].label} predicted the held-out ends {100 * (1 - best_all / choose(fine)[0]):.0f} % "
+                f"; {all_choice[2].label} predicted the held-out ends {100 * (1 - best_all / best_pi):.0f} % "
                 f"better, but the family is chosen among candidates of at least {min_plays} plays (held-out ends "
                 "are mostly the largest loops, and fewer plays draw the smaller ones coarsely)"
             )
-        pi = fine
-    best_pi, pi_choice = choose(pi)
     if not planes:
         return (best_pi, pi_choice), f"{title} (no other family tried){note}"
     best_plane = min(f[0] for f in planes)
