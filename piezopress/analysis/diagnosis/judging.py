@@ -106,6 +106,9 @@ class Finding:
     #: causes that also cleared the bar in the round this one was taken and were never named
     #: after it: what they explained, this finding explained too (cause -> its held-out gain then, %)
     could_also_be: dict[str, float] = field(default_factory=dict)
+    #: why the finding, although it predicts better, is too small to matter on the press (a cause
+    #: sets it from its own measure of the effect's size); a finding with one is never accepted
+    too_small: str = ""
 
     @property
     def unit(self) -> str:
@@ -114,7 +117,8 @@ class Finding:
     @property
     def accepted(self) -> bool:
         return (
-            self.gain_pct >= MIN_GAIN_PCT
+            not self.too_small
+            and self.gain_pct >= MIN_GAIN_PCT
             and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
             and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor
         )
@@ -169,6 +173,7 @@ class Finding:
             "evidence_strength": self.strength,
             "evidence_strength_text": self.strength_text(),
             "could_also_be_gain_pct": {c: float(g) for c, g in self.could_also_be.items()},
+            **({"too_small": self.too_small} if self.too_small else {}),
         }
 
 

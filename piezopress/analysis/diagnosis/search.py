@@ -253,6 +253,8 @@ def diagnose(
             "runs": checks[cid].runs,
             "result": "found"
             if cid in found
+            else f"not found (too small to matter: {f.too_small})"
+            if f is not None and f.too_small
             else "not found"
             if f is not None
             else f"not fitted ({failed[cid]})"

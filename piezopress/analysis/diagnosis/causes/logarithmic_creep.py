@@ -20,6 +20,17 @@ from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import rms
 from piezopress.analysis.diagnosis.slow import DRIFT_WARMUP_TAU_S, _drift_fit, _long_runs, _slow_judge
 
+#: A log-time creep is named only where it rises at least this fraction of the held step per decade
+#: of time beyond what the poles draw. Piezo stacks creep about 1-2 % of the step per decade
+#: (Physik Instrumente's gamma = 0.01-0.02; Jung & Gweon, Rev. Sci. Instrum. 2000), and a log
+#: creep the poles miss leaves an error growing by its rate with every decade after the hold:
+#: below 0.4 % per decade it stays near the compensated creep row's 0.3 % over the next decade.
+#: Measured against the thesis's base: a press whose creep spreads over the decades of its hold
+#: with no tail beyond them (the third test press, clean, seeds 0-7) rises 0.13-0.18 % per decade
+#: beyond the poles, with held-out gains of 54-61 %; the documented log creep of the three presses
+#: (seeds 0-3 or 0-7 each) 0.79-1.78 %.
+LOG_CREEP_MIN_PER_DECADE = 0.004
+
 
 def _slow(run: RunData, v: np.ndarray, rate_hz: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
     step = max(1, int(round(run.fs_hz / rate_hz)))
@@ -159,6 +170,13 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         float(np.ptp(run.y)),
         floor,
         replace(ext, drift_per_s=ctx.model.drift_per_s, drift_warmup=ctx.model.drift_warmup),
+        too_small=(
+            f"the creep rises {100 * gamma:.2g} % of the step per decade beyond the poles, under the "
+            f"{100 * LOG_CREEP_MIN_PER_DECADE:.2g} % a logarithmic creep needs to move the creep row by more "
+            "than its 0.3 % target in the decade after the hold"
+            if gamma < LOG_CREEP_MIN_PER_DECADE
+            else ""
+        ),
     )
 
 

@@ -1,0 +1,71 @@
+"""A logarithmic creep is named by its size on the press, not by its prediction gain alone.
+
+A press whose creep spreads over the decades of its hold (the third test press) leaves a small
+log-time rise beyond what a few poles draw: a log tail predicts the hold's end better (gains of
+54-61 % there), but the rise is 0.13-0.18 % of the step per decade, against the 0.8-1.8 % of the
+documented logarithmic creep of all three presses. ``logarithmic_creep`` is named only where
+its rate reaches :data:`LOG_CREEP_MIN_PER_DECADE`; a smaller one is said under ``tested``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from piezopress.analysis import creep as C
+from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.diagnosis.causes.logarithmic_creep import LOG_CREEP_MIN_PER_DECADE, cause_logarithmic_creep
+from piezopress.analysis.diagnosis.judging import MIN_GAIN_PCT
+from piezopress.analysis.hysteresis import PIModel
+
+PI = PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0)
+POLES = C.CreepModel("kv", 1.0, (1.0, 10.0), (0.01, 0.01))
+
+
+def _runs(per_decade: float, seed: int) -> list[dg.RunData]:
+    """A 120 s hold, a rest and a slow triangle of a press whose creep is the poles plus a log
+    tail of ``per_decade`` (two elements per decade from 0.05 s to 10^4 s), with noise."""
+    lt = C.log_taus(0.05, 1e4)
+    truth = dg.Model(
+        PI, creep=C.CreepModel("kv", 1.0, POLES.taus_s + tuple(lt), POLES.gains + (0.5 * per_decade,) * lt.size)
+    )
+    rng = np.random.default_rng(seed)
+    fs = 100.0
+    t = np.arange(int(120 * fs)) / fs
+    tt = np.arange(int(60 * fs)) / fs
+    runs = [
+        dg.RunData("creep-150v", "creep", t, np.where(t > 1.0, 150.0, 0.0), np.zeros_like(t), fs),
+        dg.RunData("rest-120s", "rest", t, np.zeros_like(t), np.zeros_like(t), fs),
+        dg.RunData(
+            "triangle-0.1hz", "triangle", tt, 150.0 * (1 - np.abs((tt * 0.1) % 1 * 2 - 1)), np.zeros_like(tt), fs
+        ),
+    ]
+    return [replace(r, y=truth.predict(r) + rng.normal(0.0, 0.05, r.t_s.size)) for r in runs]
+
+
+def _context(runs: list[dg.RunData]) -> dg.Context:
+    return dg.Context(
+        runs, dg.Model(PI, creep=POLES), frozenset({"triangle-0.1hz"}), {r.name: dg.noise_floor(r.y) for r in runs}
+    )
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_documented_log_creep_is_named_and_its_rate_measured(seed):
+    f = cause_logarithmic_creep(_context(_runs(0.012, seed)))
+    assert f is not None and f.accepted and not f.too_small
+    assert f.parameters["per_decade"] == pytest.approx(0.012, rel=0.25)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_log_rise_too_small_to_matter_is_not_named_but_said(seed):
+    runs = _runs(0.003, seed)
+    f = cause_logarithmic_creep(_context(runs))
+    assert f is not None and f.parameters["per_decade"] < LOG_CREEP_MIN_PER_DECADE
+    assert f.gain_pct >= MIN_GAIN_PCT  # the tail predicts the hold's end better: the size alone refuses it
+    assert not f.accepted and "per decade beyond the poles" in f.too_small
+    d = dg.diagnose(dg.Model(PI, creep=POLES), runs, ["triangle-0.1hz"], causes=["logarithmic_creep"])
+    assert not d.findings
+    (tested,) = d.tested
+    assert tested["result"].startswith("not found (too small to matter: the creep rises")
