@@ -13,6 +13,10 @@ apart from the virtual rig: the same causes in other forms), with magnitudes dra
 own documented ranges (``independent_press.DETECTABLE``), its nuisances (mode frequency and
 damping) drawn per seed, and the drift hidden in a plan without the rest run.
 
+``--minimal`` cuts every run's metadata to the run format's four required fields (no manifest, as
+runs from another program arrive) before ``fit --base`` and ``diagnose``: the matrices must stay
+within 5 points of the full metadata's (issue 20).
+
 ``--gain`` measures instead the gain on the press of every cause whose extension enters the
 compensator (``pipelines/gain.py``): the table per cause, base bundle against extended on every
 validation row, with each row's noise, beside the finding's prediction gain; ``--gain-out``
@@ -24,7 +28,7 @@ characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` 
 cluster; ``--no-batch`` (or Dask missing) runs each case start to end in a process pool.
 
 Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2] [--no-batch]
-         [--record results.jsonl]
+         [--record results.jsonl] [--minimal]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
@@ -105,21 +109,34 @@ def _backend(rig: str, effect: str, seed: int):
     )
 
 
-def characterize_case(args: tuple[str, str, int, str]) -> str:
-    """One case's characterization into ``work/runs/<rig>-<effect>-<seed>`` (a Dask task)."""
+def _characterized(out: Path, rig: str, effect: str, seed: int, minimal: bool) -> Path:
+    """The case characterized into ``out``; with ``minimal`` the directory returned holds the same
+    runs with their metadata cut to the run format's four required fields and no manifest
+    (``tests/foreign.py``, as runs from another program arrive)."""
     from piezopress.pipelines import characterize as char
 
-    rig, effect, seed, work = args
     backend, plan = _backend(rig, effect, seed)
-    out = Path(work) / "runs" / f"{rig}-{effect}-{seed}"
+    char.characterize(out, backend=backend, **({"plan_path": plan} if plan else {}))
+    if not minimal:
+        return out
+    sys.path.insert(0, str(ROOT / "tests"))
+    from foreign import foreign_dir
+
+    return foreign_dir(out, out.with_name(out.name + "-minimal"))
+
+
+def characterize_case(args: tuple[str, str, int, str, bool]) -> str:
+    """One case's characterization into ``work/runs/<rig>-<effect>-<seed>`` (a Dask task)."""
+    rig, effect, seed, work, minimal = args
     try:
-        char.characterize(out, backend=backend, **({"plan_path": plan} if plan else {}))
+        return str(_characterized(Path(work) / "runs" / f"{rig}-{effect}-{seed}", rig, effect, seed, minimal))
     except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
         return f"error: {type(exc).__name__}"
-    return str(out)
 
 
-def run_as_batch(jobs: list[tuple[str, str, int]], workers: int, record: Path | None) -> list[tuple]:
+def run_as_batch(
+    jobs: list[tuple[str, str, int]], workers: int, record: Path | None, minimal: bool = False
+) -> list[tuple]:
     """The cases on one local Dask cluster: every characterization as a task, then
     ``piezopress batch diagnose`` (``fit --base`` + ``diagnose`` per press, the same functions as
     the commands) over the run sets, on the same cluster. Returns ``(effect, named, gain)`` per job."""
@@ -132,14 +149,15 @@ def run_as_batch(jobs: list[tuple[str, str, int]], workers: int, record: Path | 
         cluster = BT.local_cluster(workers)
         client = Client(cluster)
         try:
-            dirs = client.gather(client.map(characterize_case, [(*j, work) for j in jobs], pure=False))
+            dirs = client.gather(client.map(characterize_case, [(*j, work, minimal) for j in jobs], pure=False))
             presses, index = [], {}
             for i, (job, d) in enumerate(zip(jobs, dirs)):
                 if d.startswith("error"):
                     results[i] = (job[1], (d,), float("nan"))
                 else:
-                    presses.append(BT.Press(Path(d).name, (d,)))
-                    index[Path(d).name] = i
+                    name = Path(d).name.removesuffix("-minimal")
+                    presses.append(BT.Press(name, (d,)))
+                    index[name] = i
 
             def done(k: int, n: int, row: dict) -> None:
                 i = index[row["press"]]
@@ -154,7 +172,7 @@ def run_as_batch(jobs: list[tuple[str, str, int]], workers: int, record: Path | 
                         float("nan"),
                     )
                 results[i] = (effect, named, float(gain))
-                _record(record, jobs[i], results[i])
+                _record(record, jobs[i], results[i], minimal)
                 print(f"  {k}/{n} {row['press']}: {', '.join(named)}", file=sys.stderr)
 
             BT.run_batch(presses, "diagnose", Path(work) / "out", scheduler=cluster.scheduler_address, on_done=done)
@@ -164,7 +182,7 @@ def run_as_batch(jobs: list[tuple[str, str, int]], workers: int, record: Path | 
     return [results[i] for i in range(len(jobs))]
 
 
-def _record(path: Path | None, job: tuple, r: tuple) -> None:
+def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False) -> None:
     if path is None:
         return
     with open(path, "a", encoding="utf-8") as fh:
@@ -176,26 +194,25 @@ def _record(path: Path | None, job: tuple, r: tuple) -> None:
                     "seed": job[2],
                     "named": list(r[1]),
                     "gain_pct": None if not np.isfinite(r[2]) else r[2],
+                    **({"minimal": True} if minimal else {}),
                 }
             )
             + "\n"
         )
 
 
-def one(args: tuple[str, str, int]) -> tuple[str, str, float]:
+def one(args: tuple[str, str, int, bool]) -> tuple[str, str, float]:
     from piezopress.pipelines import bundle as B
-    from piezopress.pipelines import characterize as char
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    rig, effect, seed = args
-    backend, plan = _backend(rig, effect, seed)
+    rig, effect, seed, minimal = args
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         try:
-            char.characterize(tmp / "char", backend=backend, **({"plan_path": plan} if plan else {}))
-            B.write_document(F.fit_bundle([tmp / "char"], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
-            result, _ = D.diagnose([tmp / "char"], tmp / "base.json", tmp / "diag")
+            runs = _characterized(tmp / "char", rig, effect, seed, minimal)
+            B.write_document(F.fit_bundle([runs], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
+            result, _ = D.diagnose([runs], tmp / "base.json", tmp / "diag")
         except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
             return effect, (f"error: {type(exc).__name__}",), float("nan")
     named = tuple(f.cause for f in result.findings) or ("none",)
@@ -230,6 +247,11 @@ def main() -> None:
     )
     ap.add_argument(
         "--pairs", action="store_true", help="the pairs: slew + drift, delay + interference, rate + log creep"
+    )
+    ap.add_argument(
+        "--minimal",
+        action="store_true",
+        help="every run's metadata cut to the run format's four required fields, no manifest (runs from elsewhere)",
     )
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument(
@@ -272,7 +294,7 @@ def main() -> None:
     if a.rig == "ours" and any("+" in h for h in hidden):
         raise SystemExit("pairs run on the test presses (--rig second or third); the virtual rig hides one effect")
     if a.matrix_from:  # the matrix of results recorded earlier (a run stopped part way, or several joined)
-        results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig]
+        results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig and r[5] == a.minimal]
         seeds = sorted({r[4] for r in results})
         print_matrix(a.rig, hidden, [r[:3] for r in results], f"{len(seeds)} seeds ({_ranges(seeds)})", None)
         return
@@ -286,19 +308,27 @@ def main() -> None:
             print("Dask is not installed: one process pool instead (pip install 'piezopress[fleet]')", file=sys.stderr)
         results = []
         with ProcessPoolExecutor(a.workers) as pool:
-            for job, r in zip(jobs, pool.map(one, jobs)):
+            for job, r in zip(jobs, pool.map(one, [(*j, a.minimal) for j in jobs])):
                 results.append(r)
-                _record(a.record, job, r)
+                _record(a.record, job, r, a.minimal)
     else:
-        results = run_as_batch(jobs, a.workers, a.record)
+        results = run_as_batch(jobs, a.workers, a.record, a.minimal)
     wall = time.perf_counter() - start
-    print_matrix(a.rig, hidden, results, f"{a.seeds} seeds per row", (wall, len(jobs), a.workers))
+    over = f"{a.seeds} seeds per row" + (", metadata cut to the four required fields" if a.minimal else "")
+    print_matrix(a.rig, hidden, results, over, (wall, len(jobs), a.workers))
 
 
 def _read_results(path: Path) -> list[tuple]:
     rows = [json.loads(line) for line in Path(path).read_text(encoding="utf-8").splitlines() if line.strip()]
     return [
-        (r["effect"], tuple(r["named"]), float("nan") if r["gain_pct"] is None else r["gain_pct"], r["rig"], r["seed"])
+        (
+            r["effect"],
+            tuple(r["named"]),
+            float("nan") if r["gain_pct"] is None else r["gain_pct"],
+            r["rig"],
+            r["seed"],
+            bool(r.get("minimal")),
+        )
         for r in rows
     ]
 
