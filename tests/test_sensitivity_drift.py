@@ -1,6 +1,7 @@
 """Issue 20: a drifting sensitivity is a catalogue cause, judged on the same drive played again
 later in the test (inside one run a gain drift cannot be told from an offset drift plus a creep
-misfit), on the test's clock from the runs' recorded start times.
+misfit), on the test's clock from the runs' recorded start times, or, where none are recorded,
+per play in the runs' order.
 
 The drift is hidden here by scaling a copy of a sample run with numpy (``y * (1 + g)``), never
 with the model's own gain-drift term; the test presses hide it in forms of their own (slow).
@@ -74,6 +75,29 @@ def test_a_repeat_read_alike_names_nothing(tmp_path, sample_base_bundle):
     assert res.findings == []
     (t,) = [t for t in res.as_dict()["tested"] if t["cause"] == "sensitivity_drift"]
     assert abs(t["parameters"]["gain_drift_per_h"]) < 2e-4
+
+
+@pytest.mark.parametrize("gain", [0.0, 0.004])
+def test_without_start_times_the_repeat_still_shows_the_gain_change(tmp_path, sample_base_bundle, gain):
+    """Runs from elsewhere carry only the four required fields: the plays of one drive are found
+    from the drives, and the gain change between them is named (per play, its direction and rate
+    per hour unknown, and said so); a repeat read alike names nothing."""
+    from foreign import foreign_dir
+
+    from piezopress.pipelines import diagnose as D
+
+    runs = foreign_dir(_with_repeat(tmp_path / "timed", gain), tmp_path / "runs")
+    assert not any("started_utc" in runformat.read_run(p).meta for p in runs.glob("*.parquet"))
+    res, _ = D.diagnose([runs], sample_base_bundle, tmp_path / "diag", causes=["sensitivity_drift"])
+    (t,) = [t for t in res.as_dict()["tested"] if t["cause"] == "sensitivity_drift"]
+    if gain == 0.0:
+        assert res.findings == [] and abs(t["parameters"]["gain_change_per_play"]) < 5e-4
+        return
+    (f,) = res.findings
+    assert f.cause == "sensitivity_drift" and f.gain_pct >= 50.0
+    # the two plays sit side by side in the runs' order (either way round): one play apart
+    assert abs(f.parameters["gain_change_per_play"]) == pytest.approx(gain, rel=0.1)
+    assert "record no start times" in f.evidence
 
 
 def test_without_a_repeat_it_is_not_tested_and_the_need_is_said(tmp_path, sample_base_bundle):

@@ -103,9 +103,15 @@ def cause_sensitivity_drift(ctx: Context) -> Finding | None:
     it (taken out: each repeat's offset and slope against its first run are free). ``k`` is
     fitted on the other repeats and judged on each in turn (leave one out); with one repeat
     only, on itself, and the evidence says so (weak)."""
+    long = [r for r in ctx.runs if r.t_s[-1] >= REPEAT_MIN_S]
     clock = run_starts(ctx.runs)
+    groups = repeats(long, clock)
+    timed = bool(groups)
+    if not timed:  # no start times recorded (runs from elsewhere): the plays of one drive still show a gain change
+        clock = {r.ident: float(i) for i, r in enumerate(ctx.runs)}  # their order as given, one play apart
+        groups = repeats(long, clock)
     pairs = []  # (first run, repeat, time between, first detrended, difference detrended, floor)
-    for g in repeats([r for r in ctx.runs if r.t_s[-1] >= REPEAT_MIN_S], clock):
+    for g in groups:
         for r in g[1:]:
             first = g[0]
             k0 = int(REPEAT_FROM * r.t_s.size)
@@ -143,25 +149,41 @@ def cause_sensitivity_drift(ctx: Context) -> Finding | None:
     # its own form, on the hold with the drift taken out; where it cannot be, the drift is left
     # out of that hold instead (it would be counted twice there, and read as creep by the next cause).
     creep, holds = ctx.model.creep, [r for r in ctx.runs if r.kind == "creep" and ctx.is_fitted(r) and r.ident in clock]
-    refit = _creep_without_drift(ctx, max(holds, key=lambda r: r.duration_s), k_all, clock, ref) if holds else None
-    inside = {r.ident: refit is not None or not (r.kind == "creep" and ctx.is_fitted(r)) for r in ctx.runs}
-    starts = tuple(sorted((ident, start, inside[ident]) for ident, start in clock.items()))
+    if timed:
+        refit = _creep_without_drift(ctx, max(holds, key=lambda r: r.duration_s), k_all, clock, ref) if holds else None
+        inside = {r.ident: refit is not None or not (r.kind == "creep" and ctx.is_fitted(r)) for r in ctx.runs}
+        starts = tuple(sorted((ident, start, inside[ident]) for ident, start in clock.items()))
+    else:  # a run's gain is its play's: 1 + k (play - ref), the drift inside a run unknown (read at its middle)
+        refit = None
+        starts = tuple(sorted((r.ident, clock[r.ident] - 0.5 * r.duration_s, False) for r in ctx.runs))
     ext = replace(ctx.model, gain_drift=(k_all, ref, starts), creep=refit or creep)
     u = ctx.model.unit
-    said = ", ".join(f"{r.name} {dt / 60:.3g} min after {f.name}" for f, r, dt, *_ in pairs[:3])
-    ev = (
-        f"the reading's gain drifts {100 * 3600 * k_all:.3g} % per hour: the same drive played again later reads "
-        f"the first run scaled ({said}{', ...' if len(pairs) > 3 else ''}), beyond an offset and a slope; "
-        f"held-out RMS of the repeats' differences {extended:.3g} {units.label(u)} with the gain drift, "
-        f"{baseline:.3g} without"
+    held = (
+        f"beyond an offset and a slope; held-out RMS of the repeats' differences {extended:.3g} {units.label(u)} "
+        f"with the gain drift, {baseline:.3g} without"
     )
+    if timed:
+        said = ", ".join(f"{r.name} {dt / 60:.3g} min after {f.name}" for f, r, dt, *_ in pairs[:3])
+        ev = (
+            f"the reading's gain drifts {100 * 3600 * k_all:.3g} % per hour: the same drive played again later "
+            f"reads the first run scaled ({said}{', ...' if len(pairs) > 3 else ''}), {held}"
+        )
+        params = {"gain_drift_per_h": 3600.0 * k_all, "repeats": float(len(pairs))}
+    else:
+        said = ", ".join(f"{f.name} and {r.name}" for f, r, *_ in pairs[:3])
+        ev = (
+            f"the reading's gain changed between plays of the same drive: they read {100 * abs(k_all):.3g} % apart "
+            f"per play ({said}{', ...' if len(pairs) > 3 else ''}), {held}; the runs record no start times "
+            "(started_utc), so which was played first and the rate per hour are not known"
+        )
+        params = {"gain_change_per_play": k_all, "repeats": float(len(pairs))}
     return Finding(
         "sensitivity_drift",
         ev,
         baseline,
         extended,
         100.0 * (baseline - extended) / baseline if baseline > 0 else 0.0,
-        {"gain_drift_per_h": 3600.0 * k_all, "repeats": float(len(pairs))},
+        params,
         sorted({p[0].name for p in pairs} | {p[1].name for p in pairs}),
         [p[1].name for p in pairs],
         max(float(np.ptp(p[1].y)) for p in pairs),
@@ -176,7 +198,8 @@ CAUSE = Cause(
     "sensitivity_drift",
     "the load cell's sensitivity drifts over the hours of a test (bridge excitation, the gauges' temperature): "
     "the reading's gain changes with time",
-    "a gain-drift term of the reading on the test's clock (the runs' recorded start times)",
+    "a gain-drift term of the reading on the test's clock (the runs' recorded start times; without them, per play "
+    "in the runs' order)",
     cause_sensitivity_drift,
     needs=(Need((RunSpec("repeat", min_duration_s=REPEAT_MIN_S),), 2),),
     precedence=1,  # judged on repeats of one drive: no cause of the press's physics explains it
