@@ -514,8 +514,10 @@ def hysteresis_and_creep(
     them. Among the forms that agree, the hold's held-out end chooses (only the hold shows
     the creep of minutes). None agrees (the loop model itself misfits the sweeps, as on a
     press of another family): the creep is still kept, fitted on the hold alone as the
-    :data:`CREEP_FALLBACK_FORM` form against the first hysteresis model, without alternation
-    (so it cannot reshape the loop), and the reason says so. With ``passes=1`` the hysteresis
+    :data:`CREEP_FALLBACK_FORM` form against the first hysteresis model (so the loop's misfit
+    cannot reshape it), after the loop fitted again with it removed where that pair predicts the
+    sweeps' held-out ends better than the first loop (which holds the sweeps' own creep: with the
+    creep after it, that creep counts twice), and the reason says so. With ``passes=1`` the hysteresis
     model keeps the sweeps' creep, and ``base`` has one form by definition: there the check is
     recorded, not enforced.
 
@@ -542,17 +544,34 @@ def hysteresis_and_creep(
         tried.append((form, h, hfit, c, cfit, sweep_holdout_rms(sweeps, hfit.model, cfit.model, holdout_fraction)))
 
     def from_hold_alone() -> tuple:
-        # the simplest stable form, fitted on the hold against the first hysteresis model, with
-        # no alternation so that it cannot reshape the loop
+        # the simplest stable form, fitted on the hold against the first hysteresis model (the
+        # loop's misfit cannot reshape it). The first hysteresis model holds the sweeps' own
+        # creep, so with this creep after it the sweeps' creep counts twice; the loop fitted
+        # again with this creep removed is kept instead where it predicts the sweeps' held-out
+        # ends better (the sweeps check the pair, they never change the creep)
         c, cfit = creep_section(hold, h0, holdout_fraction=holdout_fraction, forms=("spectrum",), align=not base)
-        return (
-            CREEP_FALLBACK_FORM,
-            h0,
-            h0fit,
-            c,
-            cfit,
-            sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction),
+        pairs = [(sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction), h0, h0fit)]
+        try:
+            h1, h1fit = hysteresis_section(sweeps, creep=cfit.model, **kw)
+            pairs.append((sweep_holdout_rms(sweeps, h1fit.model, cfit.model, holdout_fraction), h1, h1fit))
+        except (FitError, H.HysteresisFitError, CompensatorUnstableError):
+            pass
+        err, h, hfit = min(pairs, key=lambda p: p[0])
+        how = (
+            f"the loop fitted again with it removed (the sweeps' held-out RMS {err:.4g}, against {pairs[0][0]:.4g} "
+            "with the first loop)"
+            if h is not h0
+            else "after the first loop"
+            + (
+                f" (fitted again with it removed, the loop predicted the sweeps worse: {pairs[1][0]:.4g})"
+                if len(pairs) > 1
+                else ""
+            )
         )
+        held_note.append(how)
+        return CREEP_FALLBACK_FORM, h, hfit, c, cfit, err
+
+    held_note: list[str] = []
 
     fallback = ""
     if not tried:
@@ -561,7 +580,7 @@ def hysteresis_and_creep(
         tried.append(from_hold_alone())
         fallback = (
             f"; the form{'s' if len(forms) > 1 else ''} asked for could not be fitted ({'; '.join(failed)}): the creep "
-            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form without alternation"
+            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form, {held_note[-1]}"
         )
     limit = (1.0 + CREEP_SWEEP_TOLERANCE) * min([alone] + [t[5] for t in tried])
     agree = {t[0] for t in tried if t[5] <= limit}
@@ -580,7 +599,7 @@ def hysteresis_and_creep(
             f"{disagreed}, more than "
             f"{100 * CREEP_SWEEP_TOLERANCE:g} % above the best), so the loop model does not fit these sweeps well: "
             "the creep "
-            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form without alternation"
+            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form, {held_note[-1]}"
         )
     best = min(pool, key=lambda t: t[4].candidates[0].holdout_rms)
     form, h, hfit, c, cfit, rms = best
