@@ -9,7 +9,16 @@ import numpy as np
 
 from piezopress import signals, units
 from piezopress.analysis.diagnosis.cause import _FAST_STEPS, Cause
-from piezopress.analysis.diagnosis.judging import Context, Finding, _err, _fast_base, _fast_split, _judge_dynamics
+from piezopress.analysis.diagnosis.judging import (
+    CHAIN_LAG_S,
+    Context,
+    Finding,
+    _err,
+    _fast_base,
+    _fast_split,
+    _forces,
+    _judge_dynamics,
+)
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import rms
 
@@ -20,24 +29,22 @@ INTERFERENCE_TAUS_S = (0.1e-3, 0.25e-3, 0.5e-3, 1e-3, 2e-3, 4e-3)
 SIGNED_TAU_MAX_S = 0.5e-3
 
 
-def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
-    runs = ctx.independent(ctx.steps() + ctx.sweeps(50.0))
-    if len(runs) < 2:
-        return None
-    fit, held = _fast_split(ctx)
-    base = _fast_base(ctx, fit)
-    res = _err(fit, base.predict)
-    # the artefact is additive at the sensor, so linear in its gains: the signed drive current
-    # (a coupling that follows the current's sign) and the unsigned current's envelope above a
-    # threshold (a dip whatever the sign), each smoothed over tau, fitted together
-    best = (rms(res), None)
+def _delayed(x: np.ndarray, t: np.ndarray, delay_s: float) -> np.ndarray:
+    """``x`` delayed by ``delay_s`` (as :meth:`Model.reading` delays the reading), held at ``x[0]`` before."""
+    return x if delay_s <= 0 else np.interp(t - delay_s, t, x, left=x[0])
+
+
+def _regress(fit, res: np.ndarray, drives: dict[int, np.ndarray], best: tuple) -> tuple:
+    """The interference's gains fitted by least squares on the residual ``res`` of the fitting
+    segments, for each envelope time constant and threshold; ``best`` improved where one does
+    better: ``(rms, (g, threshold, tau, g_signed) or None)``."""
     for tau in INTERFERENCE_TAUS_S:
-        envs = [signals.rate_envelope(r.drive, r.fs_hz, tau)[sl] for r, sl in fit]
+        envs = [signals.rate_envelope(drives[id(r)], r.fs_hz, tau)[sl] for r, sl in fit]
         # a coupling that follows the current's sign is as fast as the sensor's amplifier
         signed = np.concatenate(
             [
                 signals.first_order(
-                    np.diff(r.drive, prepend=r.drive[0]) * r.fs_hz, min(tau, SIGNED_TAU_MAX_S), r.fs_hz
+                    np.diff(drives[id(r)], prepend=drives[id(r)][0]) * r.fs_hz, min(tau, SIGNED_TAU_MAX_S), r.fs_hz
                 )[sl]
                 for r, sl in fit
             ]
@@ -51,10 +58,42 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
             e = rms(res - A @ np.array([g, gs]))
             if e < best[0]:
                 best = (e, (float(g), frac * peak, tau, float(gs)))
+    return best
+
+
+#: A delay found already is fitted again with the interference at these fractions of itself: found
+#: alone, it took up part of the artefact's lag (a coupling through a 0.2 ms filter, delayed too).
+DELAY_REFIT_FRACTIONS = (0.5, 0.75, 1.0, 1.25)
+
+
+def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
+    runs = ctx.independent(ctx.steps() + ctx.sweeps(50.0))
+    if len(runs) < 2:
+        return None
+    fit, held = _fast_split(ctx)
+    base = _fast_base(ctx, fit)
+    # the artefact is additive at the sensor, so linear in its gains: the signed drive current
+    # (a coupling that follows the current's sign) and the unsigned current's envelope above a
+    # threshold (a dip whatever the sign), each smoothed over tau, fitted together. The model
+    # delays the whole reading, this artefact included: the drive it follows is read as delayed
+    # (by the chain's own lag, or a delay found already, which is fitted again with it)
+    best, delay = (rms(_err(fit, base.predict)), None), base.delay_s
+    found_delay = ctx.model.delay_s > CHAIN_LAG_S
+    forces = _forces(base, [r for r, _ in fit]) if found_delay else None
+    plain = (best[0], base.delay_s)  # the delay alone at its best on the same grid: the baseline
+    for d in [base.delay_s * f for f in DELAY_REFIT_FRACTIONS] if found_delay else [base.delay_s]:
+        at = replace(base, delay_s=d)
+        res = _err(fit, at.predict) if forces is None else _err(fit, lambda r, at=at: at.reading(r, forces[id(r)]))
+        plain = min(plain, (rms(res), d))
+        drives = {id(r): _delayed(r.drive, r.t_s, d) for r, _ in fit}
+        tried = _regress(fit, res, drives, (max(best[0], 0.0), best[1]))
+        if tried[1] is not None and tried is not best and tried[0] < best[0]:
+            best, delay = tried, d
     if best[1] is None:
         return None
     g, e0, tau, gs = best[1]
-    ext = replace(base, interference=(g, e0, tau, gs))
+    ext = replace(base, interference=(g, e0, tau, gs), delay_s=delay)
+    base = replace(base, delay_s=plain[1])
     u = ctx.model.unit
     parts = []
     if g:
@@ -68,6 +107,11 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
         f"while the drive current flows the reading {' and '.join(parts)}, at the sensor: "
         f"it does not ring with the mode, an artefact of the reading, not {units.quantity(u)}"
     )
+    if found_delay:
+        ev += (
+            f" (the delay found fitted again with it: {delay * 1e3:.3g} ms, against {plain[1] * 1e3:.3g} ms "
+            "fitted without it)"
+        )
     return _judge_dynamics(
         ctx,
         "drive_coupled_interference",
