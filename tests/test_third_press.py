@@ -158,8 +158,6 @@ def test_fit_on_the_third_press_keeps_its_creep_and_finds_its_mode(tmp_path):
     char.characterize(tmp_path / "char", backend=press)
     doc = F.fit_bundle([tmp_path / "char"], press.limits).doc
     assert "creep" in doc and doc["creep"]["model"]["gains"], "fit dropped the creep"
-    check = doc["creep"]["fit"]["sweep_check"]  # the creep kept does not spoil the sweeps (1.96x before)
-    assert check["with_creep_rms"] <= 1.2 * check["hysteresis_alone_rms"], check
     assert doc["hysteresis"]["fit"]["holdout_rms_pct_of_range"] < 1.5
     wn = doc["shaper"]["shaper"]["natural_freq_rad_s"]
     assert wn == pytest.approx(2 * np.pi * press.mode_hz, rel=0.10)
@@ -182,8 +180,9 @@ def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
     assert max(abs(g) for g in creep["model"]["gains"]) <= 1.0
     if creep["model"]["form"] != "poles":  # kept in the simplest stable form: said why
         assert creep["model"]["form"] == "spectrum" and "plausible elements" in creep["fit"]["reason"]
-    # the pair predicts the sweeps no worse than the loop alone (the loop first fitted holds the
-    # sweeps' own creep: with the hold's creep after it, that creep counted twice, 2.8x worse)
+    # the base's pair (the forward model diagnose judges) predicts the sweeps no worse than the
+    # loop alone (the loop first fitted holds the sweeps' own creep: with the hold's creep after
+    # it, that creep counted twice, 2.8x worse)
     check = creep["fit"]["sweep_check"]
     assert check["with_creep_rms"] <= 1.1 * check["hysteresis_alone_rms"], check
 

@@ -1018,6 +1018,8 @@ class HysteresisFit:
     final_model: PIModel | None = None
     #: which model family won on the held-out rows, and why
     family_reason: str = ""
+    #: the structure chosen (before pruning)
+    candidate: Candidate | None = None
 
     @property
     def holdout_rms_pct(self) -> float:
@@ -1299,4 +1301,4 @@ def _finish(
         f"({best:.4g}) with the fewest operators" + (f"; family: {family}" if family else "")
     )
     final = refit(data, model, rows="all", cache=cache) if refit_all else None
-    return HysteresisFit(model, rows, cand.label, reason, tr, ho, out_range, pruned, final, family)
+    return HysteresisFit(model, rows, cand.label, reason, tr, ho, out_range, pruned, final, family, cand)

@@ -74,7 +74,7 @@ CAUSE = Cause(
     "asymmetry or saturation the fitted operator set cannot represent",
     "more play and dead-zone operators, chosen on held-out data",
     cause_hysteresis_order,
-    needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1),),
+    needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1, model=("operators",)),),
     extend=_bundle.extend_hysteresis_order,
     targets=("static_hysteresis", "tracking_staircase", "tracking_random"),
 )
