@@ -14,7 +14,7 @@ out) and the diagnosis's findings (the same causes, their gains within :data:`GA
 against the reference or, with ``--outputs-against COMMIT``, against that commit's outputs (the
 speed work's own starting point: other issues have changed the outputs since the reference).
 
-Run: .venv/bin/python bench/bench_chain.py [--skip-demo] [--outputs-against COMMIT]
+Run: .venv/bin/python bench/bench_chain.py [--skip-demo] [--before COMMIT] [--outputs-against COMMIT]
 """
 
 from __future__ import annotations
@@ -168,12 +168,20 @@ def main() -> None:
         help="compare the outputs with this commit's (not timed; default: the timed reference, "
         f"{BEFORE}, whose outputs other issues' work has changed since)",
     )
+    ap.add_argument(
+        "--before",
+        metavar="COMMIT",
+        default=BEFORE,
+        help=f"the timed reference (default {BEFORE}, the code before issue 23; e.g. a session's start, for "
+        "'no slower than today')",
+    )
     a = ap.parse_args()
+    before = a.before
     with tempfile.TemporaryDirectory(prefix="piezopress-chain-") as tmp:
         work = Path(tmp)
-        tree = code_tree(work, BEFORE)
+        tree = code_tree(work, before)
         if tree is None:
-            raise SystemExit(f"no git history here: the reference ({BEFORE}) cannot be taken; run in a checkout")
+            raise SystemExit(f"no git history here: the reference ({before}) cannot be taken; run in a checkout")
         versions = {"before": tree, "now": None}
         times: dict[str, dict[str, float]] = {"before": {}, "now": {}}
         for label in versions:
@@ -188,7 +196,7 @@ def main() -> None:
             ),
         ]
         where = CHARACTERIZATION.relative_to(ROOT)
-        print(f"chain stages on {where}, before ({BEFORE}) beside now, {os.cpu_count()} cores")
+        print(f"chain stages on {where}, before ({before}) beside now, {os.cpu_count()} cores")
         for name, args in stages:
             for label, code in versions.items():
                 times[label][name] = run_stage(code, args(work / label), cwd=work)
@@ -201,7 +209,7 @@ def main() -> None:
             target = TARGETS_S.get(name)
             mark = "" if target is None else (f"<= {target:g} s " + ("met" if n <= target else "NOT MET"))
             print(f"{name:<12} {b:7.1f}s {n:7.1f}s {n / b:10.2f}x   {mark}")
-        ref, label = work / "before", BEFORE
+        ref, label = work / "before", before
         if a.outputs_against:  # the same stages with that commit's code, for their outputs only
             label = a.outputs_against
             other = code_tree(work, label)
