@@ -519,7 +519,7 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
             )
     if result.not_tested:
         lines.append("")
-        lines.append(f"Not tested ({len(result.not_tested)}): the runs do not allow it")
+        lines.append(f"Not tested ({len(result.not_tested)}): the runs or the base model do not allow it")
         for t in result.not_tested:
             lines.append(f"    {t.cause}: needs {t.needs}")
             lines.append(f"        have: {t.have}")

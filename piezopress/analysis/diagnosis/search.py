@@ -301,7 +301,9 @@ def diagnose(
     for sig in signatures:
         head += f"; {sig['text']}"
     if not_tested:
-        head += f"; not tested ({len(not_tested)}, the runs do not allow it): " + ", ".join(t.cause for t in not_tested)
+        head += f"; not tested ({len(not_tested)}, the runs or the base model do not allow it): " + ", ".join(
+            t.cause for t in not_tested
+        )
     if base_fit.get("poor"):
         head += (
             f"; the base fit is poor: {base_fit[f'rms_{k}']:.3g} {u} RMS on the slow sweeps it was fitted on, "
