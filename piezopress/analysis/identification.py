@@ -662,11 +662,13 @@ def base_structure(
     :data:`~piezopress.analysis.hysteresis.FAMILY_MARGIN` better than the best modified PI
     model), play operators cannot draw the loop, and a base that misfits the press's own loop
     would make every diagnosis about the base (on the third test press the thesis's structure
-    left 87 times the noise floor on the sweeps, and ``hysteresis_order`` was named on every
+    left 87-225 times the noise floor on the sweeps, and ``hysteresis_order`` was named on every
     clean seed): the base is searched as ``fit``'s is (again in each pass of the alternation with the
     creep, which changes the loop the sweeps show), said in its ``base_structure``. On a
     press of the modified PI family the base keeps the thesis's structure, so ``diagnose`` still
-    finds what more operators would draw. Returns ``(grid, the searched section and fit or None, note)``."""
+    finds what more operators would draw. Returns ``(grid, searched, note)``: the grid of the
+    alternation's passes (None: searched again in each), the searched section and fit (None: the
+    thesis's structure) and the sentence for ``base_structure``."""
     h, fit = hysteresis_section(sweeps, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows)
     if fit.model.plane is None or fit.candidate is None:
         return THESIS_GRID, None, ""
