@@ -547,7 +547,7 @@ def hysteresis_and_creep(
             continue
         tried.append((form, h, hfit, c, cfit, sweep_holdout_rms(sweeps, hfit.model, cfit.model, holdout_fraction)))
 
-    def from_hold_alone() -> tuple:
+    def from_hold_alone() -> tuple[tuple, str]:
         # the simplest stable form, fitted on the hold against the first hysteresis model (the
         # loop's misfit cannot reshape it). The first hysteresis model holds the sweeps' own
         # creep, so with this creep after it the sweeps' creep counts twice in the forward model.
@@ -576,19 +576,17 @@ def hysteresis_and_creep(
                 else ""
             )
         )
-        held_note.append(how)
-        return CREEP_FALLBACK_FORM, h, hfit, c, cfit, err
-
-    held_note: list[str] = []
+        return (CREEP_FALLBACK_FORM, h, hfit, c, cfit, err), how
 
     fallback = ""
     if not tried:
         # not one form could be fitted (cancelling poles on a delayed step's edge, say): the
         # creep the hold shows is still kept, in the simplest stable form, and the reason said
-        tried.append(from_hold_alone())
+        spec, how = from_hold_alone()
+        tried.append(spec)
         fallback = (
             f"; the form{'s' if len(forms) > 1 else ''} asked for could not be fitted ({'; '.join(failed)}): the creep "
-            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form, {held_note[-1]}"
+            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form, {how}"
         )
     limit = (1.0 + CREEP_SWEEP_TOLERANCE) * min([alone] + [t[5] for t in tried])
     agree = {t[0] for t in tried if t[5] <= limit}
@@ -599,7 +597,7 @@ def hysteresis_and_creep(
         # No form's pair agrees with the sweeps: the loop model misfits them (a press of another
         # family), and its misfit must not veto the creep that the hold alone measures clearly.
         disagreed = ", ".join(f"{t[5]:.4g} with the {t[0]} creep" for t in tried)
-        spec = from_hold_alone()
+        spec, how = from_hold_alone()
         tried.append(spec)
         pool = [spec]
         fallback = (
@@ -607,7 +605,7 @@ def hysteresis_and_creep(
             f"{disagreed}, more than "
             f"{100 * CREEP_SWEEP_TOLERANCE:g} % above the best), so the loop model does not fit these sweeps well: "
             "the creep "
-            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form, {held_note[-1]}"
+            f"is kept from the hold alone, as the {CREEP_FALLBACK_FORM} form, {how}"
         )
     best = min(pool, key=lambda t: t[4].candidates[0].holdout_rms)
     form, h, hfit, c, cfit, rms = best

@@ -77,17 +77,15 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     # threshold (a dip whatever the sign), each smoothed over tau, fitted together. The model
     # delays the whole reading, this artefact included: the drive it follows is read as delayed
     # (by the chain's own lag, or a delay found already, which is fitted again with it)
-    best, delay = (rms(_err(fit, base.predict)), None), base.delay_s
     found_delay = ctx.model.delay_s > CHAIN_LAG_S
-    forces = _forces(base, [r for r, _ in fit]) if found_delay else None
-    plain = (best[0], base.delay_s)  # the delay alone at its best on the same grid: the baseline
-    for d in [base.delay_s * f for f in DELAY_REFIT_FRACTIONS] if found_delay else [base.delay_s]:
-        at = replace(base, delay_s=d)
-        res = _err(fit, at.predict) if forces is None else _err(fit, lambda r, at=at: at.reading(r, forces[id(r)]))
-        plain = min(plain, (rms(res), d))
-        drives = {id(r): _delayed(r.drive, r.t_s, d) for r, _ in fit}
-        tried = _regress(fit, res, drives, (max(best[0], 0.0), best[1]))
-        if tried[1] is not None and tried is not best and tried[0] < best[0]:
+    delays = [base.delay_s * f for f in DELAY_REFIT_FRACTIONS] if found_delay else [base.delay_s]
+    forces = _forces(base, [r for r, _ in fit])  # a delay changes only the reading
+    res = {d: _err(fit, lambda r, d=d: replace(base, delay_s=d).reading(r, forces[id(r)])) for d in delays}
+    plain = min((rms(e), d) for d, e in res.items())  # the delay alone at its best: the baseline
+    best, delay = (rms(res[base.delay_s]), None), base.delay_s
+    for d in delays:
+        tried = _regress(fit, res[d], {id(r): _delayed(r.drive, r.t_s, d) for r, _ in fit}, best)
+        if tried is not best:
             best, delay = tried, d
     if best[1] is None:
         return None
