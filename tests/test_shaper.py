@@ -443,3 +443,35 @@ def test_the_drive_chain_is_told_apart_and_the_mode_found_through_it(chain):
         assert found.delay_s == pytest.approx(3.7e-4, rel=0.1)
         plain = mode_fit.identify_mode_runs(ts, cmds, ys, hold="zoh")
         assert abs(plain.wn / wn - 1) > 0.05  # what the chain corrects
+
+
+def test_a_heavily_damped_mode_keeps_its_shaper_section(monkeypatch):
+    """A mode identified near critical damping (on the third test press a rate-dependent loss
+    smooths the steps' drive and the fit ends at damping 0.95) keeps the shaper section: the
+    design's robustness band in damping is narrowed below critical damping instead of the
+    section being dropped ("the mode fit failed" before)."""
+    import dataclasses
+
+    from piezopress import runformat
+    from piezopress.analysis import identification, mode_fit
+
+    fs, wn = 20_000.0, 2 * np.pi * 800.0
+    runs = []
+    for v in (20.0, 50.0):
+        t = np.arange(int(0.05 * fs)) / fs
+        c = np.where(t >= 0.005, v, 0.0)
+        y = 50.0 + 2.0 * mode_response(c, fs, wn, 0.06, hold="zoh")
+        meta = runformat.make_meta("step", f"step-{v:g}v", fs)
+        runs.append(runformat.make_run({"t_s": t, "command_v": c, "force_n": y}, meta))
+    real = mode_fit.identify_mode_chain
+
+    def damped(*args, **kwargs):
+        found = real(*args, **kwargs)
+        return dataclasses.replace(found, mode=dataclasses.replace(found.mode, zeta=0.95))
+
+    monkeypatch.setattr(mode_fit, "identify_mode_chain", damped)
+    body, fit = identification.shaper_section(runs)
+    assert fit.zeta == 0.95
+    assert body["shaper"]["amplitudes"] and sum(body["shaper"]["amplitudes"]) == pytest.approx(1.0)
+    band = body["choice"]["reason"].split("zeta +/-")[1]
+    assert float(band.split(" %")[0]) == pytest.approx(100 * (0.999 / 0.95 - 1), rel=1e-3)

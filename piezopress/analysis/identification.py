@@ -719,7 +719,10 @@ def shaper_section(
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
     # only the designs valid at the identified damping (EI's closed form stops at 0.5)
     usable = tuple(n for n in ("zv", "zvd", "zvdd", "ei") if fit.zeta < shaper_mod.SHAPERS[n].zeta_range[1])
-    choice = shaper_mod.choose_shaper(fit.wn, fit.zeta, fs, candidates=usable)
+    # the robustness band in damping (+/-50 %) stops short of critical damping: a heavily damped
+    # mode (a drive smoothed by a rate-dependent loss, say) narrows it rather than losing the section
+    damping_error = min(0.5, max(0.0, 0.999 / fit.zeta - 1.0))
+    choice = shaper_mod.choose_shaper(fit.wn, fit.zeta, fs, candidates=usable, damping_error=damping_error)
     body = {
         "mode": {
             "natural_freq_rad_s": fit.wn,
