@@ -318,7 +318,10 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
                 "slew": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms",
                 "first_order": f"a first-order lag of {(chain.get('tau_s') or 0) * 1e6:.3g} us",
                 "delay": f"a delay of {(chain.get('delay_s') or 0) * 1e6:.3g} us (lags in series, a filter's group "
-                "delay: the press's own, not led; diagnose names a delay beyond it)",
+                "delay: the press's own, led by the compensator; diagnose names a delay beyond it)",
+                "lowpass_delay": f"a second-order low-pass at {chain.get('lowpass_hz') or 0:.4g} Hz (damping "
+                f"{chain.get('lowpass_damping') or 0:.2f}) and a delay of {(chain.get('delay_s') or 0) * 1e6:.3g} us "
+                "in series (both led by the compensator; diagnose names a delay beyond the converters' own)",
             }.get(chain.get("form"), "?")
             say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
     for name, why in res.not_fitted.items():

@@ -445,6 +445,47 @@ def test_the_drive_chain_is_told_apart_and_the_mode_found_through_it(chain):
         assert abs(plain.wn / wn - 1) > 0.05  # what the chain corrects
 
 
+def _steps_through(make, fs=20_000.0, wn=2 * np.pi * 800.0, zeta=0.06, noise=0.05):
+    """Steps of 20-150 V through the drive chain ``make(command, fs)``, then the mode."""
+    ts, cmds, ys = [], [], []
+    for v in (20.0, 50.0, 100.0, 150.0):
+        t = np.arange(int(0.05 * fs)) / fs
+        c = np.where(t >= 0.005, v, 0.0)
+        y = 50.0 + 2.0 * mode_response(make(c, fs), fs, wn, zeta, hold="foh")
+        ts.append(t), cmds.append(c), ys.append(y + np.random.default_rng(int(v)).normal(0, noise, t.size))
+    return ts, cmds, ys
+
+
+def test_a_lowpass_and_a_delay_in_series_are_identified_apart():
+    """An amplifier's and a filter's bandwidth (a second-order low-pass at 900 Hz, damping 0.8)
+    and a board's latency (0.3 ms) in series: the series chain is named, its delay within 10 %
+    and its low-pass within 10 % in frequency, the mode within 3 %; no one-parameter chain
+    comes within the margin (the steps' residual at least 30 % lower)."""
+    from piezopress.analysis import mode_fit
+
+    wc, zc, d = 2 * np.pi * 900.0, 0.8, 3.0e-4
+    ts, cmds, ys = _steps_through(lambda c, fs: mode_fit.lowpass_delayed(c, fs, (wc, zc, d)))
+    found = mode_fit.identify_mode_chain(ts, cmds, ys)
+    assert found.chain == "lowpass_delay", found.candidates
+    assert found.delay_s == pytest.approx(d, rel=0.1)
+    assert found.lowpass[0] == pytest.approx(wc, rel=0.1)
+    assert found.mode.wn == pytest.approx(2 * np.pi * 800.0, rel=0.03)
+    one = min(found.candidates[k] for k in ("none", "slew", "first_order", "delay"))
+    assert found.candidates["lowpass_delay"] < (1 - mode_fit.LOWPASS_DELAY_MARGIN) * one
+    # its low-frequency delay is what the compensator leads
+    assert mode_fit.lowpass_delay_group_delay_s(*found.parameter) == pytest.approx(2 * zc / wc + d, rel=0.1)
+
+
+def test_a_pure_delay_is_not_read_as_a_lowpass_in_series():
+    """Three parameters fit a pure delay at least as well as one; the margin keeps the simpler
+    chain where the steps show nothing more."""
+    from piezopress.analysis import mode_fit
+
+    ts, cmds, ys = _steps_through(lambda c, fs: mode_fit.delayed(c, fs, 3.7e-4))
+    found = mode_fit.identify_mode_chain(ts, cmds, ys)
+    assert found.chain == "delay", found.candidates
+
+
 def test_a_heavily_damped_mode_keeps_its_shaper_section(monkeypatch):
     """A mode identified near critical damping (on the third test press a rate-dependent loss
     smooths the steps' drive and the fit ends at damping 0.95) keeps the shaper section: the

@@ -390,7 +390,16 @@ def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
     key = ("fast_base", tuple((id(r), sl.start, sl.stop) for r, sl in fit))
     if key not in ctx.shared:  # the fast causes of one round share it
         steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
-        ctx.shared[key] = _with_chain_lag(_refit_mode(ctx.model, steps_fit) if steps_fit else ctx.model, fit)
+        model = ctx.model
+        if steps_fit and model.drive_lowpass is not None and model.drive_delay_s > 0:
+            # the chain's own delay was identified with a linear press: the static map's own slow
+            # start after a reversal (a Preisach plane's) took part of it. Refitted with the model's
+            # map, within what was identified
+            d = model.drive_delay_s
+            model = _refit_mode(model, steps_fit, lambda m, p: replace(m, drive_delay_s=float(p[0])), [d], ([0.0], [d]))
+        elif steps_fit:
+            model = _refit_mode(model, steps_fit)
+        ctx.shared[key] = _with_chain_lag(model, fit)
     return ctx.shared[key]
 
 

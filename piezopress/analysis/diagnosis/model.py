@@ -142,6 +142,9 @@ class Model:
     # extensions
     slew_v_per_s: float | None = None  # amplifier_slew_limit (or the identified drive chain's slew)
     drive_tau_s: float = 0.0  # the drive chain's first-order lag, identified by fit when no monitor was recorded
+    # ... or its second-order low-pass (wn rad/s, damping) and the part of its pure delay that is the press's own
+    drive_lowpass: tuple[float, float] | None = None
+    drive_delay_s: float = 0.0
     # rate_dependent_hysteresis: every play threshold grows by rate_v_per_kv_s V per kV/s of the
     # drive rate (smoothed over rate_tau_s), or the loop's width (the plays' lag behind the
     # drive) by rate_loss_per_kv_s of itself per kV/s; the rate saturating at
@@ -178,7 +181,7 @@ class Model:
             return self.static_at_rate(felt, self._rate(run, felt))
         # the search evaluates one static map on one run many times (only later stages change),
         # and many rate dependences on one drive felt (only the plays' widening changes)
-        chain = (self.hysteresis, self.slew_v_per_s, self.drive_tau_s)
+        chain = (self.hysteresis, self.slew_v_per_s, self.drive_tau_s, self.drive_lowpass, self.drive_delay_s)
         rate_form = (self.rate_v_per_kv_s, self.rate_loss_per_kv_s, self.rate_saturation_v_per_s, self.rate_tau_s)
 
         def compute() -> np.ndarray:
@@ -199,6 +202,11 @@ class Model:
         its slew limit, when the model has them."""
         if self.drive_tau_s > 0:  # the amplifier's own bandwidth (a held command through a first-order lag)
             x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
+        if self.drive_lowpass is not None:  # ... or a second-order low-pass (exact for a held command)
+            x = mode_response(x, run.fs_hz, *self.drive_lowpass, hold="zoh")
+        if self.drive_delay_s > 0:
+            t = np.arange(x.size) / run.fs_hz
+            x = np.interp(t - self.drive_delay_s, t, x, left=x[0])
         if self.slew_v_per_s:
             x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
         return x
@@ -250,7 +258,9 @@ class Model:
             modes.append((1.0 - (self.mode2[0] if self.mode2 else 0.0), self.wn, self.zeta))
         if self.mode2:
             modes.append(self.mode2)
-        out = sum(share * mode_response(c, run.fs_hz, wn, z, hold="zoh") for share, wn, z in modes) if modes else c
+        # a held command reaches the mode held, unless a low-pass in the chain has made it smooth
+        hold = "foh" if self.drive_lowpass is not None else "zoh"
+        out = sum(share * mode_response(c, run.fs_hz, wn, z, hold=hold) for share, wn, z in modes) if modes else c
         if self.sensor_lowpass_hz:
             out = out[0] + signals.first_order(out - out[0], 1.0 / (2 * np.pi * self.sensor_lowpass_hz), run.fs_hz)
         y = self.hysteresis.y0 + out
