@@ -109,6 +109,9 @@ class Finding:
     #: why the finding, although it predicts better, is too small to matter on the press (a cause
     #: sets it from its own measure of the effect's size); a finding with one is never accepted
     too_small: str = ""
+    #: why the cause's own signature check refuses the finding although it predicts better (the
+    #: residual it takes up has another shape than the cause leaves); never accepted either
+    refused: str = ""
 
     @property
     def unit(self) -> str:
@@ -118,6 +121,7 @@ class Finding:
     def accepted(self) -> bool:
         return (
             not self.too_small
+            and not self.refused
             and self.gain_pct >= MIN_GAIN_PCT
             and self.baseline_rms >= MIN_RESIDUAL_TO_FLOOR * self.floor
             and self.baseline_rms - self.extended_rms >= MIN_IMPROVEMENT_TO_FLOOR * self.floor
@@ -174,6 +178,7 @@ class Finding:
             "evidence_strength_text": self.strength_text(),
             "could_also_be_gain_pct": {c: float(g) for c, g in self.could_also_be.items()},
             **({"too_small": self.too_small} if self.too_small else {}),
+            **({"not_its_signature": self.refused} if self.refused else {}),
         }
 
 

@@ -255,6 +255,8 @@ def diagnose(
             if cid in found
             else f"not found (too small to matter: {f.too_small})"
             if f is not None and f.too_small
+            else f"not found (not its signature: {f.refused})"
+            if f is not None and f.refused
             else "not found"
             if f is not None
             else f"not fitted ({failed[cid]})"
