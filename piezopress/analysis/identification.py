@@ -691,9 +691,10 @@ def shaper_section(
     applied (the amplifier monitor when recorded), then design and choose the input shaper.
 
     Without a monitor, the chain from command to stack (none, a slew limit, a first-order lag,
-    a pure delay, a second-order low-pass and a delay in series) is identified with the mode, told apart on ``steps`` of every size (a slew
-    lengthens only the large steps' rise; default: ``runs``). ``fs_hz``: the rate the shaper
-    is designed at (default: the runs' highest)."""
+    a pure delay, a second-order low-pass and a delay in series) is identified with the mode,
+    told apart on ``steps`` of every size (a slew lengthens only the large steps' rise;
+    default: ``runs``). ``fs_hz``: the rate the shaper is designed at (default: the runs'
+    highest)."""
     runs = list(runs)
     cuts = [first_hold_end(r.command_v) for r in runs]
     monitored = all(r.column("monitor_v") is not None for r in runs)
