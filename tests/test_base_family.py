@@ -86,3 +86,22 @@ def test_a_lag_of_the_force_is_not_called_interference_and_a_coupling_is(tmp_pat
             assert tested["result"].startswith("not found (not its signature: "), tested
         else:
             assert [f.cause for f in res.findings] == ["drive_coupled_interference"], res.summary
+
+
+@pytest.mark.slow
+def test_a_board_fifo_is_named_as_a_delay_counted_in_samples(tmp_path):
+    """The third test press with a FIFO of whole samples (8 here) between the board and the
+    amplifier, characterized at 10, 20 and 50 kHz: in time the delay differs from run to run, so
+    the base's chain absorbs it only at the steps' rate. ``input_delay`` tries a delay counted in
+    samples beside one in time, names it alone, and its size is the FIFO less the chain's own
+    delay the base holds (up to two samples)."""
+    rng = np.random.default_rng([1, 97])
+    press = tp.hidden_press("input_delay", rng)
+    assert press.fifo_samples == 8
+    char.characterize(tmp_path / "char", backend=press)
+    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
+    res, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
+    assert [f.cause for f in res.findings] == ["input_delay"], res.summary
+    (f,) = res.findings
+    assert "counted in samples" in f.evidence
+    assert 5.0 <= f.parameters["delay_samples"] <= 8.5, f.parameters

@@ -106,6 +106,44 @@ def test_the_delay_lead_shifts_the_drive_by_exactly_the_delay(delay, fs):
         np.testing.assert_allclose(led[:-n], plain[n:], atol=1e-9)
 
 
+@settings(max_examples=25, deadline=None)
+@given(n=st.floats(0.0, 12.0), fs=st.sampled_from([2_000.0, 10_000.0, 50_000.0]))
+def test_a_lead_in_samples_is_that_many_samples_of_the_references_rate(n, fs):
+    """A delay counted in samples (a board's FIFO) is led by as many samples at whatever rate
+    the reference comes: the same drive as a lead of n / fs seconds."""
+    ref = _triangle(5.0, 250.0, fs, cycles=2)
+    in_samples = C.Compensator(MODEL, lead_samples=n, drive_min_v=-1e9, drive_max_v=1e9)
+    in_time = C.Compensator(MODEL, lead_s=n / fs, drive_min_v=-1e9, drive_max_v=1e9)
+    np.testing.assert_allclose(in_samples.drive(ref, fs).command_v, in_time.drive(ref, fs).command_v, atol=1e-9)
+    assert in_samples.lead_at(fs) == pytest.approx(n / fs)
+
+
+def test_a_delay_found_in_samples_is_led_in_samples_and_read_so_by_the_model():
+    """The extension of an input delay counted in samples: compensation.delay_lead_samples (the
+    seconds' lead untouched), read back by the bundle's compensator at every rate; the forward
+    model delays each run's reading by that many of its own samples."""
+    from piezopress.analysis.bundle import Bundle
+    from piezopress.pipelines import diagnose as D
+
+    bundle = {"bundle_version": 1, "hysteresis": {"model": MODEL.to_dict()}, "compensation": {"lead_s": 1e-4}}
+    model = dg.Model(MODEL, delay_samples=5.0)
+    finding = dg.Finding(
+        "input_delay", "", 1.0, 0.1, 90.0, {"delay_samples": 5.0, "delay_s": 2.5e-4}, [], [], 100.0, 0.1, model
+    )
+    ext = D.extend_bundle(bundle, [finding], model)
+    assert ext["compensation"]["delay_lead_samples"] == pytest.approx(5.0)
+    assert ext["compensation"]["lead_s"] == pytest.approx(1e-4)
+    comp = Bundle.from_dict(ext).compensator()
+    for fs in (10_000.0, 50_000.0):
+        assert comp.lead_at(fs) == pytest.approx(1e-4 + 5.0 / fs)
+    for fs in (10_000.0, 50_000.0):
+        t = np.arange(400) / fs
+        x = np.where(t > 0.01, 100.0, 0.0)
+        run = dg.RunData("step", "step", t, x, x, fs)
+        f = np.linspace(0.0, 1.0, t.size)
+        np.testing.assert_allclose(model.reading(run, f), np.interp(t - 5.0 / fs, t, f, left=0.0), atol=1e-12)
+
+
 def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead():
     # the base lead 2 zeta / wn had absorbed the delay; the extended lead is the refitted mode's plus the delay, once
     from piezopress.pipelines import diagnose as D

@@ -63,6 +63,8 @@ MAX_SHAPER_S = 1.0
 MAX_RATE = 1e12
 #: The drive's lead (s): the mode's delay and an input delay, milliseconds on any press.
 MAX_LEAD_S = 1.0
+#: The largest input delay's lead in samples a bundle may hold (a board's FIFO is a few to a few hundred).
+MAX_LEAD_SAMPLES = 1e4
 #: Where a reference is known, the lead must be shorter than this fraction of its duration
 #: (a longer lead plays the reference's end from the start: a constant drive).
 LEAD_MAX_FRACTION = 0.1
@@ -379,6 +381,8 @@ class Settings:
     rate: RateDependence | None = None
     #: the part of ``lead_s`` that is the identified drive chain's delay (led without a shaper too)
     chain_lead_s: float = 0.0
+    #: an input delay counted in samples of the reference's rate (a board's FIFO), led besides ``lead_s``
+    delay_lead_samples: float = 0.0
 
 
 def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
@@ -413,6 +417,13 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
     chain = c.number(
         comp.get("chain_lead_s", 0.0), f"{w}.chain_lead_s", 0.0, lead, "the drive chain's part of lead_s in s"
     )
+    samples = c.number(
+        comp.get("delay_lead_samples", 0.0),
+        f"{w}.delay_lead_samples",
+        0.0,
+        MAX_LEAD_SAMPLES,
+        "the input delay's lead in samples of the reference's rate",
+    )
     slew = c.optional(
         comp.get("slew_v_per_s"),
         f"{w}.slew_v_per_s",
@@ -437,7 +448,7 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
             saturation_v_per_s=sat,
             tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True),
         )
-    return Settings(lo, hi, rate_limit, lead, delay, slew, rate, chain)
+    return Settings(lo, hi, rate_limit, lead, delay, slew, rate, chain, samples)
 
 
 def check_section(kind: str, doc: Any, source: str) -> None:
@@ -540,7 +551,15 @@ class Bundle:
         """What the compensator needs of a reference of ``n_samples`` at ``fs_hz``: a lead
         shorter than :data:`LEAD_MAX_FRACTION` of it, and a creep compensator stable at its rate."""
         duration = (n_samples - 1) / fs_hz if n_samples > 1 else 0.0
-        for key, lead in (("lead_s", self.settings.lead_s), ("delay_lead_s", self.settings.delay_lead_s)):
+        leads = (
+            ("lead_s", self.settings.lead_s),
+            ("delay_lead_s", self.settings.delay_lead_s),
+            (
+                f"delay_lead_samples ({self.settings.delay_lead_samples:g} samples at {fs_hz:g} Hz)",
+                self.settings.delay_lead_samples / fs_hz,
+            ),
+        )
+        for key, lead in leads:
             if lead > LEAD_MAX_FRACTION * duration:
                 raise BundleError(
                     f"{self.source}: compensation.{key} = {lead:.6g} s; expected less than "
@@ -617,6 +636,7 @@ class Bundle:
             drive_max_v=s.drive_max_v,
             max_rate_per_s=s.max_rate_per_s,
             lead_s=s.lead_s if use_shaper else s.delay_lead_s + s.chain_lead_s,
+            lead_samples=s.delay_lead_samples,
             shaper2=self.shaper2 if use_shaper else None,
             rate=s.rate,
             slew_v_per_s=s.slew_v_per_s,
@@ -807,7 +827,11 @@ def extend_slew_limit(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None
 
 
 def extend_input_delay(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
-    """The drive leads by the delay; found on slow sweeps, the operators refitted on the delayed drive too."""
+    """The drive leads by the delay (one counted in samples: by as many samples of the reference's
+    rate); found on slow sweeps, the operators refitted on the delayed drive too."""
+    if f.parameters.get("delay_samples"):
+        comp["delay_lead_samples"] = comp.get("delay_lead_samples", 0.0) + f.parameters["delay_samples"]
+        return
     comp["lead_s"] = comp.get("lead_s", 0.0) + f.parameters["delay_s"]
     if f.parameters.get("operators_refitted"):  # found on slow sweeps: the lag had widened the fitted loop
         ext["hysteresis"]["model"] = f.model.hysteresis.to_dict()

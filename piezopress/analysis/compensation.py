@@ -266,6 +266,9 @@ class Compensator:
     lead_s : float
         Advance of the drive to cancel the linear model's remaining delay (and a pure
         input delay, when one was found).
+    lead_samples : float
+        Advance of the drive counted in samples of the reference's rate (an input delay
+        ``diagnose`` found counted in samples: a board's FIFO), added to ``lead_s``.
     shaper2 : Shaper or None
         A second shaper, for a second mode (applied after ``shaper``).
     rate : RateDependence or None
@@ -286,6 +289,11 @@ class Compensator:
     shaper2: Shaper | None = None
     rate: RateDependence | None = None
     slew_v_per_s: float | None = None
+    lead_samples: float = 0.0
+
+    def lead_at(self, fs_hz: float) -> float:
+        """The drive's whole lead in seconds at the rate ``fs_hz``."""
+        return self.lead_s + self.lead_samples / fs_hz
 
     def _to_drive(
         self,
@@ -333,7 +341,7 @@ class Compensator:
                     notes.append(note)
         else:
             x, _ = self.hysteresis.inverse(self.hysteresis.y0 + r)
-        return advance(x, self.lead_s, fs_hz)
+        return advance(x, self.lead_at(fs_hz), fs_hz)
 
     def _slew_feasible(
         self, r: np.ndarray, fs_hz: float, k: str, stages: dict[str, np.ndarray], notes: list[str]
@@ -357,7 +365,7 @@ class Compensator:
             )
             + 1
         )
-        n_lead = int(np.ceil(self.lead_s * fs_hz))
+        n_lead = int(np.ceil(self.lead_at(fs_hz) * fs_hz))
         x = self._to_drive(r, fs_hz, None if np.all(np.isinf(step)) else step, k, stages, notes)
         for _ in range(int(self.options.get("slew_passes", 8))):
             rate = np.abs(np.diff(x, prepend=x[0]))

@@ -157,7 +157,8 @@ class Model:
     # envelope, threshold V/s, tau s[, gain output unit per V/s of the signed rate (the drive current's sign)])
     interference: tuple[float, ...] | None = None
     mode2: tuple[float, float, float] | None = None  # (share, wn, zeta): second_resonance
-    delay_s: float = 0.0  # input_delay
+    delay_s: float = 0.0  # input_delay ...
+    delay_samples: float = 0.0  # ... or one counted in samples (a board's FIFO): delay_samples / fs in every run
     drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second ...
     # ... and a warm-up: (rate at the run's start, output unit per second; time constant over which it settles, s)
     drift_warmup: tuple[float, float] | None = None
@@ -281,9 +282,10 @@ class Model:
         y = f
         if self.interference:
             y = y - interference_reading(run, *self.interference)
-        if self.delay_s > 0:
+        delay = self.delay_s + self.delay_samples / run.fs_hz
+        if delay > 0:
             t = np.arange(y.size) / run.fs_hz
-            y = np.interp(t - self.delay_s, t, y, left=y[0])
+            y = np.interp(t - delay, t, y, left=y[0])
         if self.gain_drift:
             y = y * self.reading_gain(run)
         y = y + self.drift(run) if self.drift_per_s or self.drift_warmup else y

@@ -19,6 +19,7 @@ from piezopress.analysis.diagnosis.judging import (
     _forces,
     _judge_dynamics,
 )
+from piezopress.analysis.diagnosis.model import Model
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import rms
 
@@ -61,6 +62,10 @@ def _regress(fit, res: np.ndarray, drives: dict[int, np.ndarray], best: tuple) -
     return best
 
 
+def _delay_text(key: str, d: float) -> str:
+    return f"{d:.3g} samples" if key == "delay_samples" else f"{d * 1e3:.3g} ms"
+
+
 #: A delay found already is fitted again with the interference at these fractions of itself: found
 #: alone, it took up part of the artefact's lag (a coupling through a 0.2 ms filter, delayed too).
 DELAY_REFIT_FRACTIONS = (0.5, 0.75, 1.0, 1.25)
@@ -77,21 +82,32 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     # threshold (a dip whatever the sign), each smoothed over tau, fitted together. The model
     # delays the whole reading, this artefact included: the drive it follows is read as delayed
     # (by the chain's own lag, or a delay found already, which is fitted again with it)
-    found_delay = ctx.model.delay_s > CHAIN_LAG_S
-    delays = [base.delay_s * f for f in DELAY_REFIT_FRACTIONS] if found_delay else [base.delay_s]
+    # (a delay found counted in samples is another delay in time in each run)
+    key = "delay_samples" if base.delay_samples > 0 else "delay_s"
+    found_delay = key == "delay_samples" or ctx.model.delay_s > CHAIN_LAG_S
+    own = getattr(base, key)
+    delays = [own * f for f in DELAY_REFIT_FRACTIONS] if found_delay else [own]
     forces = _forces(base, [r for r, _ in fit])  # a delay changes only the reading
-    res = {d: _err(fit, lambda r, d=d: replace(base, delay_s=d).reading(r, forces[id(r)])) for d in delays}
+
+    def at(d: float) -> Model:
+        return replace(base, **{key: d})
+
+    def lag(r, d: float) -> float:
+        m = at(d)
+        return m.delay_s + m.delay_samples / r.fs_hz
+
+    res = {d: _err(fit, lambda r, d=d: at(d).reading(r, forces[id(r)])) for d in delays}
     plain = min((rms(e), d) for d, e in res.items())  # the delay alone at its best: the baseline
-    best, delay = (rms(res[base.delay_s]), None), base.delay_s
+    best, delay = (rms(res[own]), None), own
     for d in delays:
-        tried = _regress(fit, res[d], {id(r): _delayed(r.drive, r.t_s, d) for r, _ in fit}, best)
+        tried = _regress(fit, res[d], {id(r): _delayed(r.drive, r.t_s, lag(r, d)) for r, _ in fit}, best)
         if tried is not best:
             best, delay = tried, d
     if best[1] is None:
         return None
     g, e0, tau, gs = best[1]
-    ext = replace(base, interference=(g, e0, tau, gs), delay_s=delay)
-    base = replace(base, delay_s=plain[1])
+    ext = replace(at(delay), interference=(g, e0, tau, gs))
+    base = at(plain[1])
     u = ctx.model.unit
     parts = []
     if g:
@@ -107,8 +123,8 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     )
     if found_delay:
         ev += (
-            f" (the delay found fitted again with it: {delay * 1e3:.3g} ms, against {plain[1] * 1e3:.3g} ms "
-            "fitted without it)"
+            f" (the delay found fitted again with it: {_delay_text(key, delay)}, against "
+            f"{_delay_text(key, plain[1])} fitted without it)"
         )
     found = _judge_dynamics(
         ctx,

@@ -112,12 +112,22 @@ def cause_input_delay(ctx: Context) -> Finding | None:
     base = _fast_base(ctx, fit)
     delayed = _reading_cost(fit, _forces(ctx.model, [r for r, _ in fit]))  # a delay changes only the reading
     d = _search(lambda d: delayed(replace(ctx.model, delay_s=d)), 0.0, 5e-3, 41)
-    ext = replace(ctx.model, delay_s=d)
+    # a delay counted in samples (a board's FIFO, a converter's filter) is another delay in time at
+    # each sample rate: where the runs have several, both are tried and the better kept
+    rates = sorted({r.fs_hz for r, _ in fit})
+    per_sample = rates[-1] > SAMPLE_RATES_APART * rates[0]
+    key, hi = "delay_s", 5e-3
+    if per_sample:
+        n_hi = 5e-3 * rates[0]
+        k = _search(lambda k: delayed(replace(ctx.model, delay_samples=k)), 0.0, n_hi, 41)
+        if delayed(replace(ctx.model, delay_samples=k)) < delayed(replace(ctx.model, delay_s=d)):
+            key, hi, d = "delay_samples", n_hi, k
+    ext = replace(ctx.model, **{key: d})
     if steps_fit:  # the mode and the delay together, on the steps and the sweeps (which pin the delay down)
         # a delay distorts the identified mode (the identification has no delay): refit both
         # freely, and give the baseline the same freedom of the mode with the chain's lag
-        ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, delay_s=float(p[0])), [d], ([0.0], [5e-3]), wide=True)
-        d = float(ext.delay_s)
+        ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, **{key: float(p[0])}), [d], ([0.0], [hi]), wide=True)
+        d = float(getattr(ext, key))
         wide = _refit_mode(
             ctx.model,
             fit,
@@ -127,10 +137,31 @@ def cause_input_delay(ctx: Context) -> Finding | None:
             wide=True,
         )
         base = min((base, wide), key=lambda m: _cost(fit, m))
+    if key == "delay_samples":
+        return _judge_samples(ctx, fit, held, ext, d, base, rates)
     if d <= CHAIN_LAG_S:
         return None  # no longer than the chain's own lag: nothing to test beyond it
     ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike"
     return _judge_dynamics(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
+
+
+#: Runs whose sample rates differ by more than this factor can tell a delay counted in samples
+#: from one in time.
+SAMPLE_RATES_APART = 1.2
+
+
+def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[float]) -> Finding | None:
+    """The finding of a delay of ``n`` samples at every rate (what each run's rate makes of it)."""
+    fs = ctx.steps()[0].fs_hz if ctx.steps() else rates[0]
+    if n / fs <= CHAIN_LAG_S:
+        return None  # no longer than the chain's own lag at the steps' rate
+    at = ", ".join(f"{1e3 * n / r:.3g} ms at {r / 1e3:g} kHz" for r in rates)
+    ev = (
+        f"the whole response lags the model by {n:.3g} samples at every sample rate ({at}): a delay counted "
+        "in samples (a board's FIFO, a converter's filter) fits the runs of different rates better than one "
+        "delay in time"
+    )
+    return _judge_dynamics(ctx, "input_delay", ev, fit, held, ext, {"delay_samples": n, "delay_s": n / fs}, base)
 
 
 #: The catalogue's entry for this cause (read by every place that names causes).
