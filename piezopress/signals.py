@@ -53,6 +53,15 @@ def first_order(x: np.ndarray, tau_s: float, fs_hz: float, y0: float = 0.0) -> n
     return y
 
 
+def delayed(x: np.ndarray, fs_hz: float, delay_s: float) -> np.ndarray:
+    """``x`` delayed by ``delay_s`` (linear between samples), held at ``x[0]`` before; ``x``
+    itself for no delay."""
+    if delay_s <= 0:
+        return x
+    t = np.arange(np.size(x)) / fs_hz
+    return np.interp(t - delay_s, t, x, left=x[0])
+
+
 def rate_envelope(drive: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
     """``|dV/dt|`` of a sampled drive (V/s), smoothed over ``tau_s``, from rest."""
     return first_order(np.abs(np.diff(drive, prepend=drive[0])) * fs_hz, tau_s, fs_hz)

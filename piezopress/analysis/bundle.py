@@ -36,6 +36,7 @@ from piezopress.analysis.hysteresis import (
     PreisachPlane,
     rest_offset,
 )
+from piezopress.analysis.mode_fit import lowpass_delay_group_delay_s
 from piezopress.analysis.shaper import Shaper, design_shaper
 from piezopress.errors import CompensatorUnstableError, FitError, PiezopressError
 
@@ -650,31 +651,30 @@ class Bundle:
         wn, zeta, lp = self.mode if self.mode is not None else (None, None, None)
         # the drive chain's bandwidth is the press's own (a lag a low-pass chain explains is no
         # input delay, no slew limit); an identified slew stays for diagnose to name, as with a monitor
-        chain = self.doc.get("shaper", {}).get("mode", {}).get("drive_chain") if isinstance(self.doc, dict) else None
-        if isinstance(chain, dict) and chain.get("form") == "lowpass_delay":
-            hz, z, d = (chain.get(k) for k in ("lowpass_hz", "lowpass_damping", "delay_s"))
-            if _positive(hz) and _positive(z) and z < 1.0:
-                fs = chain.get("steps_sample_rate_hz")
-                own = SAMPLING_DELAY_SAMPLES / fs if _positive(fs) else 0.0
-                return dg.Model(
-                    self.hysteresis,
-                    self.creep,
-                    wn,
-                    zeta,
-                    lp,
-                    drive_lowpass=(2.0 * math.pi * float(hz), float(z)),
-                    drive_delay_s=min(float(d), own) if _positive(d) else 0.0,
-                )
+        series = _lowpass_delay(self._chain_doc)
+        if series is not None and series[1] < 1.0:
+            wc, zc, d = series
+            fs = self._chain_doc.get("steps_sample_rate_hz")
+            own = SAMPLING_DELAY_SAMPLES / fs if _positive(fs) else 0.0
+            return dg.Model(
+                self.hysteresis, self.creep, wn, zeta, lp, drive_lowpass=(wc, zc), drive_delay_s=min(d, own)
+            )
         _, tau = self.drive_chain
         return dg.Model(self.hysteresis, self.creep, wn, zeta, lp, drive_tau_s=tau or 0.0)
+
+    @property
+    def _chain_doc(self) -> dict[str, Any] | None:
+        """``shaper.mode.drive_chain`` as recorded (None: none recorded)."""
+        chain = self.doc.get("shaper", {}).get("mode", {}).get("drive_chain") if isinstance(self.doc, dict) else None
+        return chain if isinstance(chain, dict) else None
 
     @property
     def drive_chain(self) -> tuple[float | None, float | None]:
         """``(slew V/s, first-order lag s)`` of the drive chain ``fit`` identified with the mode
         when no amplifier monitor was recorded (``shaper.mode.drive_chain``; ``None``: none; a
         ``delay`` chain as the lag of the same low-frequency delay)."""
-        chain = self.doc.get("shaper", {}).get("mode", {}).get("drive_chain") if isinstance(self.doc, dict) else None
-        if not isinstance(chain, dict):
+        chain = self._chain_doc
+        if chain is None:
             return None, None
 
         slew = chain.get("slew_v_per_s") if chain.get("form") == "slew" else None
@@ -708,6 +708,17 @@ def _positive(v: Any) -> bool:
 SAMPLING_DELAY_SAMPLES = 2.0
 
 
+def _lowpass_delay(chain: Any) -> tuple[float, float, float] | None:
+    """``(wc rad/s, damping, delay s)`` of a ``lowpass_delay`` drive chain (None: another form, or
+    a low-pass not recorded)."""
+    if not isinstance(chain, dict) or chain.get("form") != "lowpass_delay":
+        return None
+    hz, z, d = (chain.get(k) for k in ("lowpass_hz", "lowpass_damping", "delay_s"))
+    if not (_positive(hz) and _positive(z)):
+        return None
+    return 2.0 * math.pi * float(hz), float(z), float(d) if _positive(d) else 0.0
+
+
 def chain_delay_s(chain: Any) -> float:
     """The low-frequency delay of a drive chain identified with the mode (``drive_chain``): a
     pure delay's ``delay_s``, a first-order lag's ``tau_s``, a second-order low-pass's
@@ -716,10 +727,8 @@ def chain_delay_s(chain: Any) -> float:
         return 0.0
     form = chain.get("form")
     if form == "lowpass_delay":
-        hz, z, d = (chain.get(k) for k in ("lowpass_hz", "lowpass_damping", "delay_s"))
-        if not (_positive(hz) and _positive(z)):
-            return 0.0
-        return 2.0 * float(z) / (2.0 * math.pi * float(hz)) + (float(d) if _positive(d) else 0.0)
+        series = _lowpass_delay(chain)
+        return 0.0 if series is None else lowpass_delay_group_delay_s(*series)
     v = chain.get("delay_s") if form == "delay" else chain.get("tau_s") if form == "first_order" else None
     return float(v) if _positive(v) else 0.0
 

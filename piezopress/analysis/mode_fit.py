@@ -15,6 +15,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import find_peaks
 
+from piezopress import signals
 from piezopress.analysis.mode import HOLDS, mode_response
 from piezopress.errors import FitError
 
@@ -337,8 +338,7 @@ def first_order(command: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
 def delayed(command: np.ndarray, fs_hz: float, delay_s: float) -> np.ndarray:
     """The command delayed by ``delay_s`` (linear between samples; the first value before it)."""
     c = np.asarray(command, float)
-    t = np.arange(c.size) / fs_hz
-    return np.interp(t - delay_s, t, c, left=c[0])
+    return signals.delayed(c, fs_hz, delay_s)
 
 
 def lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, float, float]) -> np.ndarray:
@@ -346,11 +346,12 @@ def lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, float, fl
     (exact for a held input), then delayed by ``p[2]`` s (linear between samples)."""
     wc, zc, d = p
     out = mode_response(np.asarray(command, float), fs_hz, wc, zc, hold="zoh")
-    return delayed(out, fs_hz, d) if d > 0 else out
+    return signals.delayed(out, fs_hz, d)
 
 
 def lowpass_delay_group_delay_s(wc: float, zc: float, delay_s: float) -> float:
-    """The low-frequency delay of the ``lowpass_delay`` chain: ``2 zeta / wn`` and the pure delay."""
+    """The low-frequency delay of the ``lowpass_delay`` chain: ``2 zeta / wn`` and the pure delay
+    (what the compensator leads, ``bundle.chain_delay_s``)."""
     return 2.0 * zc / wc + delay_s
 
 

@@ -205,9 +205,7 @@ class Model:
             x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
         if self.drive_lowpass is not None:  # ... or a second-order low-pass (exact for a held command)
             x = mode_response(x, run.fs_hz, *self.drive_lowpass, hold="zoh")
-        if self.drive_delay_s > 0:
-            t = np.arange(x.size) / run.fs_hz
-            x = np.interp(t - self.drive_delay_s, t, x, left=x[0])
+        x = signals.delayed(x, run.fs_hz, self.drive_delay_s)
         if self.slew_v_per_s:
             x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
         return x
@@ -282,10 +280,7 @@ class Model:
         y = f
         if self.interference:
             y = y - interference_reading(run, *self.interference)
-        delay = self.delay_s + self.delay_samples / run.fs_hz
-        if delay > 0:
-            t = np.arange(y.size) / run.fs_hz
-            y = np.interp(t - delay, t, y, left=y[0])
+        y = signals.delayed(y, run.fs_hz, self.reading_delay_s(run.fs_hz))
         if self.gain_drift:
             y = y * self.reading_gain(run)
         y = y + self.drift(run) if self.drift_per_s or self.drift_warmup else y
@@ -293,6 +288,11 @@ class Model:
             if ident == run.ident:
                 y = y + line_of(run.t_s, hz, a, b)
         return y
+
+    def reading_delay_s(self, fs_hz: float) -> float:
+        """The reading's delay at the sample rate ``fs_hz``: an input delay in time, and one
+        counted in samples."""
+        return self.delay_s + self.delay_samples / fs_hz
 
     def reading_gain(self, run: RunData) -> np.ndarray | float:
         """The reading's gain over ``run`` relative to the base model's (1 without a gain drift)."""

@@ -30,11 +30,6 @@ INTERFERENCE_TAUS_S = (0.1e-3, 0.25e-3, 0.5e-3, 1e-3, 2e-3, 4e-3)
 SIGNED_TAU_MAX_S = 0.5e-3
 
 
-def _delayed(x: np.ndarray, t: np.ndarray, delay_s: float) -> np.ndarray:
-    """``x`` delayed by ``delay_s`` (as :meth:`Model.reading` delays the reading), held at ``x[0]`` before."""
-    return x if delay_s <= 0 else np.interp(t - delay_s, t, x, left=x[0])
-
-
 def _regress(fit, res: np.ndarray, drives: dict[int, np.ndarray], best: tuple) -> tuple:
     """The interference's gains fitted by least squares on the residual ``res`` of the fitting
     segments, for each envelope time constant and threshold; ``best`` improved where one does
@@ -92,15 +87,13 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     def at(d: float) -> Model:
         return replace(base, **{key: d})
 
-    def lag(r, d: float) -> float:
-        m = at(d)
-        return m.delay_s + m.delay_samples / r.fs_hz
-
     res = {d: _err(fit, lambda r, d=d: at(d).reading(r, forces[id(r)])) for d in delays}
     plain = min((rms(e), d) for d, e in res.items())  # the delay alone at its best: the baseline
     best, delay = (rms(res[own]), None), own
     for d in delays:
-        tried = _regress(fit, res[d], {id(r): _delayed(r.drive, r.t_s, lag(r, d)) for r, _ in fit}, best)
+        m = at(d)
+        drives = {id(r): signals.delayed(r.drive, r.fs_hz, m.reading_delay_s(r.fs_hz)) for r, _ in fit}
+        tried = _regress(fit, res[d], drives, best)
         if tried is not best:
             best, delay = tried, d
     if best[1] is None:
