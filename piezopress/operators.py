@@ -304,17 +304,28 @@ def _kp_start(x, alpha, beta, h, s0) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return x, alpha, beta, out
 
 
-def kp(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, s0: np.ndarray | float = 0.0) -> np.ndarray:
+def kp(
+    x: np.ndarray,
+    alpha: np.ndarray,
+    beta: np.ndarray,
+    h: float,
+    s0: np.ndarray | float = 0.0,
+    widen: np.ndarray | None = None,
+) -> np.ndarray:
     """KP hysterons ``(alpha, beta)`` of ramp width ``h`` driven by ``x``: states ``(n, m)`` in [0, 1].
 
     ``s0`` is the state before the first sample (carry ``s[-1]`` of one chunk as ``s0`` of
-    the next to evaluate a signal in chunks).
+    the next to evaluate a signal in chunks). ``widen`` (shape ``(n,)``, not negative): at
+    sample ``k`` every hysteron switches up at ``alpha + widen[k]`` and down at
+    ``beta - widen[k]`` (rate-dependent hysteresis, as :func:`play`'s ``widen``).
 
     Examples
     --------
     >>> kp(np.array([0.0, 1.0, 2.0, 1.0, 0.0]), 1.0, 0.0, 1.0)[:, 0].tolist()
     [0.0, 0.0, 1.0, 1.0, 0.0]
     """
+    if widen is not None:
+        return _kp_widened(x, alpha, beta, h, s0, widen)
     x, alpha, beta, out = _kp_start(x, alpha, beta, h, s0)
     if x.size == 0:
         return out
@@ -328,6 +339,25 @@ def kp(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, s0: np.ndar
         else:
             y = _clamp_scan(lo, hi, out[a])
         out[a + 1 : a + seg.size] = y[1:]
+    return out
+
+
+def _kp_widened(x, alpha, beta, h, s0, widen) -> np.ndarray:
+    # thresholds that move with time: the bounds no longer follow x alone, so the general scan
+    x = np.asarray(x, dtype=np.float64)
+    widen = np.asarray(widen, dtype=np.float64)
+    if widen.shape != x.shape or np.any(widen < 0) or not np.all(np.isfinite(widen)):
+        raise ValueError(f"widen must be finite, non-negative and of the shape of x {x.shape}, got shape {widen.shape}")
+    alpha, beta = _check_kp(alpha, beta, h)
+    out = np.empty((x.size, alpha.size))
+    if x.size == 0:
+        return out
+    out[0] = kp_initial_state(x[0], alpha + widen[0], beta - widen[0], h, s0)
+    for a in range(0, x.size - 1, _KP_CHUNK):
+        sl = slice(a, a + _KP_CHUNK + 1)
+        lo, _ = kp_bounds(x[sl] - widen[sl], alpha, beta, h)
+        _, hi = kp_bounds(x[sl] + widen[sl], alpha, beta, h)
+        out[a + 1 : a + lo.shape[0]] = _clamp_scan(lo, hi, out[a])[1:]
     return out
 
 

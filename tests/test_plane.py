@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from piezopress import operators
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis.bundle import BUNDLE_VERSION, Bundle, BundleError
-from piezopress.analysis.compensation import RateDependence
+from piezopress.analysis.compensation import RateDependence, rate_aware_inverse
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -65,6 +65,74 @@ def test_kp_chunked_equals_one_shot(monkeypatch):
     a = operators.kp(x[:1700], alpha, beta, 20.0)
     b = operators.kp(x[1700:], alpha, beta, 20.0, a[-1])  # a signal in chunks, the state carried
     np.testing.assert_allclose(np.vstack([a, b]), whole, atol=1e-12)
+
+
+def _widened_loop(x, alpha, beta, h, s0, widen):
+    # the definition, sample by sample: switch up at alpha + widen[k], down at beta - widen[k]
+    s = operators.kp_initial_state(x[0], alpha + widen[0], beta - widen[0], h, s0)
+    out = [s]
+    for k in range(1, x.size):
+        lo, _ = operators.kp_bounds(x[k : k + 1] - widen[k], alpha, beta, h)
+        _, hi = operators.kp_bounds(x[k : k + 1] + widen[k], alpha, beta, h)
+        s = np.minimum(np.maximum(s, lo[0]), hi[0])
+        out.append(s)
+    return np.array(out)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(2, 400), scale=st.floats(0.0, 30.0))
+def test_widened_kp_equals_the_per_sample_definition(seed, n, scale):
+    rng = np.random.default_rng(seed)
+    x = np.clip(np.cumsum(rng.normal(0, 6, n)) + 60, -20, 160)
+    widen = scale * rng.uniform(0.0, 1.0, n)
+    alpha = np.array([0.0, 40.0, 80.0, 80.0, 120.0])
+    beta = np.array([0.0, 0.0, 40.0, 80.0, -10.0])
+    got = operators.kp(x, alpha, beta, 15.0, 0.4, widen=widen)
+    np.testing.assert_allclose(got, _widened_loop(x, alpha, beta, 15.0, 0.4, widen), atol=1e-12)
+
+
+def test_a_constant_widening_is_the_thresholds_pushed_apart_and_none_is_no_widening(monkeypatch):
+    x = _signal("walk", 5000, 6)
+    alpha, beta = np.array([10.0, 60.0, 100.0]), np.array([0.0, 30.0, 100.0])
+    np.testing.assert_allclose(
+        operators.kp(x, alpha, beta, 20.0, widen=np.full(x.size, 7.0)),
+        operators.kp(x, alpha + 7.0, beta - 7.0, 20.0),
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(
+        operators.kp(x, alpha, beta, 20.0, widen=np.zeros(x.size)), operators.kp(x, alpha, beta, 20.0)
+    )
+    widen = np.abs(np.sin(np.arange(x.size) / 50.0)) * 5
+    whole = operators.kp(x, alpha, beta, 20.0, widen=widen)
+    monkeypatch.setattr(operators, "_KP_CHUNK", 333)  # chunked equals one-shot
+    np.testing.assert_allclose(operators.kp(x, alpha, beta, 20.0, widen=widen), whole, atol=1e-12)
+    with pytest.raises(ValueError, match="widen must be"):
+        operators.kp(x, alpha, beta, 20.0, widen=-widen - 1)
+
+
+def test_the_rate_dependence_widens_the_planes_loop_and_the_rate_aware_inverse_undoes_it():
+    # a press of the Preisach family whose loop widens with the rate: the widening must reach
+    # the plane's hysterons (not the plays alone), and the rate-aware inverse played through
+    # the same rate model gives back the reference
+    plane = H.PreisachPlane.grid(-10.0, 150.0, 8)
+    plane = plane.with_weights(np.random.default_rng(3).uniform(0.5, 1.0, plane.n_cells) * plane.width / 8)
+    m = H.PIModel((0.0,), (0.3,), (0.0,), (1.0,), 0.0, 40.0, plane=plane)  # most of the loop on the plane
+    fs, f = 20_000.0, 20.0
+    t = np.arange(int(3 * fs / f)) / fs
+    x = 70.0 + 60.0 * (2 * np.abs(2 * ((t * f) % 1.0) - 1.0) - 1.0)
+    rate = RateDependence(widen_v_per_kv_s=0.4, tau_s=5e-4)
+    plays_only = H.PIModel(m.r, m.w, m.d, m.s, m.x0, m.y0)
+
+    def width(model):
+        y = rate.forward(model, x, fs) - model.forward(x)[0]
+        return float(np.sqrt(np.mean(y**2)))
+
+    assert width(m) > 1.4 * width(plays_only)  # the plane's share widens too (1.0x if the plays alone did)
+    ref = m.forward(x)[0]
+    drive, _ = rate_aware_inverse(m, ref, fs, rate)
+    err = rate.forward(m, drive, fs) - ref
+    static_err = rate.forward(m, m.inverse(ref)[0], fs) - ref
+    assert np.sqrt(np.mean(err**2)) <= 0.1 * np.sqrt(np.mean(static_err**2))
 
 
 def test_kp_refuses_a_cell_outside_the_half_plane():

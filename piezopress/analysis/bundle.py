@@ -767,16 +767,6 @@ def second_shaper(parameters: Mapping[str, float]) -> dict[str, Any]:
     return {**shaper_document(sh), "for": "diagnose: second_resonance"}
 
 
-#: Findings whose fit refits the main mode freely because the effect distorts its
-#: identification (a delay is read as damping, and the base lead ``2 zeta / wn`` then holds
-#: part of the delay): with one of them, the extended bundle's shaper and lead are designed
-#: for the diagnosis model's mode. (A second mode is not among them: its joint refit moves
-#: the main mode little, and the base lead, which the refit would shorten, also stands for
-#: the delays the lead formula leaves out - the load cell's low-pass, the DAC's hold - so a
-#: shorter lead loses more at 50 Hz than the better shaper gains.)
-MODE_REFIT_CAUSES = ("input_delay",)
-
-
 def rate_dependence(model: Any) -> dict[str, Any]:
     """A model's rate dependence as the bundle's ``compensation.rate_dependence``."""
     sat = getattr(model, "rate_saturation_v_per_s", None)
@@ -893,7 +883,7 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
     compensator change it (creep form, lead, slew, rate-aware inverse, second shaper).
 
     ``model`` is the diagnosis's final model (all findings applied): when a finding refitted
-    the main mode (:data:`MODE_REFIT_CAUSES`), the main shaper is designed again for it and
+    the main mode (``Cause.refits_mode``), the main shaper is designed again for it and
     the lead is its low-frequency delay plus the input delay found (the base bundle's lead
     had absorbed part of that delay into the mode's damping; adding the delay to it would
     lead twice)."""
@@ -911,7 +901,11 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
         cause = dg.CAUSES.get(f.cause)
         if cause is not None and cause.extend is not None:
             cause.extend(ext, comp, f)
-    refit_by = [f.cause for f in findings if f.cause in MODE_REFIT_CAUSES]
+    # (a second mode does not refit the main mode: its joint refit moves it little, and the base
+    # lead, which the refit would shorten, also stands for the delays the lead formula leaves
+    # out - the load cell's low-pass, the DAC's hold - so a shorter lead loses more at 50 Hz
+    # than the better shaper gains)
+    refit_by = [f.cause for f in findings if f.cause in dg.CAUSES and dg.CAUSES[f.cause].refits_mode]
     if model is not None and model.wn and model.zeta and refit_by and "shaper" in ext:
         sh = ext["shaper"]
         try:
@@ -959,6 +953,5 @@ __all__ = [
     "rate_dependence",
     "creep_for_compensator",
     "modal_delay_s",
-    "MODE_REFIT_CAUSES",
     "FAST_CREEP_S",
 ]

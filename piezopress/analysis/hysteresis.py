@@ -220,14 +220,15 @@ class PreisachPlane:
         """The plane's output at rest (its columns are taken relative to it)."""
         return float(np.array(self.weights) @ self.rest_state())
 
-    def states(self, u: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+    def states(self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None) -> np.ndarray:
         a, b, _ = self.arrays()
-        return operators.kp(u, a, b, self.width, self.rest_state() if state is None else state)
+        return operators.kp(u, a, b, self.width, self.rest_state() if state is None else state, widen=widen)
 
-    def columns(self, u: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
+    def columns(self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None) -> np.ndarray:
         """The hysterons' states for ``u`` relative to their rest states: 0 at rest, so the
-        model's output at rest is its rest output ``y0``."""
-        return self.states(u, state) - self.rest_state()
+        model's output at rest is its rest output ``y0``. ``widen``: every hysteron's
+        thresholds pushed apart by it, sample by sample (rate-dependent hysteresis)."""
+        return self.states(u, state, widen) - self.rest_state()
 
     def _membership(self) -> tuple[np.ndarray, np.ndarray]:
         """Rows: cells sharing a rising ramp (one alpha); and sharing a falling ramp (one beta)."""
@@ -339,13 +340,14 @@ class PIModel:
         return operators.play(u, np.array(self.r), st[: self.n_play])
 
     def columns(self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None) -> np.ndarray:
-        """The operators' outputs side by side: plays (thresholds widened by ``widen``), then the
-        plane's hysterons; :meth:`column_weights` weighs them into the superposition."""
+        """The operators' outputs side by side: plays, then the plane's hysterons (the
+        thresholds of both widened by ``widen``); :meth:`column_weights` weighs them into the
+        superposition."""
         st = self.rest_state() if state is None else np.asarray(state, float)
         Y = operators.play(u, np.array(self.r), st[: self.n_play], widen=widen)
         if self.plane is None:
             return Y
-        return np.hstack([Y, self.plane.columns(u, st[self.n_play :])])
+        return np.hstack([Y, self.plane.columns(u, st[self.n_play :], widen)])
 
     def column_weights(self) -> np.ndarray:
         w = np.array(self.w)

@@ -38,6 +38,11 @@ class Cause:
     #: twice reads alike whatever the loop, the creep or the mode) goes before the causes of the
     #: physics, which would otherwise take what it explains (a gain drift read as creep in a hold).
     precedence: int = 0
+    #: Whether the finding's fit refits the main mode freely, because the effect distorts the
+    #: mode's identification on the steps (a delay read as damping; a loop widening with the
+    #: rate read as a slow, heavily damped mode): the extended bundle's shaper and lead are
+    #: then designed for the diagnosis model's mode (:func:`piezopress.analysis.bundle.extend_document`).
+    refits_mode: bool = False
 
     @property
     def in_compensator(self) -> bool:

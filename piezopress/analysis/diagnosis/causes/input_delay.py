@@ -176,4 +176,5 @@ CAUSE = Cause(
     ),
     extend=_bundle.extend_input_delay,
     targets=("tracking_random", "hysteresis_50hz"),
+    refits_mode=True,
 )
