@@ -60,13 +60,15 @@ print(json.dumps({"seconds": dt}))
 
 def code_tree(work: Path, commit: str) -> Path | None:
     """The package tree at ``commit``, importable from ``work/code-COMMIT`` (None outside git)."""
+    tree = work / f"code-{commit}"
+    if tree.is_dir():  # the same commit asked for twice (timed and compared): one tree
+        return tree
     tar = work / f"{commit}.tar"
     try:
         with tar.open("wb") as fh:
             subprocess.run(["git", "-C", str(ROOT), "archive", commit], stdout=fh, check=True)
     except (OSError, subprocess.CalledProcessError):
         return None
-    tree = work / f"code-{commit}"
     tree.mkdir()
     with tarfile.open(tar) as tf:
         tf.extractall(tree, filter="data")

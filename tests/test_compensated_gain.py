@@ -144,11 +144,9 @@ def test_a_delay_found_in_samples_is_led_in_samples_and_read_so_by_the_model():
         np.testing.assert_allclose(model.reading(run, f), np.interp(t - 5.0 / fs, t, f, left=0.0), atol=1e-12)
 
 
-def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead():
-    # the base lead 2 zeta / wn had absorbed the delay; the extended lead is the refitted mode's plus the delay, once
-    from piezopress.pipelines import diagnose as D
-
-    bundle = {
+def _slow_mode_bundle() -> dict:
+    """A bundle whose mode (3000 rad/s, damping 0.5) a finding may refit, its lead that mode's."""
+    return {
         "hysteresis": {"model": MODEL.to_dict()},
         "compensation": {"lead_s": 2 * 0.5 / 3000.0},
         "shaper": {
@@ -156,12 +154,43 @@ def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead()
             "shaper": {"name": "zvd", **{k: v for k, v in _shaper_dict(3000.0, 0.5).items()}},
         },
     }
+
+
+def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead():
+    # the base lead 2 zeta / wn had absorbed the delay; the extended lead is the refitted mode's plus the delay, once
+    from piezopress.pipelines import diagnose as D
+
+    bundle = _slow_mode_bundle()
     model = dg.Model(MODEL, wn=WN, zeta=ZETA, delay_s=3e-4)
     finding = dg.Finding("input_delay", "", 1.0, 0.1, 90.0, {"delay_s": 3e-4}, [], [], 100.0, 0.1, model)
     ext = D.extend_bundle(bundle, [finding], model)
     assert ext["compensation"]["lead_s"] == pytest.approx(2 * ZETA / WN + 3e-4)
     assert ext["shaper"]["mode"]["natural_freq_rad_s"] == pytest.approx(WN)
     assert ext["shaper"]["shaper"]["natural_freq_rad_s"] == pytest.approx(WN)
+
+
+@pytest.mark.parametrize(
+    ("cause", "params", "redesigned"),
+    [
+        ("rate_dependent_hysteresis", {"rate_v_per_kv_s": 0.2}, True),  # the steps' mode read slow by the widening
+        ("second_resonance", {"share": 0.2, "natural_freq_rad_s": 14_000.0, "damping": 0.05}, False),
+    ],
+)
+def test_the_shaper_follows_the_mode_of_the_causes_that_refit_it(cause, params, redesigned):
+    # the catalogue says which causes refit the main mode (Cause.refits_mode); only their
+    # extensions redesign the shaper and the lead's modal part for the diagnosis model's mode
+    from piezopress.pipelines import diagnose as D
+
+    assert dg.CAUSES[cause].refits_mode is redesigned
+    bundle = _slow_mode_bundle()
+    model = dg.Model(MODEL, wn=WN, zeta=ZETA, rate_v_per_kv_s=0.2)
+    finding = dg.Finding(cause, "", 1.0, 0.1, 90.0, params, [], [], 100.0, 0.1, model)
+    ext = D.extend_bundle(bundle, [finding], model)
+    want_wn = WN if redesigned else 3000.0
+    assert ext["shaper"]["mode"]["natural_freq_rad_s"] == pytest.approx(want_wn)
+    assert ext["shaper"]["shaper"]["natural_freq_rad_s"] == pytest.approx(want_wn)
+    want_lead = 2 * ZETA / WN if redesigned else 2 * 0.5 / 3000.0
+    assert ext["compensation"]["lead_s"] == pytest.approx(want_lead)
 
 
 def _shaper_dict(wn, zeta):
