@@ -51,6 +51,7 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
     h0 = {id(r): model.static(r) for r in runs}
     p0 = {id(r): model.reading(r, model.force(r, h0[id(r)])) for r in runs}
     res = np.concatenate([(r.y - p0[id(r)])[sl] for r, sl in fit])
+    sweep = np.concatenate([np.full(r.y[sl].size, r.kind != "step") for r, sl in fit])
     # the drive the stack feels (through the model's chain: its lag, delay and slew limit), on
     # which both the static prediction and the widening act
     felt = {id(r): model.felt(r, r.x) for r in runs}
@@ -75,8 +76,15 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
                 a = np.concatenate(cols)
                 if a @ a <= 0:
                     continue
-                b = max(0.0, float(a @ res) / float(a @ a))
-                cands.append((rms(res - b * a), key, b, tau, sat))
+                b = float(a @ res) / float(a @ a)
+                # and on the sweeps alone: a mode the widening distorted (read on the steps) can
+                # outweigh the widening on the steps and the fastest sweep, while the slower
+                # sweeps show it plainly (the mode is freed after, _with_mode_freed)
+                on = a[sweep] @ a[sweep]
+                b_sweeps = float(a[sweep] @ res[sweep]) / float(on) if on > 0 else 0.0
+                for bb in {b, b_sweeps}:
+                    if bb > 0:
+                        cands.append((rms(res - bb * a), key, bb, tau, sat))
     cands.sort(key=lambda c: c[0])
     out = []
     for _, key, b, tau, sat in cands[:3]:  # refined on the model itself
@@ -84,8 +92,6 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
         def model_of(v, key=key, tau=tau, sat=sat):
             return replace(model, **{key: v}, rate_tau_s=tau, rate_saturation_v_per_s=sat)
 
-        if b <= 0:
-            continue
         v = _search(lambda v: _cost(fit, model_of(v)), 0.3 * b, 2.0 * b, 9)
         out.append((_cost(fit, model_of(v)), model_of(v)))
     return sorted(out, key=lambda c: c[0])
@@ -112,7 +118,7 @@ def _with_mode_freed(base: Model, ext: Model, fit: list[Segment]) -> tuple[Model
     if _cost(steps, freed) > (1.0 - MODE_FREED_GAIN) * _cost(steps, ext):
         return base, ext  # the steps' mode was not distorted: nothing to free
     # the rate's gain again on every fitting segment, with the freed mode (the sweeps pin it down)
-    v = _search(lambda g: _cost(fit, replace(freed, **{key: g})), 0.3 * v, 3.0 * v, 9)
+    v = _search(lambda g: _cost(fit, replace(freed, **{key: g})), 0.1 * v, 10.0 * v, 13, log=True)
     freed = replace(freed, **{key: v})
     if _cost(fit, freed) >= _cost(fit, ext):
         return base, ext
@@ -126,11 +132,16 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     fit, held = _fast_split(ctx)
     base = _fast_base(ctx, fit)
     forms = _rate_forms(base, fit)
-    if not forms or forms[0][0] >= _cost(fit, base):
+    if not forms:
         return None
     ext = forms[0][1]
     mode_before = (base.wn, base.zeta)
+    # freed before the form is judged: a mode distorted far enough (the third test press's
+    # strongest widening read a 880 Hz mode as 278 Hz at damping 0.95) hides the widening from
+    # a model that keeps it
     base, ext = _with_mode_freed(base, ext, fit)
+    if _cost(fit, ext) >= _cost(fit, base):
+        return None
     # Rate dependence is a widening that changes with the rate across the fast sweeps. A loop
     # fitted at 0.1 Hz can be off by one width at every fast rate (a creep element of a
     # second lags a 1 Hz sweep as much as a 100 Hz one), which a form saturating below the
