@@ -263,11 +263,15 @@ def dead_zone(y: np.ndarray, d: np.ndarray | float) -> np.ndarray:
 _KP_CHUNK = 16_384
 
 
-def kp_bounds(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """The clamp bounds ``a(x)``, ``b(x)`` of hysterons ``(alpha, beta)`` of ramp width ``h``: ``(n, m)`` each."""
+def kp_bounds(
+    x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, widen: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The clamp bounds ``a(x)``, ``b(x)`` of hysterons ``(alpha, beta)`` of ramp width ``h``: ``(n, m)`` each
+    (``widen``, per sample: the thresholds pushed apart, up at ``alpha + widen``, down at ``beta - widen``)."""
     x = np.asarray(x, dtype=np.float64)[:, None]
-    lo = np.clip((x - alpha) / h, 0.0, 1.0)
-    hi = np.clip((x - beta) / h, 0.0, 1.0)
+    w = 0.0 if widen is None else np.asarray(widen, dtype=np.float64)[:, None]
+    lo = np.clip((x - w - alpha) / h, 0.0, 1.0)
+    hi = np.clip((x + w - beta) / h, 0.0, 1.0)
     return lo, hi
 
 
@@ -344,19 +348,18 @@ def kp(
 
 def _kp_widened(x, alpha, beta, h, s0, widen) -> np.ndarray:
     # thresholds that move with time: the bounds no longer follow x alone, so the general scan
-    x = np.asarray(x, dtype=np.float64)
     widen = np.asarray(widen, dtype=np.float64)
-    if widen.shape != x.shape or np.any(widen < 0) or not np.all(np.isfinite(widen)):
-        raise ValueError(f"widen must be finite, non-negative and of the shape of x {x.shape}, got shape {widen.shape}")
-    alpha, beta = _check_kp(alpha, beta, h)
-    out = np.empty((x.size, alpha.size))
+    if widen.shape != np.shape(x) or np.any(widen < 0) or not np.all(np.isfinite(widen)):
+        raise ValueError(
+            f"widen must be finite, non-negative and of the shape of x {np.shape(x)}, got shape {widen.shape}"
+        )
+    x, alpha, beta, out = _kp_start(x, alpha, beta, h, s0)
     if x.size == 0:
         return out
     out[0] = kp_initial_state(x[0], alpha + widen[0], beta - widen[0], h, s0)
     for a in range(0, x.size - 1, _KP_CHUNK):
         sl = slice(a, a + _KP_CHUNK + 1)
-        lo, _ = kp_bounds(x[sl] - widen[sl], alpha, beta, h)
-        _, hi = kp_bounds(x[sl] + widen[sl], alpha, beta, h)
+        lo, hi = kp_bounds(x[sl], alpha, beta, h, widen[sl])
         out[a + 1 : a + lo.shape[0]] = _clamp_scan(lo, hi, out[a])[1:]
     return out
 

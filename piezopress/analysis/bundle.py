@@ -897,15 +897,17 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
     ext["extensions_applied_by_compensator"] = sorted(f.cause for f in findings if f.cause in applied)
     ext["extensions_recorded_only"] = sorted(f.cause for f in findings if f.cause not in applied)
     comp = ext.setdefault("compensation", {})
-    for f in findings:
-        cause = dg.CAUSES.get(f.cause)
-        if cause is not None and cause.extend is not None:
-            cause.extend(ext, comp, f)
     # (a second mode does not refit the main mode: its joint refit moves it little, and the base
     # lead, which the refit would shorten, also stands for the delays the lead formula leaves
     # out - the load cell's low-pass, the DAC's hold - so a shorter lead loses more at 50 Hz
     # than the better shaper gains)
-    refit_by = [f.cause for f in findings if f.cause in dg.CAUSES and dg.CAUSES[f.cause].refits_mode]
+    refit_by = []
+    for f in findings:
+        cause = dg.CAUSES.get(f.cause)
+        if cause is not None and cause.extend is not None:
+            cause.extend(ext, comp, f)
+        if cause is not None and cause.refits_mode:
+            refit_by.append(f.cause)
     if model is not None and model.wn and model.zeta and refit_by and "shaper" in ext:
         sh = ext["shaper"]
         try:

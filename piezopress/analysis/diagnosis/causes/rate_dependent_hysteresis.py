@@ -101,8 +101,9 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
 MODE_FREED_GAIN = 0.05
 
 
-def _with_mode_freed(base: Model, ext: Model, fit: list[Segment]) -> tuple[Model, Model]:
-    """``(baseline, extended)`` with the main mode refitted freely where that predicts the fitting
+def _with_mode_freed(base: Model, ext: Model, fit: list[Segment], ext_cost: float) -> tuple[Model, Model, float, float]:
+    """``(baseline, extended, their costs on fit)`` (``ext_cost``: ``ext``'s, known already), the
+    main mode refitted freely where that predicts the fitting
     segments better: a stack whose loop widens with the rate rises slower on a step than its
     mode lets it (the drive it feels lags by the widening), and the steps' identification reads
     that as a slow, heavily damped mode (on the third test press, 368 Hz at damping 0.95 for a
@@ -110,20 +111,25 @@ def _with_mode_freed(base: Model, ext: Model, fit: list[Segment]) -> tuple[Model
     rate dependence, then judged on every fitting segment; the baseline gets the same freedom
     without the rate dependence, so that what the freed mode alone explains is no finding."""
     steps = [(r, sl) for r, sl in fit if r.kind == "step"]
+    base_cost = _cost(fit, base)
     if not base.wn or not steps:
-        return base, ext
+        return base, ext, base_cost, ext_cost
     key = "rate_v_per_kv_s" if ext.rate_v_per_kv_s else "rate_loss_per_kv_s"
     v = float(getattr(ext, key))
     freed = _refit_mode(ext, steps, wide=True)
     if _cost(steps, freed) > (1.0 - MODE_FREED_GAIN) * _cost(steps, ext):
-        return base, ext  # the steps' mode was not distorted: nothing to free
+        return base, ext, base_cost, ext_cost  # the steps' mode was not distorted: nothing to free
     # the rate's gain again on every fitting segment, with the freed mode (the sweeps pin it down)
     v = _search(lambda g: _cost(fit, replace(freed, **{key: g})), 0.1 * v, 10.0 * v, 13, log=True)
     freed = replace(freed, **{key: v})
-    if _cost(fit, freed) >= _cost(fit, ext):
-        return base, ext
+    freed_cost = _cost(fit, freed)
+    if freed_cost >= ext_cost:
+        return base, ext, base_cost, ext_cost
     freed_base = _refit_mode(base, steps, wide=True)
-    return (freed_base if _cost(fit, freed_base) < _cost(fit, base) else base), freed
+    freed_base_cost = _cost(fit, freed_base)
+    if freed_base_cost < base_cost:
+        return freed_base, freed, freed_base_cost, freed_cost
+    return base, freed, base_cost, freed_cost
 
 
 def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
@@ -134,13 +140,13 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     forms = _rate_forms(base, fit)
     if not forms:
         return None
-    ext = forms[0][1]
+    ext_cost, ext = forms[0]
     mode_before = (base.wn, base.zeta)
     # freed before the form is judged: a mode distorted far enough (the third test press's
     # strongest widening read a 880 Hz mode as 278 Hz at damping 0.95) hides the widening from
     # a model that keeps it
-    base, ext = _with_mode_freed(base, ext, fit)
-    if _cost(fit, ext) >= _cost(fit, base):
+    base, ext, base_cost, ext_cost = _with_mode_freed(base, ext, fit, ext_cost)
+    if ext_cost >= base_cost:
         return None
     # Rate dependence is a widening that changes with the rate across the fast sweeps. A loop
     # fitted at 0.1 Hz can be off by one width at every fast rate (a creep element of a
