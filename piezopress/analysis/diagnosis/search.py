@@ -134,6 +134,64 @@ class CauseProgress:
     accepted: bool = False
 
 
+#: Two causes that fall short alone are tried together when each predicted at least this much
+#: better alone (held-out gain, %): the largest two of a round that accepted none.
+PAIR_MIN_GAIN_PCT = 5.0
+
+
+def _try(cid: str, ctx: Context, failed: dict[str, str]) -> Finding | None:
+    """Cause ``cid``'s fit on ``ctx``: None where it finds nothing or cannot be fitted (why, in
+    ``failed``: never a traceback)."""
+    try:
+        f = CAUSES[cid].run(ctx)
+    except (ValueError, np.linalg.LinAlgError, H.HysteresisFitError, creep_mod.FitError):
+        return None
+    except Exception as exc:  # noqa: BLE001 - a cause that cannot be fitted is a result, never a traceback
+        failed[cid] = f"{type(exc).__name__}: {str(exc)[:200]}"
+        return None
+    return f if f is not None and np.isfinite(f.gain_pct) else None
+
+
+def _together(ctx: Context, tried: list[Finding], failed: dict[str, str]) -> list[Finding]:
+    """Two effects at once, where neither is named alone: each takes up part of the other's
+    residual in a form of its own (a delay of the steps, say, against a lead on the sweeps from
+    a drive picked up by the reading), and the fit of either alone is a compromise that falls
+    short. The two candidates that predicted best alone (each at least
+    :data:`PAIR_MIN_GAIN_PCT`) are each fitted again with the other in the model; both are
+    named only when each is then a finding of its own (it clears every bar with the other
+    already taken). An effect one cause explains alone is named alone in its round, before any
+    pair is tried. Returns the two findings (the first with its gain given the second, the model
+    the second's: both in it), or none."""
+    cands = sorted(
+        (f for f in tried if f.gain_pct >= PAIR_MIN_GAIN_PCT and not f.too_small and not f.refused),
+        key=lambda f: -f.gain_pct,
+    )[:2]
+    if len(cands) < 2:
+        return []
+    a, b = cands
+    b_given_a = _try(b.cause, Context(ctx.runs, a.model, ctx.fitted_runs, ctx.floor), failed)
+    if b_given_a is None or not b_given_a.accepted:
+        return []
+    a_given_b = _try(a.cause, Context(ctx.runs, b.model, ctx.fitted_runs, ctx.floor), failed)
+    if a_given_b is None or not a_given_b.accepted:
+        return []
+    first = replace(
+        a,
+        evidence=f"{a.evidence}; named together with {b.cause}: alone it predicted {a.gain_pct:.0f} % better, "
+        f"{a_given_b.gain_pct:.0f} % with {b.cause} in the model",
+        baseline_rms=a_given_b.baseline_rms,
+        extended_rms=a_given_b.extended_rms,
+        gain_pct=a_given_b.gain_pct,
+        gain_by_run=a_given_b.gain_by_run,
+    )
+    second = replace(
+        b_given_a,
+        evidence=f"{b_given_a.evidence}; named together with {a.cause}: alone it predicted {b.gain_pct:.0f} % "
+        f"better, {b_given_a.gain_pct:.0f} % with {a.cause} in the model",
+    )
+    return [first, second]
+
+
 def diagnose(
     base: Model,
     runs: Sequence[RunData],
@@ -175,18 +233,10 @@ def diagnose(
         for i, cid in enumerate(todo, 1):
             if on_progress:
                 on_progress(CauseProgress(rnd, i, len(todo), cid, False))
-            try:
-                f = CAUSES[cid].run(ctx)
-            except (ValueError, np.linalg.LinAlgError, H.HysteresisFitError, creep_mod.FitError):
-                f = None
-            except Exception as exc:  # noqa: BLE001 - a cause that cannot be fitted is a result, never a traceback
-                failed[cid] = f"{type(exc).__name__}: {str(exc)[:200]}"
-                f = None
-            if f is not None and np.isfinite(f.gain_pct):
+            f = _try(cid, ctx, failed)
+            if f is not None:
                 tried.append(f)
                 last_try[cid] = f
-            else:
-                f = None
             if on_progress:
                 on_progress(
                     CauseProgress(
@@ -195,7 +245,15 @@ def diagnose(
                 )
         ok = [f for f in tried if f.accepted]
         if not ok:
-            break
+            pair = _together(ctx, tried, failed)
+            if not pair:
+                break
+            for f in pair:
+                findings.append(f)
+                todo.remove(f.cause)
+                last_try.pop(f.cause, None)
+            ctx = Context(runs, pair[-1].model, ctx.fitted_runs, floor)
+            continue
         best = max(ok, key=lambda f: (CAUSES[f.cause].precedence, f.gain_pct))
         rivals.update({f.cause: (best.cause, f.gain_pct) for f in ok if f is not best})
         findings.append(best)
