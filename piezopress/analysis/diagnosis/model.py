@@ -169,6 +169,10 @@ class Model:
     gain_drift: tuple[float, float, tuple[tuple[str, float, bool], ...]] | None = None
     # mains_pickup: lines in the reading, fitted run by run: (run identity, Hz, sine, cosine amplitude)
     hum: tuple[tuple[str, float, float, float], ...] = ()
+    # logarithmic_creep: the creep acts on the stroke measured from this far below the rest level
+    # (output unit): a stroke the stack keeps at rest (a remanent one) creeps from every run's
+    # start where the press does not carry the creep's state from run to run
+    creep_bias: float = 0.0
 
     @property
     def unit(self) -> str:
@@ -272,8 +276,19 @@ class Model:
         if self.creep is None:
             return h
         if h.flags.writeable:
-            return self.creep.output(h, run.fs_hz)
-        return _memo(_CREEP_MEMO, (id(h), self.creep, run.fs_hz), h, lambda: self.creep.output(h, run.fs_hz))
+            out = self.creep.output(h, run.fs_hz)
+        else:
+            out = _memo(_CREEP_MEMO, (id(h), self.creep, run.fs_hz), h, lambda: self.creep.output(h, run.fs_hz))
+        if self.creep_bias:  # the stroke from below the rest level creeps too; its static part stays in y0
+            out = out + self.creep_bias * self.creep_transient(run)
+        return out
+
+    def creep_transient(self, run: RunData) -> np.ndarray:
+        """The creep of a unit stroke held from the run's start, less its instantaneous part: what
+        a stroke kept at rest adds to the run (:attr:`creep_bias`); zeros without creep."""
+        if self.creep is None:
+            return np.zeros(run.t_s.size)
+        return self.creep.output(np.ones(run.t_s.size), run.fs_hz) - self.creep.static_gain
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, gain drift, drift, hum."""

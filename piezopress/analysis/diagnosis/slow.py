@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -134,3 +134,32 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
         float(coef1[n_runs]),
         float(np.median([fl for _, _, _, _, fl in rows])),
     )
+
+
+def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
+    """The stroke kept at rest whose creep from every run's start (:attr:`Model.creep_bias`,
+    output unit) best predicts the first 60 % of the rest runs of 10 s or more (cycle-averaged
+    over 5 s, an offset each, the rest held out as :func:`_slow_judge` judges them); 0 without
+    such runs or creep, or where it would be more than ``most`` either way (a stroke the
+    stack keeps is less than the stroke it is driven to). Only the rest runs: where the drive
+    does nothing, a rise is that stroke's creep or a drift of the reading."""
+    if model.creep is None:
+        return 0.0
+    m0 = replace(model, creep_bias=0.0)
+    R, C, fit_m, groups = [], [], [], []
+    for j, r in enumerate(r for r in ctx.rests() if r.t_s[-1] >= 10.0):
+        t, res = _slow_residual(r, r.y - m0.predict(r), 5.0)
+        _, tr = _slow_residual(r, m0.creep_transient(r), 5.0)
+        R.append(res)
+        C.append(tr)
+        fit_m.append(t <= 0.6 * r.t_s[-1])
+        groups.append(np.full(t.size, j))
+    if not R:
+        return 0.0
+    fm, g = np.concatenate(fit_m), np.concatenate(groups)
+    onehot = (g[:, None] == np.arange(len(R))[None, :]).astype(float)
+    A = np.column_stack([onehot, np.concatenate(C)])[fm]
+    if fm.sum() < len(R) + 2 or np.ptp(A[:, -1]) <= 0:
+        return 0.0
+    coef, *_ = np.linalg.lstsq(A, np.concatenate(R)[fm], rcond=None)
+    return float(coef[-1]) if abs(coef[-1]) <= most else 0.0

@@ -15,10 +15,16 @@ from piezopress.analysis import bundle as _bundle
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis.diagnosis.cause import Cause
 from piezopress.analysis.diagnosis.judging import MIN_GAIN_PCT, Context, Finding
-from piezopress.analysis.diagnosis.model import RunData
+from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import rms
-from piezopress.analysis.diagnosis.slow import DRIFT_WARMUP_TAU_S, _drift_fit, _long_runs, _slow_judge
+from piezopress.analysis.diagnosis.slow import (
+    DRIFT_WARMUP_TAU_S,
+    _drift_fit,
+    _long_runs,
+    _rest_creep_bias,
+    _slow_judge,
+)
 
 #: A log-time creep is named only where it rises at least this fraction of the held step per decade
 #: of time beyond what the poles draw. Piezo stacks creep about 1-2 % of the step per decade
@@ -90,8 +96,9 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # both fitted with a drift of their own
     drift = ctx.model.drift_per_s
     ramp = bool(drift or ctx.model.drift_warmup)  # a drift found already: its form may not be exact
-    if not ramp:
-        d = _drift_fit(ctx)
+    if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)
+        kept = _rest_creep_bias(ctx, ctx.model, float(np.ptp(u)))
+        d = _drift_fit(Context(ctx.runs, replace(ctx.model, creep_bias=kept), ctx.fitted_runs, ctx.floor))
         ramp = d is not None and d.gain_pct >= MIN_GAIN_PCT
     # the force as the accepted reading terms (drift) leave it
     # (and a drifting gain of the reading: the force the hold applied)
@@ -108,56 +115,81 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # that is not creep); the poles are given the same offset.
     grid = np.geomspace(max(5.0 / fs, 0.2), 10.0 * t[-1], 10)
     tail_taus = creep_mod.log_taus(max(creep_mod.LOG_TAU_MIN_S, 2.0 / fs), creep_mod.LOG_TAU_MAX_S)
-    tail = 0.5 * creep_mod.kv_columns(u, fs, tail_taus)[:, 1:].sum(axis=1)
     combos = [c for n in (1, 2, 3) for c in itertools.combinations(range(grid.size), n)]
-    try:
-        (_, kc1, g1, gamma, c1, d1, e1), i1 = min(
-            (_creep_fit(t, u, y, k, [grid[i] for i in c], tail, ramp), c) for c in combos
-        )
-        if ramp:
-            (_, kc0, g0, _, c0, d0, e0), i0 = min(
-                (_creep_fit(t, u, y, k, [grid[i] for i in c], None, ramp), c) for c in combos
-            )
-            base_creep = creep_mod.CreepModel("kv", kc0, tuple(float(grid[i]) for i in i0), tuple(g0))
-        else:
-            c0, d0, e0 = c1, 0.0, 0.0
-            base_creep = creep_mod.fit_poles(t[:k], u[:k], y[:k] - c1, tau_bounds_s=(5.0 / fs, 10 * t[-1]))
-    except (ValueError, np.linalg.LinAlgError, creep_mod.FitError):
-        return None
-    if gamma <= 0 or kc1 <= 0:
-        return None
     m = ctx.model.hysteresis
 
-    def with_creep(creep, c, d, e):  # the creep, with its own rest offset and drift
+    def with_creep(creep, c, d, e, bias):  # the creep, with its own rest offset, drift and kept stroke
         return replace(
             ctx.model,
             hysteresis=replace(m, y0=m.y0 + c),
             creep=creep,
             drift_per_s=drift + d,
             drift_warmup=(e, DRIFT_WARMUP_TAU_S) if e else ctx.model.drift_warmup,
+            creep_bias=bias,
         )
 
-    base = with_creep(base_creep, c0, d0, e0)
-    log = creep_mod.CreepModel(
-        "kv",
-        kc1,
-        tuple(float(grid[i]) for i in i1) + tuple(float(x) for x in tail_taus),
-        tuple(g1) + (0.5 * gamma,) * tail_taus.size,
-        {"per_decade": gamma},
-    )
-    ext = with_creep(log, c1, d1, e1)
+    def forms(bias: float) -> tuple[Model, Model, float, float]:
+        """(base, extension, gamma, K_c) fitted on the hold with the stroke kept at rest, ``bias``,
+        creeping too (it is part of what the stack holds)."""
+        ub = u + bias
+        tail = 0.5 * creep_mod.kv_columns(ub, fs, tail_taus)[:, 1:].sum(axis=1)
+        (_, kc1, g1, gamma, c1, d1, e1), i1 = min(
+            (_creep_fit(t, ub, y, k, [grid[i] for i in c], tail, ramp), c) for c in combos
+        )
+        if ramp:
+            (_, kc0, g0, _, c0, d0, e0), i0 = min(
+                (_creep_fit(t, ub, y, k, [grid[i] for i in c], None, ramp), c) for c in combos
+            )
+            base_creep = creep_mod.CreepModel("kv", kc0, tuple(float(grid[i]) for i in i0), tuple(g0))
+        else:
+            c0, d0, e0 = c1, 0.0, 0.0
+            base_creep = creep_mod.fit_poles(t[:k], ub[:k], y[:k] - c1, tau_bounds_s=(5.0 / fs, 10 * t[-1]))
+        log = creep_mod.CreepModel(
+            "kv",
+            kc1,
+            tuple(float(grid[i]) for i in i1) + tuple(float(x) for x in tail_taus),
+            tuple(g1) + (0.5 * gamma,) * tail_taus.size,
+            {"per_decade": gamma},
+        )
+        # the offsets fitted took the kept stroke's static part (K_c bias), which the model's
+        # creep of it leaves out (it is part of the rest level)
+        c0 += base_creep.static_gain * bias
+        c1 += kc1 * bias
+        return with_creep(base_creep, c0, d0, e0, bias), with_creep(log, c1, d1, e1, bias), gamma, kc1
+
+    def named(ext: Model) -> Model:  # the finding's model: without the drift it was judged against
+        return replace(ext, drift_per_s=ctx.model.drift_per_s, drift_warmup=ctx.model.drift_warmup)
+
+    # A stroke the stack keeps at rest (a remanent one) creeps from every run's start where the
+    # press does not carry the creep's state from run to run: the rest runs rise where the drive
+    # does nothing. Its size is read on the rest runs with the log form's creep
+    # (:func:`_rest_creep_bias`, up to the hold's stroke) and both forms fitted again with it
+    try:
+        base, ext, gamma, kc1 = forms(0.0)
+        if gamma > 0 and kc1 > 0:
+            bias = _rest_creep_bias(ctx, named(ext), float(np.ptp(u)))
+            if bias:
+                base, ext, gamma, kc1 = forms(bias)
+    except (ValueError, np.linalg.LinAlgError, creep_mod.FitError):
+        return None
+    if gamma <= 0 or kc1 <= 0:
+        return None
     ev = (
         f"after the step the {units.quantity(ctx.model.unit)} keeps rising {100 * gamma:.3g} % of the step per decade "
         "of time where "
         f"the poles saturate (the poles, against Kelvin-Voigt elements and a log tail, fitted on the first 60 % of "
         f"the hold, judged on the rest of every long run, averaged over its drive cycles)"
     )
+    if ext.creep_bias:
+        ev += (
+            f"; a stroke of {ext.creep_bias:.3g} {units.label(ctx.model.unit)} kept at rest creeps from every run's "
+            "start too (read on the rest runs, where the drive does nothing; the compensator leaves it out)"
+        )
     # judged like a drift (:func:`cause_sensor_offset_drift`), on the cycle-averaged residuals of
     # every long run: a creep grows with the drive, in the sweeps as in the hold, where a drift does not
     b, floor = _slow_judge(ctx, base)
     e, _ = _slow_judge(ctx, ext)
     names = sorted(r.name for r, _ in _long_runs(ctx, steady=True))
-    # a drift judged against is not part of the finding
     return Finding(
         "logarithmic_creep",
         ev,
@@ -169,7 +201,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         names,
         float(np.ptp(run.y)),
         floor,
-        replace(ext, drift_per_s=ctx.model.drift_per_s, drift_warmup=ctx.model.drift_warmup),
+        named(ext),  # a drift judged against is not part of the finding
         too_small=(
             f"the creep rises {100 * gamma:.2g} % of the step per decade beyond the poles, under the "
             f"{100 * LOG_CREEP_MIN_PER_DECADE:.2g} % a logarithmic creep needs to move the creep row by more "
