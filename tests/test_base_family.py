@@ -89,22 +89,29 @@ def test_a_lag_of_the_force_is_not_called_interference_and_a_coupling_is(tmp_pat
 
 
 @pytest.mark.slow
-def test_a_board_fifo_is_named_as_a_delay_counted_in_samples(tmp_path):
-    """The third test press with a FIFO of whole samples (8 here) between the board and the
+@pytest.mark.parametrize(("seed", "fifo"), [(1, 8), (3, 4)])
+def test_a_board_fifo_is_named_as_a_delay_counted_in_samples(tmp_path, seed, fifo):
+    """The third test press with a FIFO of whole samples (8 or 4 here) between the board and the
     amplifier, characterized at 10, 20 and 50 kHz: in time the delay differs from run to run, so
     the base's chain absorbs it only at the steps' rate. ``input_delay`` tries a delay counted in
-    samples beside one in time, names it alone, and its size is the FIFO less the chain's own
-    delay the base holds (up to two samples)."""
-    rng = np.random.default_rng([1, 97])
+    samples beside one in time, refits the chain's low-pass with it (identified on steps that
+    lagged by the FIFO, the low-pass took part of its lag, and the fast sweeps then showed it
+    twice: with 4 samples nothing was named, with 8 interference was named beside the delay),
+    names it alone, and its size is the FIFO and the converter's own 1.5 samples (its sinc
+    filter), less the chain's own delay the base holds (up to two samples)."""
+    rng = np.random.default_rng([seed, 97])
     press = tp.hidden_press("input_delay", rng)
-    assert press.fifo_samples == 8
+    assert press.fifo_samples == fifo
     char.characterize(tmp_path / "char", backend=press)
     B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
     res, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
     assert [f.cause for f in res.findings] == ["input_delay"], res.summary
     (f,) = res.findings
     assert "counted in samples" in f.evidence
-    assert 5.0 <= f.parameters["delay_samples"] <= 8.5, f.parameters
+    assert fifo - 0.5 <= f.parameters["delay_samples"] <= fifo + 3.0, f.parameters
+    base_lp = json.loads((tmp_path / "base.json").read_text())["shaper"]["mode"]["drive_chain"]["lowpass_hz"]
+    ext_lp = json.loads((tmp_path / "diag" / "extended_bundle.json").read_text())["shaper"]["mode"]["drive_chain"]
+    assert ext_lp["lowpass_hz"] > base_lp  # less of the lag in the low-pass
 
 
 @pytest.mark.slow

@@ -169,6 +169,37 @@ def test_a_delay_found_with_a_refitted_mode_replaces_the_mode_part_of_the_lead()
     assert ext["shaper"]["shaper"]["natural_freq_rad_s"] == pytest.approx(WN)
 
 
+def test_a_delay_found_with_the_chains_low_pass_refitted_records_it_and_leads_it_once():
+    # the low-pass identified on steps that lagged by a FIFO took part of that lag: refitted with
+    # the delay, the extended bundle records the new low-pass (read back by the forward model)
+    # and its lead's chain part is the new low-pass's, beside the delay's lead
+    from piezopress.analysis.bundle import Bundle
+    from piezopress.analysis.mode_fit import lowpass_delay_group_delay_s
+    from piezopress.pipelines import diagnose as D
+
+    bundle = {"bundle_version": 1, **_slow_mode_bundle()}
+    chain = {"form": "lowpass_delay", "lowpass_hz": 900.0, "lowpass_damping": 0.8, "delay_s": 8e-5}
+    was = lowpass_delay_group_delay_s(2 * math.pi * 900.0, 0.8, 8e-5)
+    bundle["shaper"]["mode"]["drive_chain"] = chain
+    bundle["compensation"] = {"lead_s": 2 * 0.5 / 3000.0 + was, "chain_lead_s": was}
+    wc, zc = 2 * math.pi * 2500.0, 0.6
+    model = dg.Model(MODEL, wn=WN, zeta=ZETA, delay_samples=8.0, drive_lowpass=(wc, zc), drive_delay_s=8e-5)
+    finding = dg.Finding(
+        "input_delay", "", 1.0, 0.1, 90.0, {"delay_samples": 8.0, "delay_s": 4e-4}, [], [], 100.0, 0.1, model
+    )
+    ext = D.extend_bundle(bundle, [finding], model)
+    now = lowpass_delay_group_delay_s(wc, zc, 8e-5)
+    assert now < was
+    got = ext["shaper"]["mode"]["drive_chain"]
+    assert got["lowpass_hz"] == pytest.approx(2500.0) and got["lowpass_damping"] == pytest.approx(0.6)
+    assert "input_delay" in got["extended_by"]
+    assert ext["compensation"]["chain_lead_s"] == pytest.approx(now)
+    assert ext["compensation"]["lead_s"] == pytest.approx(2 * ZETA / WN + now)  # the delay: led in samples
+    assert ext["compensation"]["delay_lead_samples"] == pytest.approx(8.0)
+    assert Bundle.from_dict(ext).forward_model().drive_lowpass == pytest.approx((wc, zc))
+    assert bundle["shaper"]["mode"]["drive_chain"]["lowpass_hz"] == 900.0  # the base bundle untouched
+
+
 @pytest.mark.parametrize(
     ("cause", "params", "redesigned"),
     [

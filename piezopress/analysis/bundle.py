@@ -937,6 +937,22 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
                 + modal_delay_s(model)
                 + comp.get("delay_lead_s", 0.0)
             )
+    # a drive chain's low-pass refitted with them (an input delay: the identification on steps that
+    # lagged by it gave the low-pass part of the delay's lag): recorded, and its lead replaced
+    chain = ext.get("shaper", {}).get("mode", {}).get("drive_chain")
+    old = _lowpass_delay(chain)
+    if model is not None and refit_by and model.drive_lowpass is not None and old is not None:
+        wc, zc = (float(v) for v in model.drive_lowpass)
+        if not np.allclose((wc, zc), old[:2], rtol=1e-9):
+            was = chain_delay_s(chain)
+            chain.update(
+                lowpass_hz=wc / (2.0 * math.pi),
+                lowpass_damping=zc,
+                extended_by=f"diagnose: the low-pass refitted with {', '.join(refit_by)}",
+            )
+            now = chain_delay_s(chain)
+            comp["lead_s"] = comp.get("lead_s", 0.0) - comp.get("chain_lead_s", was) + now
+            comp["chain_lead_s"] = now
     return ext
 
 

@@ -126,22 +126,39 @@ def cause_input_delay(ctx: Context) -> Finding | None:
     if steps_fit:  # the mode and the delay together, on the steps and the sweeps (which pin the delay down)
         # a delay distorts the identified mode (the identification has no delay): refit both
         # freely, and give the baseline the same freedom of the mode with the chain's lag
-        ext = _refit_mode(ctx.model, fit, lambda m, p: replace(m, **{key: float(p[0])}), [d], ([0.0], [hi]), wide=True)
+        # the drive chain's low-pass too, where the base has one: identified on steps that lagged by
+        # the delay, it took part of the delay as its own lag (which the sweeps then show twice)
+        lp = ctx.model.drive_lowpass
+        lp_x0, lp_lo, lp_hi = ([lp[0], lp[1]], [0.5 * lp[0], 0.2], [4.0 * lp[0], 0.99]) if lp else ([], [], [])
+
+        def chain(m, p, k):
+            return replace(m, **{k: float(p[0])}, **({"drive_lowpass": (float(p[1]), float(p[2]))} if lp else {}))
+
+        ext = _refit_mode(
+            ctx.model, fit, lambda m, p: chain(m, p, key), [d, *lp_x0], ([0.0, *lp_lo], [hi, *lp_hi]), wide=True
+        )
         d = float(getattr(ext, key))
         wide = _refit_mode(
             ctx.model,
             fit,
-            lambda m, p: replace(m, delay_s=float(p[0])),
-            [base.delay_s],
-            ([0.0], [CHAIN_LAG_S]),
+            lambda m, p: chain(m, p, "delay_s"),
+            [base.delay_s, *lp_x0],
+            ([0.0, *lp_lo], [CHAIN_LAG_S, *lp_hi]),
             wide=True,
         )
         base = min((base, wide), key=lambda m: _cost(fit, m))
+    lp, now = ctx.model.drive_lowpass, ext.drive_lowpass
+    moved = (
+        f"; the drive chain's low-pass refitted with it, {lp[0] / (2 * np.pi):.3g} Hz (damping {lp[1]:.2g}) -> "
+        f"{now[0] / (2 * np.pi):.3g} Hz ({now[1]:.2g})"
+        if lp and now and not np.allclose(lp, now)
+        else ""
+    )
     if key == "delay_samples":
-        return _judge_samples(ctx, fit, held, ext, d, base, rates)
+        return _judge_samples(ctx, fit, held, ext, d, base, rates, moved)
     if d <= CHAIN_LAG_S:
         return None  # no longer than the chain's own lag: nothing to test beyond it
-    ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike"
+    ev = f"the whole response lags the model by {d * 1e3:.3g} ms, on steps and fast sweeps alike{moved}"
     return _judge_dynamics(ctx, "input_delay", ev, fit, held, ext, {"delay_s": d}, base)
 
 
@@ -150,7 +167,7 @@ def cause_input_delay(ctx: Context) -> Finding | None:
 SAMPLE_RATES_APART = 1.2
 
 
-def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[float]) -> Finding | None:
+def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[float], moved: str = "") -> Finding | None:
     """The finding of a delay of ``n`` samples at every rate (what each run's rate makes of it)."""
     fs = ctx.steps()[0].fs_hz if ctx.steps() else rates[0]
     if n / fs <= CHAIN_LAG_S:
@@ -159,7 +176,7 @@ def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[flo
     ev = (
         f"the whole response lags the model by {n:.3g} samples at every sample rate ({at}): a delay counted "
         "in samples (a board's FIFO, a converter's filter) fits the runs of different rates better than one "
-        "delay in time"
+        f"delay in time{moved}"
     )
     return _judge_dynamics(ctx, "input_delay", ev, fit, held, ext, {"delay_samples": n, "delay_s": n / fs}, base)
 
