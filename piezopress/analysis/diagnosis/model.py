@@ -106,6 +106,7 @@ _PLAY_MEMO: dict[tuple, tuple[Any, Any]] = {}
 _CREEP_MEMO: dict[tuple, tuple[Any, Any]] = {}  # (static prediction, its creep response)
 _PREFIX_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a run's first samples, by (id(run), samples)
 _RATE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive rate felt, by (id(run), chain, smoothing, saturation)
+_TRANSIENT_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a held unit stroke's creep, by (id(run), creep)
 #: Entries each memo keeps (the oldest leaves first).
 MEMO_SIZE = 64
 
@@ -288,7 +289,13 @@ class Model:
         a stroke kept at rest adds to the run (:attr:`creep_bias`); zeros without creep."""
         if self.creep is None:
             return np.zeros(run.t_s.size)
-        return self.creep.output(np.ones(run.t_s.size), run.fs_hz) - self.creep.static_gain
+        creep = self.creep
+        return _memo(
+            _TRANSIENT_MEMO,
+            (id(run), creep),
+            run,
+            lambda: creep.output(np.ones(run.t_s.size), run.fs_hz) - creep.static_gain,
+        )
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, gain drift, drift, hum."""

@@ -136,17 +136,25 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
     )
 
 
+#: A stroke kept at rest is read only where its creep moves the rest runs' cycle averages by at
+#: least this many times their noise: on the virtual rig's clean rest (no such stroke) the fit
+#: reads noise; on the third test press, clean, the kept stroke's creep moves the rest 0.47 N.
+KEPT_STROKE_MIN_TO_FLOOR = 5.0
+
+
 def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
     """The stroke kept at rest whose creep from every run's start (:attr:`Model.creep_bias`,
     output unit) best predicts the first 60 % of the rest runs of 10 s or more (cycle-averaged
     over 5 s, an offset each, the rest held out as :func:`_slow_judge` judges them); 0 without
     such runs or creep, or where it would be more than ``most`` either way (a stroke the
-    stack keeps is less than the stroke it is driven to). Only the rest runs: where the drive
-    does nothing, a rise is that stroke's creep or a drift of the reading."""
+    stack keeps is less than the stroke it is driven to), or where its creep moves the rest
+    runs' averages by less than :data:`KEPT_STROKE_MIN_TO_FLOOR` times their noise (none is
+    evidenced). Only the rest runs: where the drive does nothing, a rise is that stroke's creep
+    or a drift of the reading."""
     if model.creep is None:
         return 0.0
     m0 = replace(model, creep_bias=0.0)
-    R, C, fit_m, groups = [], [], [], []
+    R, C, fit_m, groups, floors = [], [], [], [], []
     for j, r in enumerate(r for r in ctx.rests() if r.t_s[-1] >= 10.0):
         t, res = _slow_residual(r, r.y - m0.predict(r), 5.0)
         _, tr = _slow_residual(r, m0.creep_transient(r), 5.0)
@@ -154,6 +162,7 @@ def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
         C.append(tr)
         fit_m.append(t <= 0.6 * r.t_s[-1])
         groups.append(np.full(t.size, j))
+        floors.append(ctx.floor[r.name] / math.sqrt(5.0 * r.fs_hz))
     if not R:
         return 0.0
     fm, g = np.concatenate(fit_m), np.concatenate(groups)
@@ -162,4 +171,6 @@ def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
     if fm.sum() < len(R) + 2 or np.ptp(A[:, -1]) <= 0:
         return 0.0
     coef, *_ = np.linalg.lstsq(A, np.concatenate(R)[fm], rcond=None)
-    return float(coef[-1]) if abs(coef[-1]) <= most else 0.0
+    b = float(coef[-1])
+    moves = abs(b) * min(float(np.ptp(c)) for c in C)
+    return b if abs(b) <= most and moves >= KEPT_STROKE_MIN_TO_FLOOR * max(floors) else 0.0

@@ -98,7 +98,9 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     ramp = bool(drift or ctx.model.drift_warmup)  # a drift found already: its form may not be exact
     if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)
         kept = _rest_creep_bias(ctx, ctx.model, float(np.ptp(u)))
-        d = _drift_fit(Context(ctx.runs, replace(ctx.model, creep_bias=kept), ctx.fitted_runs, ctx.floor))
+        d = _drift_fit(
+            Context(ctx.runs, replace(ctx.model, creep_bias=kept), ctx.fitted_runs, ctx.floor) if kept else ctx
+        )
         ramp = d is not None and d.gain_pct >= MIN_GAIN_PCT
     # the force as the accepted reading terms (drift) leave it
     # (and a drifting gain of the reading: the force the hold applied)
