@@ -107,6 +107,7 @@ _CREEP_MEMO: dict[tuple, tuple[Any, Any]] = {}  # (static prediction, its creep 
 _PREFIX_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a run's first samples, by (id(run), samples)
 _RATE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive rate felt, by (id(run), chain, smoothing, saturation)
 _TRANSIENT_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a held unit stroke's creep, by (id(run), creep)
+_INTERFERENCE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive current's artefact, by (id(run), parameters)
 #: Entries each memo keeps (the oldest leaves first).
 MEMO_SIZE = 64
 
@@ -354,8 +355,14 @@ class Model:
 def interference_reading(run: RunData, g: float, e0: float, tau: float, g_signed: float = 0.0) -> np.ndarray:
     """The artefact the drive current puts into the reading (subtracted from it): ``g`` per V/s
     of the unsigned rate envelope above ``e0``, and ``g_signed`` per V/s of the signed rate
-    (both smoothed over ``tau``; the current is ``C dV/dt`` of the drive actually applied)."""
-    out = g * np.maximum(signals.rate_envelope(run.drive, run.fs_hz, tau) - e0, 0.0) if g else 0.0
-    if g_signed:
-        out = out + g_signed * signals.first_order(np.diff(run.drive, prepend=run.drive[0]) * run.fs_hz, tau, run.fs_hz)
-    return out * np.ones(run.drive.size)
+    (both smoothed over ``tau``; the current is ``C dV/dt`` of the drive actually applied).
+    Memoised per run and parameters: a search varies the later stages many times on one."""
+
+    def compute() -> np.ndarray:
+        out = g * np.maximum(signals.rate_envelope(run.drive, run.fs_hz, tau) - e0, 0.0) if g else 0.0
+        if g_signed:
+            rate = np.diff(run.drive, prepend=run.drive[0]) * run.fs_hz
+            out = out + g_signed * signals.first_order(rate, tau, run.fs_hz)
+        return out * np.ones(run.drive.size)
+
+    return _memo(_INTERFERENCE_MEMO, (id(run), g, e0, tau, g_signed), run, compute)
