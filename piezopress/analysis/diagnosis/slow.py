@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import linalg
 
 from piezopress import signals
 from piezopress.analysis.diagnosis.judging import Context
@@ -87,6 +88,11 @@ def _slow_judge(ctx: Context, model: Model) -> tuple[float, float]:
     return (rms(np.concatenate(held)), float(np.median(floors))) if held else (float("nan"), float("nan"))
 
 
+def _run_offsets(sizes: list[int]) -> np.ndarray:
+    """The columns of an offset per run for runs of ``sizes`` samples stacked one after another."""
+    return linalg.block_diag(*(np.ones((n, 1)) for n in sizes))
+
+
 def _drift_fit(ctx: Context) -> _DriftFit | None:
     """See :func:`cause_sensor_offset_drift`."""
     rows = []  # (run, t, slow residual, slow creep responses per tau, floor of the averages)
@@ -99,11 +105,7 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
         return None
     n_runs = len(rows)
     fit_m = np.concatenate([t <= 0.6 * r.t_s[-1] for r, t, _, _, _ in rows])
-    onehot = np.zeros((fit_m.size, n_runs))
-    k = 0
-    for j, (_, t, _, _, _) in enumerate(rows):
-        onehot[k : k + t.size, j] = 1.0
-        k += t.size
+    onehot = _run_offsets([t.size for _, t, _, _, _ in rows])
     T = np.concatenate([t for _, t, _, _, _ in rows])
     R = np.concatenate([res for _, _, res, _, _ in rows])
     if fit_m.sum() < n_runs + 3 or (~fit_m).sum() < 3:
@@ -154,20 +156,18 @@ def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
     if model.creep is None:
         return 0.0
     m0 = replace(model, creep_bias=0.0)
-    R, C, fit_m, groups, floors = [], [], [], [], []
-    for j, r in enumerate(r for r in ctx.rests() if r.t_s[-1] >= 10.0):
+    R, C, fit_m, floors = [], [], [], []
+    for r in (r for r in ctx.rests() if r.t_s[-1] >= 10.0):
         t, res = _slow_residual(r, r.y - m0.predict(r), 5.0)
         _, tr = _slow_residual(r, m0.creep_transient(r), 5.0)
         R.append(res)
         C.append(tr)
         fit_m.append(t <= 0.6 * r.t_s[-1])
-        groups.append(np.full(t.size, j))
         floors.append(ctx.floor[r.name] / math.sqrt(5.0 * r.fs_hz))
     if not R:
         return 0.0
-    fm, g = np.concatenate(fit_m), np.concatenate(groups)
-    onehot = (g[:, None] == np.arange(len(R))[None, :]).astype(float)
-    A = np.column_stack([onehot, np.concatenate(C)])[fm]
+    fm = np.concatenate(fit_m)
+    A = np.column_stack([_run_offsets([c.size for c in C]), np.concatenate(C)])[fm]
     if fm.sum() < len(R) + 2 or np.ptp(A[:, -1]) <= 0:
         return 0.0
     coef, *_ = np.linalg.lstsq(A, np.concatenate(R)[fm], rcond=None)

@@ -123,12 +123,12 @@ def cause_input_delay(ctx: Context) -> Finding | None:
         if delayed(replace(ctx.model, delay_samples=k)) < delayed(replace(ctx.model, delay_s=d)):
             key, hi, d = "delay_samples", n_hi, k
     ext = replace(ctx.model, **{key: d})
+    lp = ctx.model.drive_lowpass
     if steps_fit:  # the mode and the delay together, on the steps and the sweeps (which pin the delay down)
         # a delay distorts the identified mode (the identification has no delay): refit both
         # freely, and give the baseline the same freedom of the mode with the chain's lag
         # the drive chain's low-pass too, where the base has one: identified on steps that lagged by
         # the delay, it took part of the delay as its own lag (which the sweeps then show twice)
-        lp = ctx.model.drive_lowpass
         lp_x0, lp_lo, lp_hi = ([lp[0], lp[1]], [0.5 * lp[0], 0.2], [4.0 * lp[0], 0.99]) if lp else ([], [], [])
 
         def chain(m, p, k):
@@ -147,7 +147,7 @@ def cause_input_delay(ctx: Context) -> Finding | None:
             wide=True,
         )
         base = min((base, wide), key=lambda m: _cost(fit, m))
-    lp, now = ctx.model.drive_lowpass, ext.drive_lowpass
+    now = ext.drive_lowpass
     moved = (
         f"; the drive chain's low-pass refitted with it, {lp[0] / (2 * np.pi):.3g} Hz (damping {lp[1]:.2g}) -> "
         f"{now[0] / (2 * np.pi):.3g} Hz ({now[1]:.2g})"

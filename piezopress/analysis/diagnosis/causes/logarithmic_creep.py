@@ -96,8 +96,9 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # both fitted with a drift of their own
     drift = ctx.model.drift_per_s
     ramp = bool(drift or ctx.model.drift_warmup)  # a drift found already: its form may not be exact
+    most = float(np.ptp(u))  # a stroke kept at rest is less than the hold's
     if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)
-        kept = _rest_creep_bias(ctx, ctx.model, float(np.ptp(u)))
+        kept = _rest_creep_bias(ctx, ctx.model, most)
         d = _drift_fit(
             Context(ctx.runs, replace(ctx.model, creep_bias=kept), ctx.fitted_runs, ctx.floor) if kept else ctx
         )
@@ -169,7 +170,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     try:
         base, ext, gamma, kc1 = forms(0.0)
         if gamma > 0 and kc1 > 0:
-            bias = _rest_creep_bias(ctx, named(ext), float(np.ptp(u)))
+            bias = _rest_creep_bias(ctx, named(ext), most)
             if bias:
                 base, ext, gamma, kc1 = forms(bias)
     except (ValueError, np.linalg.LinAlgError, creep_mod.FitError):
