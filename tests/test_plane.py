@@ -256,6 +256,9 @@ def test_the_family_search_draws_a_preisach_loop_the_plays_cannot():
     assert "family:" in both.reason and "Preisach plane" in both.family_reason
     # measured: about 3x lower held-out error; asserted with room
     assert both.holdout_rms < 0.6 * pi.holdout_rms, (both.holdout_rms, pi.holdout_rms)
+    # the plane wins: its resolution is searched beyond PLANE_LEVELS_FIRST while refining helps
+    tried = {c["candidate"].split("plane=")[1] for c in both.candidates if "plane=" in c["candidate"]}
+    assert any(int(n) > H.PLANE_LEVELS_FIRST for n in tried), tried
     final = both.final_model
     xi, _ = final.inverse(final.forward(runs[0][1])[0])
     np.testing.assert_allclose(xi, runs[0][1], atol=1e-7)
@@ -268,6 +271,9 @@ def test_the_family_search_keeps_the_plays_where_they_draw_the_loop():
     fit = H.fit_hysteresis(H.prepare(runs, holdout_fraction=0.3))
     assert fit.model.family == H.FAMILY_PI, fit.family_reason
     assert "short of the" in fit.family_reason
+    # ... and no finer plane than PLANE_LEVELS_FIRST is fitted where the plays win (twice the time)
+    tried = {int(c["candidate"].split("plane=")[1]) for c in fit.candidates if "plane=" in c["candidate"]}
+    assert tried and max(tried) <= H.PLANE_LEVELS_FIRST, tried
 
 
 def test_the_fleet_row_names_the_family():
