@@ -5,8 +5,8 @@ The base keeps the thesis's structure (12 plays, 1 dead zone) on a press of the 
 family, so that ``diagnose`` still finds what more operators would draw. Where the structure
 search chooses a Preisach plane (it predicts the sweeps' held-out ends 30 % better than the best
 modified PI model), the thesis's operators cannot draw the loop: the base takes the searched
-structure and says so; ``hysteresis_order`` then tries finer planes than the search did (a
-plane's order is its resolution). On the third test press (a Preisach plane, written apart
+structure and says so, and ``hysteresis_order`` is not tested against it (the search already
+chose the operators), with the reason. On the third test press (a Preisach plane, written apart
 from the project) the thesis's structure left 225 times the noise floor on the sweeps it was
 fitted on and ``hysteresis_order`` was named on every clean seed.
 """
@@ -60,13 +60,10 @@ def test_a_loop_of_another_family_gets_the_searched_structure_and_a_base_that_fi
         if r.kind == "triangle" and 4.0 < (r.freq_hz or 0) < 20.0:
             e = r.y - model.predict(r)
             assert float(np.std(e)) < 0.01 * float(np.ptp(r.y)), (r.name, float(np.std(e)))
-    # the clean press: nothing named; finer planes than the searched one (12 levels) tried, and they
-    # gain next to nothing (0-1 % on 5 seeds; 9-20 % with a second population of domains hidden,
-    # which the search itself then draws with a finer plane: the test below)
+    # the clean press: nothing named
     assert res.findings == [], res.summary
-    assert h["model"]["preisach_plane"]["levels"] == 12
-    (order,) = [t for t in res.tested if t["cause"] == "hysteresis_order"]
-    assert order["gain_pct"] < 5.0, order
+    (nt,) = [t for t in res.not_tested if t.cause == "hysteresis_order"]
+    assert "loop of play operators" in nt.needs
 
 
 @pytest.mark.slow
@@ -140,21 +137,3 @@ def test_a_loop_widening_with_the_rate_is_named_on_a_preisach_press_and_frees_th
     assert "main mode is" in f.evidence
     ext = json.loads((tmp_path / "diag" / "extended_bundle.json").read_text())
     assert abs(ext["shaper"]["mode"]["natural_freq_rad_s"] / f.model.wn - 1.0) < 1e-6  # the shaper is for it
-
-
-@pytest.mark.slow
-def test_a_second_population_of_domains_is_drawn_by_a_finer_plane(tmp_path):
-    """The third test press with a second population of domains switching in a narrow band of the
-    field (an S in the loop, 9 V wide against a 12-level plane's 12.5 V cells; seed 0 of
-    bench_diagnose): the structure search, which tries planes up to 20 levels, chooses a finer
-    plane than on the clean press (12 levels, test above), and ``hysteresis_order``, trying finer
-    planes still, finds nothing left to draw (2 % measured; 20 % against a 12-level base)."""
-    press = tp.hidden_press("hysteresis_order", np.random.default_rng([0, 97]))
-    char.characterize(tmp_path / "char", backend=press)
-    doc = F.fit_bundle([tmp_path / "char"], base=True).doc
-    levels = doc["hysteresis"]["model"]["preisach_plane"]["levels"]
-    assert levels >= 16, levels
-    B.write_document(doc, tmp_path / "base.json")
-    res, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag", causes=["hysteresis_order"])
-    (order,) = [t for t in res.tested if t["cause"] == "hysteresis_order"]
-    assert order["gain_pct"] < 5.0 and order["parameters"]["plane_levels"] >= levels, order

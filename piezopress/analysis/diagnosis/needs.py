@@ -121,6 +121,11 @@ MODEL_PARTS: dict[str, tuple[str, Callable[[Model], bool]]] = {
         lambda m: m.creep is not None and m.creep.form != "log",
     ),
     "mode": ("a mode in the bundle (fitted with a low-amplitude step)", lambda m: bool(m.wn)),
+    "operators": (
+        "a loop of play operators in the bundle (a Preisach plane is there because the structure search chose it: "
+        "what more operators would draw, it holds)",
+        lambda m: m.hysteresis.plane is None,
+    ),
 }
 
 

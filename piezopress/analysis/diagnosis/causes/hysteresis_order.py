@@ -18,16 +18,6 @@ from piezopress.analysis.diagnosis.needs import Need, RunSpec
 _ORDER_MEMO: dict[tuple, tuple[list[RunData], tuple]] = {}
 
 
-#: How many levels finer than the base model's plane the planes tried are. A plane's order is its
-#: resolution: structure in the loop narrower than its cells (an S where a second population of
-#: domains switches late) needs a finer grid, as an operator loop needs more operators; the
-#: structure search tried planes up to ``hysteresis.PLANE_LEVELS`` only. On the third test press
-#: (a Preisach press) with a second population hidden, planes finer than a 12-level base
-#: predicted the slow sweeps' held-out ends 9-20 % better (0-1 % clean, 5 seeds each); since the
-#: search goes to 20 levels, it chooses 16-20 there itself and finer planes gain 0-2 %.
-FINER_PLANE_STEPS = (4, 8, 12)
-
-
 def cause_hysteresis_order(ctx: Context) -> Finding | None:
     sweeps = ctx.sweeps(0.0, ctx.slow_hz)
     if not sweeps:
@@ -48,13 +38,8 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         n_dz = max(0, len([d for d in m.d if d > 0]))
         try:
             levels = m.plane.levels if m.plane is not None else 0
-            here = H.Candidate(max(2, len(m.r)), 1.0, n_dz, levels)
-            base_fit = H.fit_hysteresis(data, [here], refit_all=False)
-            if levels:  # a plane's order is its resolution: finer planes on the same plays
-                finer = [replace(here, plane_levels=levels + k) for k in FINER_PLANE_STEPS]
-                rich_fit = H.fit_hysteresis(data, [here, *finer], refit_all=False)
-            else:
-                rich_fit = H.fit_hysteresis(data, refit_all=False)
+            base_fit = H.fit_hysteresis(data, [H.Candidate(max(2, len(m.r)), 1.0, n_dz, levels)], refit_all=False)
+            rich_fit = H.fit_hysteresis(data, refit_all=False)
         except H.HysteresisFitError:
             return None
         _ORDER_MEMO.clear()
@@ -65,22 +50,12 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     # be taken for a force and clipped at 0 N)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
     base_model = replace(base_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
-    if m.plane is not None and rich.plane is not None:
-        ev = (
-            f"on the slow sweeps the residual follows the drive level: a Preisach plane of {rich.plane.levels} levels "
-            f"({rich.plane.n_cells} cells, chosen on held-out data) draws structure in the loop that "
-            f"{m.plane.levels} levels smooth over (a population of domains switching in a narrow band of the field)"
-        )
-    else:
-        cells = f" and a Preisach plane of {rich.plane.n_cells} cells" if rich.plane is not None else ""
-        ev = (
-            f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} "
-            f"dead zones{cells} (chosen on held-out data) capture asymmetry and saturation that {len(m.r)} plays "
-            f"and {len(m.d)} dead zones miss"
-        )
-    params = {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone}
-    if rich.plane is not None:
-        params["plane_levels"] = rich.plane.levels
+    cells = f" and a Preisach plane of {rich.plane.n_cells} cells" if rich.plane is not None else ""
+    ev = (
+        f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} dead "
+        f"zones{cells} (chosen on "
+        f"held-out data) capture asymmetry and saturation that {len(m.r)} plays and {len(m.d)} dead zones miss"
+    )
     return _judge(
         ctx,
         "hysteresis_order",
@@ -88,7 +63,7 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         fit,
         held,
         replace(ctx.model, hysteresis=rich),
-        params,
+        {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone},
         replace(ctx.model, hysteresis=base_model),
     )
 
@@ -96,10 +71,10 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
 #: The catalogue's entry for this cause (read by every place that names causes).
 CAUSE = Cause(
     "hysteresis_order",
-    "asymmetry, saturation or narrow structure the fitted operator set or plane cannot represent",
-    "more play and dead-zone operators, or a finer Preisach plane, chosen on held-out data",
+    "asymmetry or saturation the fitted operator set cannot represent",
+    "more play and dead-zone operators, chosen on held-out data",
     cause_hysteresis_order,
-    needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1),),
+    needs=(Need((RunSpec("sweep", max_freq_hz=profile.QUASI_STATIC_MAX_HZ),), 1, model=("operators",)),),
     extend=_bundle.extend_hysteresis_order,
     targets=("static_hysteresis", "tracking_staircase", "tracking_random"),
 )
