@@ -1189,7 +1189,7 @@ def fit_hysteresis(
 #: field (coercive fields of a few volts, log-normally spread) draws minor loops whose shape a
 #: coarse grid smooths over. On the third test press (a Preisach press) 16 and 20 levels beside
 #: 4-12 took the compensated 0.1 Hz loop from 1.55 to 1.05 % and the random tracking from 0.54
-#: to 0.47 % (3 seeds, ``bench/bench_presses.py``; 20 levels chosen on every seed, 24 never),
+#: to 0.47 % (3 seeds, ``bench/bench_presses.py``; 20 levels on seed 0; 24 levels offered changed nothing),
 #: the 1 Hz loop from 0.39 to 0.57 %; the second press (plays) is unchanged.
 PLANE_LEVELS = (4, 8, 12, 16, 20)
 #: The planes up to this many levels are always tried; finer ones only where the plane family
