@@ -421,3 +421,18 @@ def test_virtual_rig_creep_is_logarithmic_and_compensated():
     after = creep_percent(t, rig_physics.creep(f_h, cfg.creep, fs))
     assert before > 2.0  # the rig creeps like the thesis's press (2.4 %)
     assert abs(after) < 0.1  # seen: 0.005 %
+
+
+@pytest.mark.parametrize(
+    "model",
+    [
+        CreepModel.thesis(),
+        CreepModel.log(0.98, 0.01),
+        CreepModel("spectrum", 0.99, tuple(np.geomspace(0.04, 1000.0, 14)), tuple(np.linspace(0.0, 0.003, 14))),
+    ],
+    ids=["poles", "log", "spectrum"],
+)
+def test_the_step_creep_in_closed_form_is_the_simulated_step_less_its_instantaneous_part(model):
+    for n, fs in ((100, 10.0), (60_001, 500.0)):  # the second through the FFT path of output()
+        simulated = model.output(np.ones(n), fs) - model.static_gain
+        np.testing.assert_allclose(model.step_creep(n, fs), simulated, rtol=0, atol=1e-12)

@@ -394,6 +394,17 @@ class CreepModel:
             x_end[k] = xk[-1]
         return y, x_end
 
+    def step_creep(self, n: int, fs_hz: float) -> np.ndarray:
+        """The creep of a unit input held from rest over ``n`` samples, beyond the instantaneous
+        ``K_c``: :meth:`output` of ones less ``static_gain``, in closed form (``sum_k g_k (1 -
+        a_k^(i+1))`` at sample ``i``, ``a_k = exp(-1/(fs tau_k))``)."""
+        fs = _positive("CreepModel.step_creep", "fs_hz", fs_hz)
+        samples = np.arange(1, int(n) + 1, dtype=np.float64) / fs
+        out = np.zeros(int(n))
+        for tau, g in zip(self.taus_s, self.gains):
+            out -= g * np.expm1(-samples / tau)
+        return out
+
     def output(self, u, fs_hz: float) -> np.ndarray:
         """:meth:`response`'s output from rest (no state returned). A model of many terms on a
         long input is simulated by one convolution with its impulse response through FFTs

@@ -291,12 +291,7 @@ class Model:
         if self.creep is None:
             return np.zeros(run.t_s.size)
         creep = self.creep
-        return _memo(
-            _TRANSIENT_MEMO,
-            (id(run), creep),
-            run,
-            lambda: creep.output(np.ones(run.t_s.size), run.fs_hz) - creep.static_gain,
-        )
+        return _memo(_TRANSIENT_MEMO, (id(run), creep), run, lambda: creep.step_creep(run.t_s.size, run.fs_hz))
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, gain drift, drift, hum."""
