@@ -29,6 +29,7 @@ from piezopress.acquisition.backend import (
     backend_class,
     backend_limits,
     registered_backends,
+    started_utc,
     stop_signals_interrupt,
 )
 from piezopress.acquisition.daq_config import read_rig_document, rig_backend
@@ -162,7 +163,7 @@ def run_protocol(
     ``progress`` receives the fraction measured, as the backend reports it."""
     drive = drive_for(proto)
     command_v = drive.command_v
-    started = utc_now()
+    started = started_utc(backend)  # a simulated press's own clock where it has one
     try:
         m = backend.run(command_v, proto.sample_rate_hz, preload_n=proto.preload_n, label=proto.name, progress=progress)
     except KeyboardInterrupt as exc:

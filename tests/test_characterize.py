@@ -186,3 +186,39 @@ def test_progress_gives_the_plan_total_up_front_and_the_backend_fractions(tmp_pa
     done = [e for e in events if e.done]
     assert len(done) == 2 and done[-1].remaining_s == pytest.approx(0.0, abs=1e-9)
     assert done[0].remaining_s == pytest.approx(first.plan_s - done[0].protocol.duration_s)
+
+
+def test_a_simulated_press_records_its_runs_on_its_own_clock(tmp_path, plan):
+    """The virtual rig plays a run in a fraction of its duration and pauses between runs in no
+    wall time: the runs' recorded starts are its clock's (a drift over the test's hours is read on
+    the time it happened in), one run's duration and the pause apart."""
+    from datetime import datetime
+
+    from piezopress.acquisition.virtual_rig import PAUSE_S
+
+    char.characterize(tmp_path / "runs", plan_path=plan)
+    runs = [rf.read_run(tmp_path / "runs" / f"{n}.parquet") for n in ("tri", "creep", "step")]
+    starts = [datetime.fromisoformat(r.meta["started_utc"].replace("Z", "+00:00")).timestamp() for r in runs]
+    for a, t0, t1 in zip(runs, starts, starts[1:]):
+        expected = a.t_s.size / a.sample_rate_hz + PAUSE_S  # the run on the rig's clock, then its pause
+        assert t1 - t0 == pytest.approx(expected, abs=1.0)  # recorded to the second
+
+
+def test_a_backend_without_a_clock_records_wall_time():
+    from datetime import UTC, datetime, timedelta
+
+    from piezopress.acquisition.backend import started_utc
+
+    class Clocked:
+        clock_s = 0.0
+
+    class Plain:
+        pass
+
+    clocked = Clocked()
+    first = datetime.fromisoformat(started_utc(clocked).replace("Z", "+00:00"))
+    clocked.clock_s = 3600.0
+    later = datetime.fromisoformat(started_utc(clocked).replace("Z", "+00:00"))
+    assert later - first == timedelta(hours=1)
+    plain = datetime.fromisoformat(started_utc(Plain()).replace("Z", "+00:00"))
+    assert abs(plain - datetime.now(UTC)) < timedelta(seconds=5)

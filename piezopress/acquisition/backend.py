@@ -9,8 +9,11 @@ waveform and its sample rate up front and returns the measured channels. The vir
 from __future__ import annotations
 
 import contextlib
+import datetime as _dt
+import math
 import signal
 import threading
+import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +56,12 @@ class Backend(Protocol):
     offer ``limits_of(document)`` (a classmethod) to state the limits without loading a driver.
     ``output_v`` is the drive the backend holds now (V): 0 at rest, and 0 again however a run
     ends. :func:`piezopress.testing.check_backend` checks all of this.
+
+    A backend that simulates a press on a clock of its own (played faster than real time, with
+    pauses between runs that take no wall time) may give ``clock_s``: the time on that clock
+    at which its next run starts (s). A run's recorded start (``started_utc``) is then that
+    clock's (:func:`started_utc`), so that what happens over the test's time in the
+    simulation (a drift, a sensitivity changing by the hour) is read on the time it happened in.
     """
 
     #: short identifier recorded in run metadata (``virtual``, ``nidaq``, ...)
@@ -88,6 +97,26 @@ class Backend(Protocol):
     def zero_output(self) -> None:
         """Bring the drive back to zero now (after an interruption or an error)."""
         ...
+
+
+#: The wall time each clocked backend's clock started at (its first run's start, less its clock then).
+_CLOCK_EPOCHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def started_utc(backend: Any) -> str:
+    """The start of the run ``backend`` plays next, as run metadata records it (UTC, to the
+    second): now, or for a backend with a clock of its own (``clock_s``, see :class:`Backend`)
+    the wall time of its first run plus the time its clock has advanced since."""
+    now = _dt.datetime.now(_dt.UTC)
+    clock = getattr(backend, "clock_s", None)
+    if isinstance(clock, (int, float)) and not isinstance(clock, bool) and math.isfinite(clock):
+        try:
+            epoch = _CLOCK_EPOCHS.setdefault(backend, now - _dt.timedelta(seconds=float(clock)))
+        except TypeError:  # an object that cannot be weakly referenced: wall time
+            pass
+        else:
+            now = epoch + _dt.timedelta(seconds=float(clock))
+    return now.strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 class Terminated(KeyboardInterrupt):
