@@ -26,7 +26,10 @@ naming the rule and what was seen. The rules (:data:`RULES`):
   with what was measured: either a ``Measurement`` with ``complete`` false, or the
   ``KeyboardInterrupt`` re-raised carrying ``.measurement`` (channels as long as each other,
   no longer than the drive). A backend that never reports progress cannot be cut short
-  cleanly and fails this rule.
+  cleanly and fails this rule;
+- ``clock``: a simulation that keeps a clock of its own (``clock_s``, the time on it at which
+  its next run starts: run metadata records its runs on it) gives a finite number that a
+  finished run advances by at least the run's duration. A backend without one passes.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import PiezopressError
 
 #: Every rule :func:`check_backend` checks, in order.
-RULES = ("limits", "describe", "at-rest", "channels", "ends-at-zero", "refused-drive", "cut-short")
+RULES = ("limits", "describe", "at-rest", "channels", "ends-at-zero", "refused-drive", "cut-short", "clock")
 OUTPUTS = ("force_n", "displacement_um")
 
 
@@ -135,7 +138,9 @@ def check_backend(backend: Any, *, preload_n: float = 0.0) -> list[str]:
     passed.append("at-rest")
 
     x, fs = _probe_drive(lim)
+    clock0 = _clock(backend)
     m = backend.run(x, fs, preload_n=preload_n, label="conformance-channels")
+    clock1 = _clock(backend)
     _check_channels(m, x.size, "channels", complete=True)
     passed.append("channels")
     _held(backend, "ends-at-zero", "after a finished run")
@@ -191,4 +196,21 @@ def check_backend(backend: Any, *, preload_n: float = 0.0) -> list[str]:
     _check_channels(got, x.size, "cut-short", complete=got.complete)
     _held(backend, "cut-short", "after a run cut short")
     passed.append("cut-short")
+    if clock0 is not None and not (clock1 is not None and clock1 - clock0 >= x.size / fs - 1e-9):
+        _fail(
+            "clock",
+            f"clock_s went from {clock0!r} to {clock1!r} over a run of {x.size / fs:g} s; expected it advanced by "
+            "at least the run's duration (the run's recorded start is read on it)",
+        )
+    passed.append("clock")
     return passed
+
+
+def _clock(backend: Any) -> float | None:
+    """The backend's own clock (``clock_s``), None without one; a value that is no finite number breaks ``clock``."""
+    if not hasattr(backend, "clock_s"):
+        return None
+    c = backend.clock_s
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c):
+        _fail("clock", f"clock_s is {c!r}; expected a finite number of seconds (the time on the backend's own clock)")
+    return float(c)

@@ -135,6 +135,14 @@ class _LosesData(_Good):
         return super().run(command_v, sample_rate_hz, preload_n=preload_n, label=label)
 
 
+class _ClockStands(_Good):
+    clock_s = 0.0  # a simulation whose clock never moves: its runs would be recorded at one time
+
+
+class _ClockUnset(_Good):
+    clock_s = None
+
+
 @pytest.mark.parametrize(
     "broken, rule",
     [
@@ -144,6 +152,8 @@ class _LosesData(_Good):
         (_StaysUp, "ends-at-zero"),
         (_PlaysAnything, "refused-drive"),
         (_LosesData, "cut-short"),
+        (_ClockStands, "clock"),
+        (_ClockUnset, "clock"),
     ],
 )
 def test_a_broken_backend_fails_the_kit_naming_the_rule(broken, rule):
