@@ -61,6 +61,12 @@ def _delay_text(key: str, d: float) -> str:
     return f"{d:.3g} samples" if key == "delay_samples" else f"{d * 1e3:.3g} ms"
 
 
+#: A held-out sweep counts as predicted worse by the interference when its held-out RMS grows by more
+#: than this (%): a slow sweep whose current stays under a threshold is not changed by it, and reads
+#: a few tenths of a percent either way (on the virtual rig, runs cut to the required metadata:
+#: 0.0 to -0.5 % at 5 and 10 Hz refused the coupling on 5 of 5 seeds); a lag of the force read as a coupling
+#: makes the slow sweeps 8-16 % worse (the third test press, clean).
+SWEEP_WORSE_PCT = 5.0
 #: A delay found already is fitted again with the interference at these fractions of itself: found
 #: alone, it took up part of the artefact's lag (a coupling through a 0.2 ms filter, delayed too).
 DELAY_REFIT_FRACTIONS = (0.5, 0.75, 1.0, 1.25)
@@ -142,7 +148,7 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     worse = {
         name: gain
         for name, gain in found.gain_by_run.items()
-        if gain < 0 and any(r.name == name and r.kind != "step" for r, _ in held)
+        if gain < -SWEEP_WORSE_PCT and any(r.name == name and r.kind != "step" for r, _ in held)
     }
     if worse:
         found = replace(
