@@ -55,6 +55,8 @@ UNIFORM_RTOL = 1e-3
 #: kept, never mistaken for finished ones: :func:`read_run` refuses them unless asked.
 STATUS_COMPLETE = "complete"
 STATUS_INCOMPLETE = "incomplete"
+#: How run metadata and manifests write a time (UTC, to the second): ``started_utc``, ``created_utc``.
+TIMESTAMP_FORMAT = "%Y-%m-%dT%H:%M:%SZ"
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from piezopress.acquisition.backend import Measurement
+from piezopress.acquisition.backend import Measurement, clock_of
 from piezopress.acquisition.plan import DriveLimits
 from piezopress.errors import PiezopressError
 
@@ -210,7 +210,7 @@ def _clock(backend: Any) -> float | None:
     """The backend's own clock (``clock_s``), None without one; a value that is no finite number breaks ``clock``."""
     if not hasattr(backend, "clock_s"):
         return None
-    c = backend.clock_s
-    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c):
-        _fail("clock", f"clock_s is {c!r}; expected a finite number of seconds (the time on the backend's own clock)")
-    return float(c)
+    clock = clock_of(backend)
+    if clock is None:
+        _fail("clock", f"clock_s is {backend.clock_s!r}; expected a finite number of seconds (the backend's own clock)")
+    return clock

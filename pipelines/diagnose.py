@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
-from datetime import UTC
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ from piezopress.analysis.bundle import (
 from piezopress.errors import PiezopressError
 from piezopress.pipelines import next_plan
 from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
-from piezopress.pipelines.files import check_output, new_output_dir, write_json_atomic, write_output
+from piezopress.pipelines.files import check_output, new_output_dir, utc_now, write_json_atomic, write_output
 from piezopress.pipelines.profiles import read_measured
 
 
@@ -308,10 +307,7 @@ RUNNING, COMPLETE, INTERRUPTED, FAILED = "running", "complete", "interrupted", "
 
 
 def mark_status(out: Path, status: str, reason: str) -> None:
-    from datetime import datetime
-
-    now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-    write_json_atomic(Path(out) / STATUS_FILE, {"status": status, "reason": reason, "time_utc": now})
+    write_json_atomic(Path(out) / STATUS_FILE, {"status": status, "reason": reason, "time_utc": utc_now()})
 
 
 def read_status(out: str | Path) -> tuple[str, str]:

@@ -36,7 +36,7 @@ MANIFEST_VERSION = 1
 
 
 def utc_now() -> str:
-    return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    return _dt.datetime.now(_dt.UTC).strftime(runformat.TIMESTAMP_FORMAT)
 
 
 def software_versions() -> dict[str, str]:

@@ -21,6 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from piezopress import runformat
 from piezopress.acquisition.plan import DriveLimits
 
 
@@ -103,20 +104,29 @@ class Backend(Protocol):
 _CLOCK_EPOCHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
+def clock_of(backend: Any) -> float | None:
+    """The backend's own clock (``clock_s``, see :class:`Backend`) in seconds; None where it has
+    none, or gives something that is no finite number."""
+    clock = getattr(backend, "clock_s", None)
+    if isinstance(clock, bool) or not isinstance(clock, (int, float)) or not math.isfinite(clock):
+        return None
+    return float(clock)
+
+
 def started_utc(backend: Any) -> str:
     """The start of the run ``backend`` plays next, as run metadata records it (UTC, to the
-    second): now, or for a backend with a clock of its own (``clock_s``, see :class:`Backend`)
-    the wall time of its first run plus the time its clock has advanced since."""
+    second): now, or for a backend with a clock of its own (:func:`clock_of`) the wall time of
+    its first run plus the time its clock has advanced since."""
     now = _dt.datetime.now(_dt.UTC)
-    clock = getattr(backend, "clock_s", None)
-    if isinstance(clock, (int, float)) and not isinstance(clock, bool) and math.isfinite(clock):
+    clock = clock_of(backend)
+    if clock is not None:
         try:
-            epoch = _CLOCK_EPOCHS.setdefault(backend, now - _dt.timedelta(seconds=float(clock)))
+            epoch = _CLOCK_EPOCHS.setdefault(backend, now - _dt.timedelta(seconds=clock))
         except TypeError:  # an object that cannot be weakly referenced: wall time
             pass
         else:
-            now = epoch + _dt.timedelta(seconds=float(clock))
-    return now.strftime("%Y-%m-%dT%H:%M:%SZ")
+            now = epoch + _dt.timedelta(seconds=clock)
+    return now.strftime(runformat.TIMESTAMP_FORMAT)
 
 
 class Terminated(KeyboardInterrupt):
