@@ -516,3 +516,81 @@ def test_a_heavily_damped_mode_keeps_its_shaper_section(monkeypatch):
     assert body["shaper"]["amplitudes"] and sum(body["shaper"]["amplitudes"]) == pytest.approx(1.0)
     band = body["choice"]["reason"].split("zeta +/-")[1]
     assert float(band.split(" %")[0]) == pytest.approx(100 * (0.999 / 0.95 - 1), rel=1e-3)
+
+
+def _current_limited_amplifier(
+    c: np.ndarray, fs: float, slew: float, hz: float = 2500.0, z: float = 0.55
+) -> np.ndarray:
+    """A second-order amplifier loop whose output rate is clipped at ``slew`` V/s (a current limit
+    into a capacitive load), integrated in eight sub-steps per sample, then a second-order Bessel
+    load-cell filter at 1.5 kHz: a chain of another form than the identification's (its slew acts
+    inside the loop, not on the command)."""
+    from scipy import signal
+
+    wn, h = 2 * np.pi * hz, 1.0 / (8 * fs)
+    x = dx = 0.0
+    out = np.empty(c.size)
+    for i, target in enumerate(c):
+        for _ in range(8):
+            dx = min(max(dx + (wn * wn * (target - x) - 2 * z * wn * dx) * h, -slew), slew)
+            x += dx * h
+        out[i] = x
+    b, a = signal.bessel(2, 2 * np.pi * 1500.0, analog=True, norm="phase")
+    bd, ad, _ = signal.cont2discrete((b, a), 1.0 / fs, method="zoh")
+    return signal.lfilter(np.ravel(bd), ad, out)
+
+
+def test_a_slew_limit_inside_the_chain_is_identified_with_its_lowpass():
+    """A current-limited amplifier (20 V/ms) of its own bandwidth read through a filtered load
+    cell: the slew alone draws the large steps' rise but fits the mode with the chain's lag as
+    damping (the third test press: 532 Hz at damping 0.52 for a 749 Hz mode at 0.05). The
+    slew with the low-pass and delay in series is named, the mode within 5 % in frequency and
+    its damping under 0.1, the slew within 15 %."""
+    from piezopress.analysis import mode_fit
+
+    slew, wn = 20_000.0, 2 * np.pi * 750.0
+    ts, cmds, ys = _steps_through(lambda c, fs: _current_limited_amplifier(c, fs, slew), wn=wn, zeta=0.05)
+    found = mode_fit.identify_mode_chain(ts, cmds, ys)
+    assert found.chain == "slew_lowpass_delay", found.candidates
+    assert found.mode.wn == pytest.approx(wn, rel=0.05)
+    assert found.mode.zeta < 0.1
+    assert found.slew_v_per_s == pytest.approx(slew, rel=0.15)
+    only = mode_fit.identify_mode_runs(ts, [mode_fit.slew_limited(c, 20_000.0, slew) for c in cmds], ys)
+    assert only.zeta > 0.1 or abs(only.wn / wn - 1) > 0.1  # what the series corrects
+    # the compensator's lead: steps that all slew give the delay of a slewed rise, not a small
+    # signal's (the loop's own 2 zeta / wn, 0.07 ms, is not in a ramp's delay): the chain's
+    # small-signal delay (the loop's and the Bessel filter's) within a factor 2
+    from scipy import signal
+
+    b, a = signal.bessel(2, 2 * np.pi * 1500.0, analog=True, norm="phase")
+    w = 2 * np.pi * np.array([1.0, 2.0])
+    phase = np.unwrap(np.angle(signal.freqs(b, a, w)[1]))
+    true_lag = 2 * 0.55 / (2 * np.pi * 2500.0) - (phase[1] - phase[0]) / (w[1] - w[0])
+    assert 0.5 * true_lag < found.lag_s < 2.0 * true_lag
+
+
+def test_a_chain_without_a_slew_limit_is_not_given_one():
+    """The same amplifier loop and filter with no current limit: the series without a slew."""
+    from piezopress.analysis import mode_fit
+
+    ts, cmds, ys = _steps_through(lambda c, fs: _current_limited_amplifier(c, fs, 1e12), wn=2 * np.pi * 750.0)
+    found = mode_fit.identify_mode_chain(ts, cmds, ys)
+    assert found.chain == "lowpass_delay", found.candidates
+
+
+def test_the_ringing_decides_a_slew_limits_chain_where_the_residual_cannot(monkeypatch):
+    """A press whose loop no chain draws leaves a residual floor that squeezes every chain's
+    gain (the third test press: 1.12 N through the slew alone, 0.92 through the series). With
+    the residual's margin out of reach the steps' ringing decides: the slew alone puts the
+    chain's lag into the mode (damping over 0.3), the series leaves the mode the ringing shows."""
+    from piezopress.analysis import mode_fit
+
+    monkeypatch.setattr(mode_fit, "SLEW_SERIES_MARGIN", 0.99)
+    wn = 2 * np.pi * 750.0
+    ts, cmds, ys = _steps_through(lambda c, fs: _current_limited_amplifier(c, fs, 20_000.0), wn=wn, zeta=0.05)
+    found = mode_fit.identify_mode_chain(ts, cmds, ys)
+    assert found.chain == "slew_lowpass_delay", found.candidates
+    assert found.mode.wn == pytest.approx(wn, rel=0.05)
+    assert found.mode.zeta == pytest.approx(0.05, abs=0.02)
+    only = mode_fit.identify_mode_runs(ts, [mode_fit.slew_limited(c, 20_000.0, found.slew_v_per_s) for c in cmds], ys)
+    assert only.zeta > 0.3  # what the ringing refuses

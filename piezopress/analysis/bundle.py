@@ -677,7 +677,7 @@ class Bundle:
         if chain is None:
             return None, None
 
-        slew = chain.get("slew_v_per_s") if chain.get("form") == "slew" else None
+        slew = chain.get("slew_v_per_s") if chain.get("form") in ("slew", "slew_lowpass_delay") else None
         # a chain the steps read best as a pure delay (lags in series: an amplifier, a filter)
         # enters the forward model as the first-order lag of the same low-frequency delay
         return (float(slew) if _positive(slew) else None), (chain_delay_s(chain) or None)
@@ -711,7 +711,7 @@ SAMPLING_DELAY_SAMPLES = 2.0
 def _lowpass_delay(chain: Any) -> tuple[float, float, float] | None:
     """``(wc rad/s, damping, delay s)`` of a ``lowpass_delay`` drive chain (None: another form, or
     a low-pass not recorded)."""
-    if not isinstance(chain, dict) or chain.get("form") != "lowpass_delay":
+    if not isinstance(chain, dict) or chain.get("form") not in ("lowpass_delay", "slew_lowpass_delay"):
         return None
     hz, z, d = (chain.get(k) for k in ("lowpass_hz", "lowpass_damping", "delay_s"))
     if not (_positive(hz) and _positive(z)):
@@ -726,7 +726,9 @@ def chain_delay_s(chain: Any) -> float:
     if not isinstance(chain, dict):
         return 0.0
     form = chain.get("form")
-    if form == "lowpass_delay":
+    if form == "slew_lowpass_delay" and _positive(chain.get("low_frequency_delay_s")):
+        return float(chain["low_frequency_delay_s"])  # steps that all slew: read off the slew alone
+    if form in ("lowpass_delay", "slew_lowpass_delay"):
         series = _lowpass_delay(chain)
         return 0.0 if series is None else lowpass_delay_group_delay_s(*series)
     v = chain.get("delay_s") if form == "delay" else chain.get("tau_s") if form == "first_order" else None

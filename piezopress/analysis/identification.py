@@ -741,6 +741,7 @@ def shaper_section(
                 "delay_s": chain.delay_s,
                 "lowpass_hz": None if chain.lowpass is None else chain.lowpass[0] / (2.0 * math.pi),
                 "lowpass_damping": None if chain.lowpass is None else chain.lowpass[1],
+                "low_frequency_delay_s": chain.lag_s,
                 "steps_sample_rate_hz": min(r.sample_rate_hz for r in (steps or runs)),
                 "rms_by_chain": chain.candidates,
             },

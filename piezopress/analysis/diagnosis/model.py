@@ -207,10 +207,13 @@ class Model:
     def felt(self, run: RunData, x: np.ndarray) -> np.ndarray:
         """The drive the stack feels for the command ``x``: through the amplifier's own lag and
         its slew limit, when the model has them."""
+        if self.drive_lowpass is not None:  # a second-order low-pass and a delay, a slew limit before them
+            if self.slew_v_per_s:  # (as fit identifies them: mode_fit.slew_lowpass_delayed)
+                x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
+            x = mode_response(x, run.fs_hz, *self.drive_lowpass, hold="zoh")
+            return signals.delayed(x, run.fs_hz, self.drive_delay_s)
         if self.drive_tau_s > 0:  # the amplifier's own bandwidth (a held command through a first-order lag)
             x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
-        if self.drive_lowpass is not None:  # ... or a second-order low-pass (exact for a held command)
-            x = mode_response(x, run.fs_hz, *self.drive_lowpass, hold="zoh")
         x = signals.delayed(x, run.fs_hz, self.drive_delay_s)
         if self.slew_v_per_s:
             x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
