@@ -313,7 +313,7 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
         )
         chain = s["mode"].get("drive_chain")
         if chain:  # the applied drive was not recorded: say which chain the steps showed
-            what = {
+            describe = {
                 "none": "none (the command reaches the stack as it is)",
                 "slew": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms",
                 "first_order": f"a first-order lag of {(chain.get('tau_s') or 0) * 1e6:.3g} us",
@@ -322,7 +322,13 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
                 "lowpass_delay": f"a second-order low-pass at {chain.get('lowpass_hz') or 0:.4g} Hz (damping "
                 f"{chain.get('lowpass_damping') or 0:.2f}) and a delay of {(chain.get('delay_s') or 0) * 1e6:.3g} us "
                 "in series (both led by the compensator; diagnose names a delay beyond the converters' own)",
-            }.get(chain.get("form"), "?")
+                "slew_lowpass_delay": f"a slew limit of {(chain.get('slew_v_per_s') or 0) / 1e3:.3g} V/ms before a "
+                f"second-order low-pass at {chain.get('lowpass_hz') or 0:.4g} Hz (damping "
+                f"{chain.get('lowpass_damping') or 0:.2f}) and a delay of {(chain.get('delay_s') or 0) * 1e6:.3g} us "
+                "(the compensator leads the small-signal delay the slew alone read, "
+                f"{(chain.get('low_frequency_delay_s') or 0) * 1e6:.3g} us; diagnose names the slew)",
+            }
+            what = describe.get(chain.get("form"), f"of the form {chain.get('form')!r}")
             say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")

@@ -372,3 +372,23 @@ def test_the_third_press_runs_the_chain_through_a_rig_file(tmp_path):
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "Hysteresis (Prandtl-Ishlinskii + Preisach plane)" in md
     assert "Model family: Prandtl-Ishlinskii plus a Preisach plane" in md
+
+
+@pytest.mark.slow
+def test_fit_names_a_slew_limit_inside_the_chain_of_a_press_without_monitor(tmp_path):
+    """The third test press with a 100 mA current limit into its 6 uF stack (16.7 V/ms: every
+    step slews), no monitor channel: `fit` says the chain it identified, the slew before the
+    chain's low-pass, and the mode the steps' ringing shows (the press's 780 Hz; through the
+    slew alone 500-550 Hz at damping 0.5-0.6)."""
+    from third_press import ThirdPress
+
+    out_dir = tmp_path / "char"
+    char.characterize(out_dir, backend=ThirdPress(seed=5, current_limit_ma=100.0))
+    out = _ok("fit", out_dir, "--out", tmp_path / "b.json")
+    assert "the drive chain identified from the steps is a slew limit of" in out, out
+    assert "before a second-order low-pass" in out, out
+    mode = json.loads((tmp_path / "b.json").read_text())["shaper"]["mode"]
+    assert mode["drive_chain"]["form"] == "slew_lowpass_delay"
+    assert mode["drive_chain"]["slew_v_per_s"] == pytest.approx(100e-3 / 6e-6, rel=0.2)
+    assert mode["natural_freq_rad_s"] == pytest.approx(2 * np.pi * 780.0, rel=0.05)
+    assert mode["damping"] < 0.1
