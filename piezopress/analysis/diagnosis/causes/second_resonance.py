@@ -21,6 +21,13 @@ from piezopress.analysis.diagnosis.judging import (
 )
 from piezopress.analysis.diagnosis.needs import Need
 
+#: A second mode damped more than this does not ring (a quality factor under 2): it shapes the
+#: rise as a low-pass of the chain does, and a fit that needs more leans on this bound and is
+#: refused. The second modes of the three test presses are damped 0.02-0.06; on the third press
+#: with a slew limit, the slew's chain refitted, the steps' leftover read as a "mode" at 1145 Hz
+#: damped 0.41 carrying 33 % of the response (named beside the slew before this bound).
+MODE2_MAX_DAMPING = 0.25
+
 
 def cause_second_resonance(ctx: Context) -> Finding | None:
     steps = ctx.steps()
@@ -53,7 +60,7 @@ def cause_second_resonance(ctx: Context) -> Finding | None:
 
     # the first mode within the bounds the baseline's refit has (_refit_mode), so the gain is the second mode's
     lo_b = [0.0, 1.2 * base.wn, 0.005, 0.77 * base.wn, base.zeta / 3.0]
-    hi_b = [0.6, 2 * np.pi * top_hz, 0.5, 1.3 * base.wn, min(3.0 * base.zeta, 0.9)]
+    hi_b = [0.6, 2 * np.pi * top_hz, MODE2_MAX_DAMPING, 1.3 * base.wn, min(3.0 * base.zeta, 0.9)]
     best = None
     for f0 in starts:
         w0 = 2 * np.pi * float(f0)
