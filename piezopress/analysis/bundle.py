@@ -36,7 +36,7 @@ from piezopress.analysis.hysteresis import (
     PreisachPlane,
     rest_offset,
 )
-from piezopress.analysis.mode_fit import lowpass_delay_group_delay_s
+from piezopress.analysis.mode_fit import SERIES_CHAINS, lowpass_delay_group_delay_s
 from piezopress.analysis.shaper import Shaper, design_shaper
 from piezopress.errors import CompensatorUnstableError, FitError, PiezopressError
 
@@ -711,7 +711,7 @@ SAMPLING_DELAY_SAMPLES = 2.0
 def _lowpass_delay(chain: Any) -> tuple[float, float, float] | None:
     """``(wc rad/s, damping, delay s)`` of a ``lowpass_delay`` drive chain (None: another form, or
     a low-pass not recorded)."""
-    if not isinstance(chain, dict) or chain.get("form") not in ("lowpass_delay", "slew_lowpass_delay"):
+    if not isinstance(chain, dict) or chain.get("form") not in SERIES_CHAINS:
         return None
     hz, z, d = (chain.get(k) for k in ("lowpass_hz", "lowpass_damping", "delay_s"))
     if not (_positive(hz) and _positive(z)):
@@ -728,7 +728,7 @@ def chain_delay_s(chain: Any) -> float:
     form = chain.get("form")
     if form == "slew_lowpass_delay" and _positive(chain.get("low_frequency_delay_s")):
         return float(chain["low_frequency_delay_s"])  # steps that all slew: read off the slew alone
-    if form in ("lowpass_delay", "slew_lowpass_delay"):
+    if form in SERIES_CHAINS:
         series = _lowpass_delay(chain)
         return 0.0 if series is None else lowpass_delay_group_delay_s(*series)
     v = chain.get("delay_s") if form == "delay" else chain.get("tau_s") if form == "first_order" else None

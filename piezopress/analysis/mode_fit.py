@@ -303,6 +303,8 @@ LOWPASS_DELAY_MARGIN = 0.3
 #: the mode at 532 Hz, damping 0.52, and 522 Hz, 0.63; the series 753 Hz, 0.024, and 816 Hz,
 #: 0.013; the presses' 749 Hz, 0.052, and 863 Hz, 0.064).
 SLEW_SERIES_MARGIN = 0.1
+#: The chains with a second-order low-pass and a delay in series (their lead, their low-pass).
+SERIES_CHAINS = ("lowpass_delay", "slew_lowpass_delay")
 
 
 @dataclass(frozen=True)
@@ -338,13 +340,7 @@ def slew_limited(command: np.ndarray, fs_hz: float, slew_v_per_s: float) -> np.n
     """The command as an amplifier that slews at most ``slew_v_per_s`` delivers it, sampled
     (starting from the command's first value)."""
     c = np.asarray(command, float)
-    out = np.empty_like(c)
-    step = slew_v_per_s / fs_hz
-    v = c[0]
-    for k, target in enumerate(c):
-        v += min(max(target - v, -step), step)
-        out[k] = v
-    return out
+    return signals.rate_limit(c, float(c[0]), slew_v_per_s / fs_hz)
 
 
 def first_order(command: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
@@ -373,8 +369,7 @@ def lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, float, fl
 def slew_lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, float, float, float]) -> np.ndarray:
     """The command slewing at most ``p[3]`` V/s, then through :func:`lowpass_delayed`
     ``(p[0], p[1], p[2])``."""
-    c = np.asarray(command, float)
-    return lowpass_delayed(signals.rate_limit(c, float(c[0]), p[3] / fs_hz), fs_hz, p[:3])
+    return lowpass_delayed(slew_limited(command, fs_hz, p[3]), fs_hz, p[:3])
 
 
 def lowpass_delay_group_delay_s(wc: float, zc: float, delay_s: float) -> float:
@@ -587,7 +582,7 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
         ):
             best_name = "slew_lowpass_delay"
     c, m, p = results[best_name]
-    series = best_name in ("lowpass_delay", "slew_lowpass_delay")
+    series = best_name in SERIES_CHAINS
     lag_s = None
     if best_name == "slew_lowpass_delay":
         # steps that all slew give the delay of their slewed rise, not how it splits between the
