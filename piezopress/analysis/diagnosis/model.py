@@ -156,7 +156,8 @@ class Model:
     rate_saturation_v_per_s: float | None = None
     rate_tau_s: float = 5e-4
     # drive_coupled_interference: (gain output unit per V/s above a threshold of the unsigned rate
-    # envelope, threshold V/s, tau s[, gain output unit per V/s of the signed rate (the drive current's sign)])
+    # envelope, threshold V/s, tau s[, gain output unit per V/s of the signed rate (the drive current's sign)[,
+    # the signed rate's own smoothing, s (tau when absent)]])
     interference: tuple[float, ...] | None = None
     mode2: tuple[float, float, float] | None = None  # (share, wn, zeta): second_resonance
     delay_s: float = 0.0  # input_delay ...
@@ -350,17 +351,20 @@ class Model:
         return self.predict(run.prefix(stop)) if self.causal else self.predict(run)[:stop]
 
 
-def interference_reading(run: RunData, g: float, e0: float, tau: float, g_signed: float = 0.0) -> np.ndarray:
+def interference_reading(
+    run: RunData, g: float, e0: float, tau: float, g_signed: float = 0.0, tau_signed: float | None = None
+) -> np.ndarray:
     """The artefact the drive current puts into the reading (subtracted from it): ``g`` per V/s
-    of the unsigned rate envelope above ``e0``, and ``g_signed`` per V/s of the signed rate
-    (both smoothed over ``tau``; the current is ``C dV/dt`` of the drive actually applied).
+    of the unsigned rate envelope above ``e0`` (smoothed over ``tau``), and ``g_signed`` per V/s
+    of the signed rate smoothed over ``tau_signed`` (``tau`` when None): a first-order high-pass
+    of the drive voltage. The current is ``C dV/dt`` of the drive actually applied.
     Memoised per run and parameters: a search varies the later stages many times on one."""
 
     def compute() -> np.ndarray:
         out = g * np.maximum(signals.rate_envelope(run.drive, run.fs_hz, tau) - e0, 0.0) if g else 0.0
         if g_signed:
             rate = np.diff(run.drive, prepend=run.drive[0]) * run.fs_hz
-            out = out + g_signed * signals.first_order(rate, tau, run.fs_hz)
+            out = out + g_signed * signals.first_order(rate, tau if tau_signed is None else tau_signed, run.fs_hz)
         return out * np.ones(run.drive.size)
 
-    return _memo(_INTERFERENCE_MEMO, (id(run), g, e0, tau, g_signed), run, compute)
+    return _memo(_INTERFERENCE_MEMO, (id(run), g, e0, tau, g_signed, tau_signed), run, compute)

@@ -20,7 +20,7 @@ from piezopress.analysis.diagnosis.judging import (
     _search,
     _split,
 )
-from piezopress.analysis.diagnosis.model import RunData
+from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import Need
 
 
@@ -35,6 +35,47 @@ def _monitor_slew(runs: list[RunData]) -> float | None:
         if mon < 0.8 * jump:
             rates.append(mon)
     return max(rates) if rates else None
+
+
+#: A step counts in the slew's signature check where a slew of its own predicts it this much
+#: better (%): the slew acts on it (a step the limit does not reach reads any slew above its rate).
+SLEW_ACTS_PCT = 10.0
+#: The check's bar on how a step's own slew grows with the step's size (the slope of
+#: ``log slew`` over ``log size``): a rate limit slews every step it reaches at one rate (slope
+#: 0: the third test press's current limit, 26.4 -> 21.2 V/ms from 20 to 150 V, slope -0.11),
+#: a lag of the chain rises in one time whatever the step (slope 1: the same press with a
+#: coupled drive and a FIFO delay, 39 -> 240 V/ms, slope 0.90).
+SLEW_SIZE_SLOPE_MAX = 0.5
+
+
+def slew_by_step(model: Model, steps: list[RunData]) -> list[tuple[str, float, float, float]]:
+    """Each step's own slew: ``(run, step size V, slew V/s, % better than no slew)``, the slew
+    fitted on that step alone with everything else of ``model`` kept."""
+    out = []
+    for r in steps:
+        seg = [(r, slice(None))]
+        c0 = _cost(seg, model)
+        s = _search(lambda v, seg=seg: _cost(seg, replace(model, slew_v_per_s=v)), 2e3, 2e6, 31, log=True)
+        c1 = _cost(seg, replace(model, slew_v_per_s=s))
+        out.append((r.name, float(np.ptp(r.x)), s, 100.0 * (1.0 - c1 / c0) if c0 > 0 else 0.0))
+    return out
+
+
+def _not_a_rate_limit(by_step: list[tuple[str, float, float, float]]) -> str:
+    """Why the steps' own slews are not one rate limit's ('' where they are, or cannot tell)."""
+    acting = [(size, s) for _, size, s, gain in by_step if gain >= SLEW_ACTS_PCT and size > 0]
+    if len(acting) < 3 or max(a for a, _ in acting) < 2.0 * min(a for a, _ in acting):
+        return ""
+    slope = float(np.polyfit(np.log([a for a, _ in acting]), np.log([s for _, s in acting]), 1)[0])
+    if slope <= SLEW_SIZE_SLOPE_MAX:
+        return ""
+    rates = ", ".join(f"{s / 1e3:.3g}" for _, s in sorted(acting))
+    sizes = ", ".join(f"{a:.3g}" for a, _ in sorted(acting))
+    return (
+        f"a rate limit slews every step it reaches at one rate, and each step's own slew grows with the step "
+        f"({rates} V/ms for steps of {sizes} V: slope {slope:.2f} in log-log, above {SLEW_SIZE_SLOPE_MAX}): a rise "
+        "that takes one time whatever the step is a lag of the chain or an artefact of the reading, not a slew"
+    )
 
 
 def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
@@ -76,7 +117,12 @@ def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
     ev = f"large steps rise slower than small ones: the drive behaves as if limited to {s / 1e3:.3g} V/ms"
     if mon is not None:
         ev += f"; the amplifier monitor itself slews at {mon / 1e3:.3g} V/ms while the command jumps"
-    return _judge(ctx, "amplifier_slew_limit", ev, fit, held, ext, {"slew_rate_v_per_s": s}, base)
+    found = _judge(ctx, "amplifier_slew_limit", ev, fit, held, ext, {"slew_rate_v_per_s": s}, base)
+    if found.accepted and mon is None:  # a monitor that slews is the limit read directly
+        why = _not_a_rate_limit(slew_by_step(ctx.model, steps))
+        if why:
+            found = replace(found, refused=why)
+    return found
 
 
 #: The catalogue's entry for this cause (read by every place that names causes).
