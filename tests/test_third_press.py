@@ -251,3 +251,33 @@ def test_diagnose_names_a_slew_limit_alone_where_the_chain_lag_was_read_on_slewe
     ]
     slew = result.findings[0].parameters["slew_rate_v_per_s"]
     assert slew == pytest.approx(100e-3 / 6e-6, rel=0.2)
+
+
+@pytest.mark.slow
+def test_diagnose_names_a_fifo_delay_and_a_capacitively_coupled_drive_together(tmp_path):
+    """A FIFO of 8 samples and the drive voltage coupled into the load-cell lead through a 30 Hz
+    high-pass, at once (the draw of ``bench_diagnose --rig third --pairs``, seed 1), and no
+    monitor. Before, a slew limit was named alone: each step's own slew grew with the step (39 to
+    240 V/ms for 20 to 150 V: a rise in one time, not a rate limit), the coupling's signed term was
+    smoothed over 0.5 ms at most (the press's is 5.3 ms), and the coupling, refused alone for the
+    5 Hz triangle the delay it did not model lagged, was never tried beside the delay."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    press = tp.hidden_press("input_delay+drive_coupled_interference", np.random.default_rng([1, 97]))
+    assert press.fifo_samples == 8 and press.coupling_n_per_v == pytest.approx(0.1317, rel=1e-3)
+    char.characterize(tmp_path / "char", backend=press)
+    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
+    result, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
+    named = sorted(f.cause for f in result.findings)
+    assert named == ["drive_coupled_interference", "input_delay"], [(f.cause, f.evidence) for f in result.findings]
+    by = {f.cause: f for f in result.findings}
+    # the coupling's high-pass, read as the reading's gain on the drive voltage above its corner
+    # (N/V: -g_signed / tau, the model subtracting g_signed first_order(dV/dt, tau)): the press's
+    # sign, and its size within a factor 2 (the grid of smoothings is a factor 2 apart, and the
+    # delay fitted beside it takes part of its lead)
+    p = by["drive_coupled_interference"].parameters
+    k = -p["signed_gain_n_per_v_per_s"] / p["signed_tau_s"]
+    assert 0.5 * press.coupling_n_per_v <= k <= 2.0 * press.coupling_n_per_v, p

@@ -112,6 +112,11 @@ class Finding:
     #: why the cause's own signature check refuses the finding although it predicts better (the
     #: residual it takes up has another shape than the cause leaves); never accepted either
     refused: str = ""
+    #: the refusal rests on held-out runs the finding predicts worse, which another effect in them
+    #: can be the reason for (a delay that lags the slow sweeps against a coupling that leads
+    #: them): such a finding is tried again in a pair (:func:`search._together`); a refusal on the
+    #: cause's own parameters (a slew that grows with the step) is not
+    refused_by_runs: bool = False
 
     @property
     def unit(self) -> str:

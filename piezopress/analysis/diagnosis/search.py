@@ -157,13 +157,18 @@ def _together(ctx: Context, tried: list[Finding], failed: dict[str, str]) -> lis
     residual in a form of its own (a delay of the steps, say, against a lead on the sweeps from
     a drive picked up by the reading), and the fit of either alone is a compromise that falls
     short. The two candidates that predicted best alone (each at least
-    :data:`PAIR_MIN_GAIN_PCT`) are each fitted again with the other in the model; both are
+    :data:`PAIR_MIN_GAIN_PCT`; one its signature check refused for held-out runs it predicts
+    worse counts: the other effect can be why) are each fitted again with the other in the model; both are
     named only when each is then a finding of its own (it clears every bar with the other
     already taken). An effect one cause explains alone is named alone in its round, before any
     pair is tried. Returns the two findings (the first with its gain given the second, the model
     the second's: both in it), or none."""
     cands = sorted(
-        (f for f in tried if f.gain_pct >= PAIR_MIN_GAIN_PCT and not f.too_small and not f.refused),
+        (
+            f
+            for f in tried
+            if f.gain_pct >= PAIR_MIN_GAIN_PCT and not f.too_small and (not f.refused or f.refused_by_runs)
+        ),
         key=lambda f: -f.gain_pct,
     )[:2]
     if len(cands) < 2:
