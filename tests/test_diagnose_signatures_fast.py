@@ -40,23 +40,39 @@ def _run(x: np.ndarray, y: np.ndarray, name: str = "r") -> dg.RunData:
     return dg.RunData(name, "step", np.arange(x.size) / FS, x, y, FS)
 
 
-@pytest.mark.parametrize("corner_hz", [10.0, 30.0, 300.0])
+@pytest.mark.parametrize("corner_hz", [20.0, 30.0, 300.0])
 def test_a_coupling_through_a_high_pass_of_any_corner_is_fitted(corner_hz):
     # the third test press couples its drive voltage through a 30 Hz high-pass (5.3 ms): with the
     # signed term's smoothing capped at 0.5 ms, the coupling beside a delay was never named
+    # (the reading leads the force by the coupling: the residual of a model without it)
     x = _drive()
     k = 0.1  # N per V
-    res = -k * _high_pass(x, corner_hz) + np.random.default_rng(1).normal(0.0, 0.05, x.size)
+    res = k * _high_pass(x, corner_hz) + np.random.default_rng(1).normal(0.0, 0.05, x.size)
     run = _run(x, res)
     e, (g, e0, tau, gs, tau_s) = ic._regress([(run, slice(None))], res, {id(run): x}, (rms(res), None))
     tau_true = 1.0 / (2 * math.pi * corner_hz)
     # the grid holds time constants a factor 2 apart: the nearest is within sqrt(2) of the truth
     assert tau_true / 1.5 <= tau_s <= tau_true * 1.5, tau_s
-    assert gs / tau_s == pytest.approx(k, rel=0.35)  # the high-pass's gain, N/V
+    assert -gs / tau_s == pytest.approx(k, rel=0.35)  # the high-pass's gain, N/V
     assert e < 0.45 * rms(res)  # what is left of the coupling, grid step included
     # what it reports is what the model applies: the interference's reading left over equals e
     applied = dg.interference_reading(run, g, e0, tau, gs, tau_s)
     assert rms(res + applied) == pytest.approx(e, rel=1e-6)
+
+
+def test_a_slow_high_pass_that_lags_the_output_is_not_a_coupling():
+    # below its corner a slow high-pass is a derivative: with the sign of a lag it is what a
+    # reading late by some milliseconds leaves (the second test press, clean: 16 ms named on 3
+    # of 5 seeds); only the sensor's own bandwidth is allowed that sign
+    x = _drive()
+    res = -0.1 * _high_pass(x, 20.0)
+    run = _run(x, res)
+    fit = [(run, slice(None))]
+    _, (_, _, _, gs, tau_s) = ic._regress(fit, res, {id(run): x}, (rms(res), None))
+    assert tau_s <= ic.SIGNED_TAU_MAX_S and gs > 0
+    # the same residual with an output that falls as the drive rises leads it: taken
+    _, (_, _, _, gs, tau_s) = ic._regress(fit, res, {id(run): x}, (rms(res), None), lead=-1.0)
+    assert tau_s >= 4e-3 and gs > 0
 
 
 def test_the_normal_equations_give_least_squares():

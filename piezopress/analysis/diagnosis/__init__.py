@@ -45,6 +45,7 @@ from piezopress.analysis.diagnosis.causes.amplifier_slew_limit import (  # noqa:
 )
 from piezopress.analysis.diagnosis.causes.drive_coupled_interference import (  # noqa: F401
     INTERFERENCE_TAUS_S,
+    SIGNED_TAU_MAX_S,
     SIGNED_TAUS_S,
     cause_drive_coupled_interference,
 )
