@@ -65,3 +65,9 @@ def delayed(x: np.ndarray, fs_hz: float, delay_s: float) -> np.ndarray:
 def rate_envelope(drive: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
     """``|dV/dt|`` of a sampled drive (V/s), smoothed over ``tau_s``, from rest."""
     return first_order(np.abs(np.diff(drive, prepend=drive[0])) * fs_hz, tau_s, fs_hz)
+
+
+def smoothed_rate(drive: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
+    """The signed ``dV/dt`` of a sampled drive (V/s), smoothed over ``tau_s``, from rest: a
+    first-order high-pass of the drive with its corner at ``1 / (2 pi tau_s)``, times ``1 / tau_s``."""
+    return first_order(np.diff(drive, prepend=drive[0]) * fs_hz, tau_s, fs_hz)

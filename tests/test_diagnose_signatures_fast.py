@@ -84,7 +84,7 @@ def test_the_normal_equations_give_least_squares():
     res = rng.normal(0.0, 1.0, x.size) - 2e-4 * signals.first_order(np.gradient(x) * FS, 2e-3, FS)
     e, (g, e0, tau, gs, tau_s) = ic._regress([(run, slice(None))], res, {id(run): x}, (np.inf, None))
     env = np.maximum(signals.rate_envelope(x, FS, tau) - e0, 0.0)
-    sg = signals.first_order(np.diff(x, prepend=x[0]) * FS, tau_s, FS)
+    sg = signals.smoothed_rate(x, FS, tau_s)
     A = -np.column_stack([env, sg])
     sol, *_ = np.linalg.lstsq(A, res, rcond=None)
     if sol[0] >= 0:  # the unsigned term is a dip; where lstsq wants it negative the fit drops it

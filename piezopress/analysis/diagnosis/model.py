@@ -363,8 +363,8 @@ def interference_reading(
     def compute() -> np.ndarray:
         out = g * np.maximum(signals.rate_envelope(run.drive, run.fs_hz, tau) - e0, 0.0) if g else 0.0
         if g_signed:
-            rate = np.diff(run.drive, prepend=run.drive[0]) * run.fs_hz
-            out = out + g_signed * signals.first_order(rate, tau if tau_signed is None else tau_signed, run.fs_hz)
+            tau_s = tau if tau_signed is None else tau_signed
+            out = out + g_signed * signals.smoothed_rate(run.drive, run.fs_hz, tau_s)
         return out * np.ones(run.drive.size)
 
     return _memo(_INTERFERENCE_MEMO, (id(run), g, e0, tau, g_signed, tau_signed), run, compute)

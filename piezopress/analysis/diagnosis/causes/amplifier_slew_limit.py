@@ -82,7 +82,8 @@ def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
     steps = ctx.steps()
     if len(steps) < 2:
         return None
-    if any(r.monitor is not None for r in steps) and _monitor_slew(steps) is None:
+    mon = _monitor_slew(steps)
+    if mon is None and any(r.monitor is not None for r in steps):
         return None  # the applied drive follows the command: whatever the residual is, it is not the slew
     fit, held = _split(ctx.independent(steps) or steps)
     s = _search(lambda v: _cost(fit, replace(ctx.model, slew_v_per_s=v)), 2e3, 2e6, 31, log=True)
@@ -113,7 +114,6 @@ def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
             (lo_c + [0.5 * s], hi_c + [2.0 * s]),
         )
     s = float(ext.slew_v_per_s)
-    mon = _monitor_slew(steps)
     ev = f"large steps rise slower than small ones: the drive behaves as if limited to {s / 1e3:.3g} V/ms"
     if mon is not None:
         ev += f"; the amplifier monitor itself slews at {mon / 1e3:.3g} V/ms while the command jumps"

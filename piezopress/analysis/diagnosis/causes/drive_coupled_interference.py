@@ -56,12 +56,7 @@ def _regress(fit, res: np.ndarray, drives: dict[int, np.ndarray], best: tuple, l
     output's gain on the drive (+1: it rises with the drive); a signed term smoothed over more
     than :data:`SIGNED_TAU_MAX_S` must lead the output (``-g_signed * lead > 0``)."""
     signed = {
-        tau_s: np.concatenate(
-            [
-                signals.first_order(np.diff(drives[id(r)], prepend=drives[id(r)][0]) * r.fs_hz, tau_s, r.fs_hz)[sl]
-                for r, sl in fit
-            ]
-        )
+        tau_s: np.concatenate([signals.smoothed_rate(drives[id(r)], r.fs_hz, tau_s)[sl] for r, sl in fit])
         for tau_s in SIGNED_TAUS_S
     }
     res_sq = float(res @ res)
