@@ -140,3 +140,70 @@ def test_the_slew_check_needs_three_steps_it_acts_on_over_a_range_of_sizes():
     assert slew_cause._not_a_rate_limit([(n, a, s, 5.0) for n, a, s, _ in grows]) == ""  # the slew acts on none
     near = [("a", 100.0, 40e3, 30.0), ("b", 120.0, 60e3, 30.0), ("c", 150.0, 90e3, 30.0)]
     assert slew_cause._not_a_rate_limit(near) == ""  # sizes within a factor 2: no slope to read
+
+
+# --------------------------------------------------------------------------- a second mode in series
+
+MODE = replace(BASE, wn=2 * math.pi * 750.0, zeta=0.07)
+
+
+def test_a_mode_in_series_passes_the_main_modes_response_through_it():
+    from piezopress.analysis.mode import mode_response
+
+    x, name = _steps()[2]
+    run = _run(x, np.zeros_like(x), name)
+    w2 = 2 * math.pi * 1200.0
+    series = replace(MODE, mode2=(0.0, w2, 0.03), mode2_series=True)
+    h = MODE.static(run)
+    want = mode_response(mode_response(h, FS, MODE.wn, MODE.zeta), FS, w2, 0.03, hold="foh")
+    want = np.maximum(MODE.hysteresis.y0 + want, 0.0)  # a press only pushes
+    assert np.allclose(series.force(run, h), want)
+    # unit DC gain: the step settles where the main mode alone settles
+    assert series.predict(run)[999] == pytest.approx(MODE.predict(run)[999], abs=0.05)  # 0.03 % of the step
+    # a heavily damped second mode changes less the higher it sits (a lag of 2 zeta / wn2)
+    diffs = []
+    for f2 in (3000.0, 6000.0, 9000.0):
+        far = replace(MODE, mode2=(0.0, 2 * math.pi * f2, 0.7), mode2_series=True)
+        diffs.append(rms(far.predict(run) - MODE.predict(run)))
+    assert diffs[0] > 1.4 * diffs[1] > 1.4 * 1.4 * diffs[2], diffs
+    assert diffs[2] < 0.01 * np.ptp(MODE.predict(run))
+    # the share is the parallel form's: in series it does not scale the main mode
+    assert np.allclose(replace(series, mode2=(0.3, w2, 0.03)).predict(run), series.predict(run))
+
+
+def _mode_context(model: dg.Model, seed: int = 0) -> dg.Context:
+    rng = np.random.default_rng(seed)
+    runs = []
+    for x, name in _steps():
+        r = _run(x, np.zeros_like(x), name)
+        runs.append(_run(x, model.predict(r) + rng.normal(0.0, 0.05, x.size), name))
+    return dg.Context(runs, MODE, frozenset(), {r.name: 0.05 for r in runs})
+
+
+@pytest.mark.parametrize("ratio", [1.45, 1.7])
+def test_a_frame_mode_in_series_is_named_in_its_form(ratio):
+    # the third test press's frame mode: the main mode's response passes through it. The parallel
+    # form (a share of the response through each mode) cannot draw it and leaned on its bounds:
+    # the press's frame mode was named as a delay or a rate dependence, never a second mode
+    w2 = 2 * math.pi * ratio * 750.0
+    truth = replace(MODE, mode2=(0.0, w2, 0.03), mode2_series=True)
+    f = dg.cause_second_resonance(_mode_context(truth))
+    assert f is not None and f.accepted, f
+    assert f.parameters["series"] == 1.0 and f.model.mode2_series
+    assert f.parameters["natural_freq_rad_s"] == pytest.approx(w2, rel=0.1)
+    assert f.gain_pct > 50.0
+
+
+def test_a_second_mode_in_parallel_keeps_its_form():
+    w2 = 2 * math.pi * 2500.0
+    truth = replace(MODE, mode2=(0.2, w2, 0.04))
+    f = dg.cause_second_resonance(_mode_context(truth))
+    assert f is not None and f.accepted, f
+    assert "series" not in f.parameters and not f.model.mode2_series
+    assert f.parameters["share"] == pytest.approx(0.2, rel=0.3)
+    assert f.parameters["natural_freq_rad_s"] == pytest.approx(w2, rel=0.1)
+
+
+def test_one_mode_is_not_named_two():
+    f = dg.cause_second_resonance(_mode_context(MODE))
+    assert f is None or not f.accepted, f

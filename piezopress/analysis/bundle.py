@@ -872,11 +872,13 @@ def extend_logarithmic_creep(ext: dict[str, Any], comp: dict[str, Any], f: Any) 
 
 
 def modal_delay_s(model: Any) -> float:
-    """The low-frequency delay of a model's mode(s): ``2 zeta / wn``, each mode weighted by its share."""
-    share2 = model.mode2[0] if model.mode2 else 0.0
+    """The low-frequency delay of a model's mode(s): ``2 zeta / wn``, each mode weighted by its share
+    (modes in series: the sum of their delays)."""
+    series = bool(getattr(model, "mode2_series", False))
+    share2 = model.mode2[0] if model.mode2 and not series else 0.0
     d = (1.0 - share2) * 2.0 * float(model.zeta) / float(model.wn)
     if model.mode2:
-        d += share2 * 2.0 * float(model.mode2[2]) / float(model.mode2[1])
+        d += (1.0 if series else share2) * 2.0 * float(model.mode2[2]) / float(model.mode2[1])
     return d
 
 

@@ -413,16 +413,19 @@ def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
     return ctx.shared[key]
 
 
-def _level_free(segments: list[Segment], model: Model) -> float:
-    """RMS of the residual with each segment's static levels taken out: on a step run a least-
-    squares offset, a gain on the drive and the level after the step's fall; on a sweep an
-    offset. What is left is the response's dynamics. The levels are the hysteresis and creep
-    models' business (a base model fitted elsewhere may be off by a constant on a fast sweep);
-    a cause of the dynamics is judged on what it can change, not on a constant it happens to
-    take up (a current envelope is constant on a triangle)."""
+def _level_free_err(
+    segments: list[Segment], model: Model, predict: Callable[[RunData], np.ndarray] | None = None
+) -> np.ndarray:
+    """The residual of ``model`` (or of ``predict``) with each segment's static levels taken out:
+    on a step run a least-squares offset, a gain on the drive and the level after the step's fall;
+    on a sweep an offset. What is left is the response's dynamics. The levels are the hysteresis
+    and creep models' business (a base model fitted elsewhere may be off by a constant on a fast
+    sweep); a cause of the dynamics is judged, and fitted, on what it can change, not on a constant
+    it happens to take up (a current envelope is constant on a triangle)."""
+    predict = predict or model.predict
     out = []
     for r, sl in segments:
-        e = (r.y - model.predict(r))[sl]
+        e = (r.y - predict(r))[sl]
         x = r.x[sl]
         if r.kind != "step":
             out.append(e - e.mean())
@@ -436,7 +439,12 @@ def _level_free(segments: list[Segment], model: Model) -> float:
         A = np.column_stack([np.ones_like(x), x / top, after])
         coef, *_ = np.linalg.lstsq(A, e, rcond=None)
         out.append(e - A @ coef)
-    return rms(np.concatenate(out)) if out else float("nan")
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _level_free(segments: list[Segment], model: Model) -> float:
+    """RMS of :func:`_level_free_err`."""
+    return rms(_level_free_err(segments, model)) if segments else float("nan")
 
 
 def _judge_dynamics(

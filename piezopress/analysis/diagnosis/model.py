@@ -159,7 +159,10 @@ class Model:
     # envelope, threshold V/s, tau s[, gain output unit per V/s of the signed rate (the drive current's sign)[,
     # the signed rate's own smoothing, s (tau when absent)]])
     interference: tuple[float, ...] | None = None
-    mode2: tuple[float, float, float] | None = None  # (share, wn, zeta): second_resonance
+    mode2: tuple[float, float, float] | None = None  # (share, wn, zeta): second_resonance ...
+    # ... in parallel with the main mode (the response shared between them), or in series (the main
+    # mode's response passes through it: a frame mode behind the stack; the share is then unused)
+    mode2_series: bool = False
     delay_s: float = 0.0  # input_delay ...
     delay_samples: float = 0.0  # ... or one counted in samples (a board's FIFO): delay_samples / fs in every run
     drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second ...
@@ -262,14 +265,17 @@ class Model:
     def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
         """Creep, mode(s), sensor low-pass and contact applied to the static prediction."""
         c = self._crept(run, h)
+        series = self.mode2 is not None and self.mode2_series
         modes = []
         if self.wn:
-            modes.append((1.0 - (self.mode2[0] if self.mode2 else 0.0), self.wn, self.zeta))
-        if self.mode2:
+            modes.append((1.0 - (self.mode2[0] if self.mode2 and not series else 0.0), self.wn, self.zeta))
+        if self.mode2 and not series:
             modes.append(self.mode2)
         # a held command reaches the mode held, unless a low-pass in the chain has made it smooth
         hold = "foh" if self.drive_lowpass is not None else "zoh"
         out = sum(share * mode_response(c, run.fs_hz, wn, z, hold=hold) for share, wn, z in modes) if modes else c
+        if series:  # what the main mode delivers is smooth: it reaches the second mode sampled, not held
+            out = mode_response(out, run.fs_hz, self.mode2[1], self.mode2[2], hold="foh")
         if self.sensor_lowpass_hz:
             out = out[0] + signals.first_order(out - out[0], 1.0 / (2 * np.pi * self.sensor_lowpass_hz), run.fs_hz)
         y = self.hysteresis.y0 + out
