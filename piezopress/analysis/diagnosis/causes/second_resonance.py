@@ -34,9 +34,10 @@ MODE2_MAX_DAMPING = 0.25
 #: A peak of the steps' own response (the spectrum of the reading's rate over the first 40 ms
 #: after each step, each step's normalised to its largest) counts where it stands out by this
 #: share of the largest; the model's response lacks it where it reaches less than half as high
-#: there. On the third test press a frame mode in series at 1.45-1.75 times the main mode peaks at
-#: 0.46-1.0 (the main mode 4.0 over four steps); a FIFO delay, a slew limit or a clean press show
-#: the main mode's peak alone.
+#: there. On the third test press frames in series at 1.55, 1.64 and 1.71 times the main mode
+#: peaked at 0.46-1.0 (the main mode 4.0 over four steps), one at 1.69 times, near the
+#: anti-resonance, not at all; a FIFO delay, a slew limit or a clean press show the main mode's
+#: peak alone.
 RESPONSE_PEAK_MIN = 0.05
 RESPONSE_WINDOW_S = 0.04
 #: A mode in series is fitted within this factor of the steps' own peak (a fit leaning on that
