@@ -102,7 +102,7 @@ def cause_second_resonance(ctx: Context) -> Finding | None:
     f1 = base.wn / (2 * np.pi)
     top_hz = 0.45 * min(r.fs_hz for r, _ in fit)  # a second mode anywhere the steps resolve, well above the first
     candidates = []  # (level-free RMS on the fitting steps, model, parameters, evidence)
-    parallel = _parallel_fit(base, fit, held, f1, top_hz)
+    parallel = _parallel_fit(base, fit, f1, top_hz)
     if parallel is not None:
         candidates.append((rms(_level_free_err(fit, parallel[0])), *parallel))
     rings = response_peaks(fit, base, f1, top_hz)
@@ -124,7 +124,7 @@ def cause_second_resonance(ctx: Context) -> Finding | None:
     return _judge_dynamics(ctx, "second_resonance", ev, fit, held, ext, params, base)
 
 
-def _parallel_fit(base, fit, held, f1: float, top_hz: float):
+def _parallel_fit(base, fit, f1: float, top_hz: float):
     """A second mode sharing the response with the main one, fitted from where the step residuals
     ring above the first mode (the strongest peaks, each a start): ``(model, parameters,
     evidence)``, or None where the fit leans on its bounds (bending a mode to fit something
@@ -140,7 +140,7 @@ def _parallel_fit(base, fit, held, f1: float, top_hz: float):
     fb, pb = f[band], spectrum[band]
     peaks = [fb[i] for i in signal.find_peaks(pb)[0]]
     starts = sorted(peaks, key=lambda x: -np.interp(x, fb, pb))[:3] or [fb[int(np.argmax(pb))]]
-    hs = {id(r): base.static(r) for r, _ in fit + held}
+    hs = {id(r): base.static(r) for r, _ in fit}  # the static map on the fitting steps: only the mode varies
 
     def model_for(p):
         return replace(base, wn=p[3], zeta=p[4], mode2=(p[0], p[1], p[2]))
