@@ -73,12 +73,15 @@ def test_a_cause_hidden_in_the_second_press_is_named_alone(tmp_path, effect):
 
 
 @pytest.mark.slow
-def test_interference_is_named_beside_a_delay_it_shares_a_lag_with(tmp_path):
+@pytest.mark.parametrize("seed", [3, 5, 7])
+def test_interference_is_named_beside_a_delay_it_shares_a_lag_with(tmp_path, seed):
     """Issue 20, two effects at once, on the second press (its interference follows the delayed
     drive through a 0.2 ms filter): the delay is found first and took up part of the artefact's
     lag; the interference, fitted on the drive as the model delays it and with the delay fitted
-    again, is named too (seed 3: the delay alone was named before, interference 16 %)."""
-    press = ip.hidden_press("input_delay+drive_coupled_interference", np.random.default_rng([3, 98]))
+    again, is named too (seed 3: the delay alone was named before, interference 16 %; seeds 5
+    and 7, the bench's: the delay alone was named while the delay was refitted on a grid of its
+    fractions only; refined between them, the coupling gains 31 % held out)."""
+    press = ip.hidden_press("input_delay+drive_coupled_interference", np.random.default_rng([seed, 98]))
     char.characterize(tmp_path / "char", backend=press)
     B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
     res, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")

@@ -207,3 +207,29 @@ def test_a_second_mode_in_parallel_keeps_its_form():
 def test_one_mode_is_not_named_two():
     f = dg.cause_second_resonance(_mode_context(MODE))
     assert f is None or not f.accepted, f
+
+
+@pytest.mark.parametrize("best", [0.9, 0.62, 1.2, 1.25, 0.5])
+def test_a_delay_refitted_with_the_interference_is_refined_between_the_grid_points(best):
+    # the delay found alone is fitted again with the interference: a minimum between the grid's
+    # fractions (0.9 on the second test press) is found to within the tolerance, at the grid's
+    # ends too, in a bounded number of evaluations
+    calls = []
+
+    def cost(f):
+        calls.append(f)
+        return (f - best) ** 2 + 1.0
+
+    got = ic.grid_then_refine(cost, ic.DELAY_REFIT_FRACTIONS, ic.DELAY_REFIT_TOL)
+    assert abs(got - best) <= 2 * ic.DELAY_REFIT_TOL
+    assert len(calls) <= len(ic.DELAY_REFIT_FRACTIONS) + 30
+    assert ic.DELAY_REFIT_FRACTIONS[0] <= min(calls) and max(calls) <= ic.DELAY_REFIT_FRACTIONS[-1]
+
+
+def test_a_refinement_never_loses_the_grid_s_best():
+    # a cost whose best is one grid point alone (the search between the neighbours finds only
+    # worse): the grid point is kept
+    def cost(f):
+        return 0.0 if f == 1.0 else 1.0 + abs(f - 0.8)
+
+    assert ic.grid_then_refine(cost, ic.DELAY_REFIT_FRACTIONS, ic.DELAY_REFIT_TOL) == 1.0
