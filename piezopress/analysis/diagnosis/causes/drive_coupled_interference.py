@@ -21,6 +21,7 @@ from piezopress.analysis.diagnosis.judging import (
     _fast_split,
     _forces,
     _judge_dynamics,
+    _level_free,
 )
 from piezopress.analysis.diagnosis.model import Model
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
@@ -124,6 +125,33 @@ def grid_then_refine(cost: Callable[[float], float], grid: Sequence[float], tol:
     return x0
 
 
+#: A held-out sweep on which the interference draws an artefact at least this share of the
+#: residual it is judged against (and above the noise floor) must be predicted better, not merely
+#: no more than :data:`SWEEP_WORSE_PCT` worse: a real artefact that large takes a visible part of
+#: the residual away. On the third test press, beside a log creep, a mains line or a drifting
+#: sensitivity, a coupling through an 8 ms high-pass took up the fast sweeps' misfit and was named
+#: on the 4 seeds run, drawing a third of the 5 Hz triangle's residual and predicting that
+#: triangle 3-4 % worse (log creep and mains, seed 0); its hidden couplings predict it 45-57 %
+#: better (seeds 0 and 1).
+ARTEFACT_VISIBLE_OF_RESIDUAL = 0.3
+
+
+def _visible_on_sweeps(ctx: Context, held: list, without: Model, with_it: Model) -> dict[str, bool]:
+    """For each held-out sweep: does the interference (``with_it`` less ``without``, which differ
+    in it only) draw an artefact above the noise floor and :data:`ARTEFACT_VISIBLE_OF_RESIDUAL`
+    of ``without``'s level-free residual there?"""
+    sweeps = [(r, sl) for r, sl in held if r.kind != "step"]
+    forces = _forces(without, [r for r, _ in sweeps])
+    out: dict[str, bool] = {}
+    for r, sl in sweeps:
+        artefact = rms((with_it.reading(r, forces[id(r)]) - without.reading(r, forces[id(r)]))[sl])
+        residual = _level_free([(r, sl)], without)
+        out[r.name] = out.get(r.name, False) or (
+            artefact >= ctx.floor[r.name] and artefact >= ARTEFACT_VISIBLE_OF_RESIDUAL * residual
+        )
+    return out
+
+
 def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     runs = ctx.independent(ctx.steps() + ctx.sweeps(50.0))
     if len(runs) < 2:
@@ -212,10 +240,11 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     # of milliseconds, the chain's dynamics) is taken up at the fast sweeps and over-corrected at
     # the slow ones (the third test press, clean: -8 to -16 % at 5 Hz, +63 % at 100 Hz; with a
     # coupling 30 to 46 % at every rate)
+    visible = _visible_on_sweeps(ctx, held, at(delay), ext)
     worse = {
         name: gain
         for name, gain in found.gain_by_run.items()
-        if gain < -SWEEP_WORSE_PCT and any(r.name == name and r.kind != "step" for r, _ in held)
+        if name in visible and (gain < -SWEEP_WORSE_PCT or (gain < 0.0 and visible[name]))
     }
     if worse:
         found = replace(
