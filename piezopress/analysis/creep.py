@@ -1269,6 +1269,15 @@ def fit_held_step(
     return fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
 
 
+def edge_aligned_for(form: str, *, base: bool) -> bool:
+    """Whether a held step's creep of ``form`` is fitted past the step's edge
+    (:func:`_edge_aligned`): always, but for the thesis's step forms (:data:`FORMS`) in
+    ``fit --base``, which fits them on the step as it is. One rule for every fit of a held step's
+    creep: a creep fitted again (with an effect taken out of the hold) in a way its model was not
+    fitted reshapes it. Unaligned, a spectrum's elements of 40-190 ms fit the edge's lag."""
+    return not base or form not in FORMS
+
+
 def _edge_aligned(u: np.ndarray, y: np.ndarray, fs_hz: float) -> np.ndarray:
     """``u`` delayed by the lag of the output's step edge behind it (the time from ``u``'s
     largest jump to ``y`` crossing half of it): the drive chain's delay and the mode's rise

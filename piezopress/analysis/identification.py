@@ -538,10 +538,22 @@ def hysteresis_and_creep(
     for form in forms:
         try:
             h, hfit = h0, h0fit
-            c, cfit = creep_section(hold, h, holdout_fraction=holdout_fraction, forms=(form,), align=not base)
+            c, cfit = creep_section(
+                hold,
+                h,
+                holdout_fraction=holdout_fraction,
+                forms=(form,),
+                align=creep_mod.edge_aligned_for(form, base=base),
+            )
             for _ in range(passes - 1):
                 h, hfit = hysteresis_section(sweeps, creep=creep_mod.CreepModel.from_dict(c["model"]), **kw)
-                c, cfit = creep_section(hold, h, holdout_fraction=holdout_fraction, forms=(form,), align=not base)
+                c, cfit = creep_section(
+                    hold,
+                    h,
+                    holdout_fraction=holdout_fraction,
+                    forms=(form,),
+                    align=creep_mod.edge_aligned_for(form, base=base),
+                )
         except (FitError, CompensatorUnstableError) as exc:
             failed.append(f"{form}: {exc}")
             continue
@@ -559,7 +571,13 @@ def hysteresis_and_creep(
         # Aligned past the step's edge for the base too (the spectrum is no thesis form): unaligned,
         # its elements of 40-400 ms fitted the edge's lag, 17 % of the step on the third test
         # press where the run shows 0.5 %, and the base missed its 5-100 Hz sweeps by 13-17 N
-        c, cfit = creep_section(hold, h0, holdout_fraction=holdout_fraction, forms=("spectrum",))
+        c, cfit = creep_section(
+            hold,
+            h0,
+            holdout_fraction=holdout_fraction,
+            forms=(CREEP_FALLBACK_FORM,),
+            align=creep_mod.edge_aligned_for(CREEP_FALLBACK_FORM, base=base),
+        )
         pairs = [(sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction), h0, h0fit)]
         try:
             if base:  # see above: fit keeps the first loop, which compensates better
