@@ -191,7 +191,7 @@ def cause_sensitivity_drift(ctx: Context) -> Finding | None:
     # share of it already (a static loop holds none of a sweep's): either that creep is fitted
     # again, in its own form, on the hold with the drift taken out, or the drift is left out of
     # that hold (it would be counted twice there, and read as creep by the next cause). The one
-    # kept predicts the other runs the base model was fitted on better (:func:`_kept_creep`).
+    # kept predicts every other run better, each weighed alike (:func:`_with_drift`).
     if timed:
         ext = _with_drift(ctx, (k_all, ref), clock)
     else:  # a run's gain is its play's: 1 + k (play - ref), the drift inside a run unknown (read at its middle)
