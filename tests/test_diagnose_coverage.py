@@ -507,3 +507,24 @@ def test_the_creep_refitted_without_a_gain_drift_is_the_base_creep_where_nothing
     base, again = model.creep.step_creep(n, hold.fs_hz), refit.step_creep(n, hold.fs_hz)
     assert np.max(np.abs(again - base)) <= 0.01 * np.max(np.abs(base))
     assert refit.static_gain == pytest.approx(model.creep.static_gain, rel=1e-3)
+
+
+def test_a_log_creep_is_sized_by_what_it_adds_in_the_decade_after_the_hold():
+    """The log creep's size is what its creep rises beyond the model's own over the decade after
+    the hold: nothing where the two are the same, whatever the tail's share among them, and about
+    the tail's rate per decade where a tail is added to a creep that has saturated by then."""
+    from piezopress.analysis import creep as creep_mod
+    from piezopress.analysis.diagnosis.causes.logarithmic_creep import _beyond_next_decade
+
+    base = creep_mod.CreepModel("kv", 0.97, (0.5, 3.0), (0.01, 0.02))
+    assert _beyond_next_decade(base, base, 120.0) == pytest.approx(0.0, abs=1e-12)
+    taus = creep_mod.log_taus(creep_mod.LOG_TAU_MIN_S, creep_mod.LOG_TAU_MAX_S)
+    for gamma in (0.002, 0.01):
+        tail = creep_mod.CreepModel("kv", 0.97, base.taus_s + tuple(taus), base.gains + (0.5 * gamma,) * taus.size)
+        assert _beyond_next_decade(tail, base, 120.0) == pytest.approx(gamma, rel=0.2)
+    # a model whose own creep spreads over the decades draws that rise already: a tail on top of
+    # it counts only by its own share
+    spread = creep_mod.CreepModel("kv", 0.97, tuple(taus), (0.005,) * taus.size)
+    both = creep_mod.CreepModel("kv", 0.97, tuple(taus), (0.006,) * taus.size)
+    assert _beyond_next_decade(spread, base, 120.0) > 0.008
+    assert _beyond_next_decade(both, spread, 120.0) == pytest.approx(0.002, rel=0.2)

@@ -26,8 +26,11 @@ from piezopress.analysis.diagnosis.slow import (
     _slow_judge,
 )
 
-#: A log-time creep is named only where it rises at least this fraction of the held step per decade
-#: of time beyond what the poles draw. Piezo stacks creep about 1-2 % of the step per decade
+#: A log-time creep is named only where it rises at least this fraction of the held step in the
+#: decade after the hold beyond what the model's creep draws there (:func:`_beyond_next_decade`;
+#: the tail's own rate trades off with the Kelvin-Voigt elements fitted beside it, and a model's
+#: creep may rise over the decades too: the clean third press's spectrum rises 0.49 % there, its
+#: fitted tail 0.52 % per decade, 0.07 % beyond, seed 1). Piezo stacks creep about 1-2 % of the step per decade
 #: (Physik Instrumente's gamma = 0.01-0.02; Jung & Gweon, Rev. Sci. Instrum. 2000), and a log
 #: creep the poles miss leaves an error growing by its rate with every decade after the hold:
 #: below 0.4 % per decade it stays near the compensated creep row's 0.3 % over the next decade.
@@ -83,18 +86,31 @@ def _creep_fit(
     )
 
 
+def _beyond_next_decade(creep: creep_mod.CreepModel, model: creep_mod.CreepModel, hold_s: float) -> float:
+    """How much more of a unit step ``creep`` rises than ``model`` from ``hold_s`` to ten times
+    that after the step (closed form)."""
+    a, b = (m.step_creep(10, 1.0 / hold_s) for m in (creep, model))
+    return float((a[-1] - a[0]) - (b[-1] - b[0]))
+
+
 def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     runs = [r for r in ctx.runs if r.kind == "creep"]
     if not runs or ctx.model.creep is None or ctx.model.creep.form == "log":
         return None
     run = max(runs, key=lambda r: r.t_s[-1])
-    h = ctx.model.static(run)
+    # the force as the accepted reading terms (drift) leave it
+    # (and a drifting gain of the reading: the force the hold applied)
+    drift = ctx.model.drift_per_s
+    y_full = run.y / ctx.model.reading_gain(run) - drift * run.t_s - ctx.model.hysteresis.y0
+    # past the step's edge, as fit fits a held step: on the step as it is, the output's lag at the
+    # edge went into elements of 0.05-0.5 s (3 % of the step on the virtual rig), which read the
+    # 5-100 Hz sweeps 23-45 % worse, and a coupling was named beside the creep to take that up
+    h = creep_mod._edge_aligned(ctx.model.static(run), y_full, run.fs_hz)
     t, u = _slow(run, h)
     # a trend of the hold that the runs at other drive levels show too is a drift of the
     # reading, not creep: when they evidence one (:func:`_drift_fit`), the log tail is judged
     # against the same Kelvin-Voigt elements and a free drift (linear and quadratic in time),
     # both fitted with a drift of their own
-    drift = ctx.model.drift_per_s
     ramp = bool(drift or ctx.model.drift_warmup)  # a drift found already: its form may not be exact
     most = float(np.ptp(u))  # a stroke kept at rest is less than the hold's
     if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)
@@ -103,9 +119,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
             Context(ctx.runs, replace(ctx.model, creep_bias=kept), ctx.fitted_runs, ctx.floor) if kept else ctx
         )
         ramp = d is not None and d.gain_pct >= MIN_GAIN_PCT
-    # the force as the accepted reading terms (drift) leave it
-    # (and a drifting gain of the reading: the force the hold applied)
-    _, y = _slow(run, run.y / ctx.model.reading_gain(run) - drift * run.t_s - ctx.model.hysteresis.y0)
+    _, y = _slow(run, y_full)
     if t.size < 50:
         return None
     k = int(t.size * 0.6)
@@ -188,6 +202,10 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
             f"; a stroke of {ext.creep_bias:.3g} {units.label(ctx.model.unit)} kept at rest creeps from every run's "
             "start too (read on the rest runs, where the drive does nothing; the compensator leaves it out)"
         )
+    # its size: what the extension draws beyond the model's own creep over the decade after the
+    # hold, the error a creep model that saturates leaves there (the tail's gamma alone trades off
+    # with the Kelvin-Voigt elements beside it, and the model's creep may rise over decades too)
+    beyond = _beyond_next_decade(ext.creep, ctx.model.creep, float(run.t_s[-1] - run.t_s[0]))
     # judged like a drift (:func:`cause_sensor_offset_drift`), on the cycle-averaged residuals of
     # every long run: a creep grows with the drive, in the sweeps as in the hold, where a drift does not
     b, floor = _slow_judge(ctx, base)
@@ -206,10 +224,10 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         floor,
         named(ext),  # a drift judged against is not part of the finding
         too_small=(
-            f"the creep rises {100 * gamma:.2g} % of the step per decade beyond the poles, under the "
-            f"{100 * LOG_CREEP_MIN_PER_DECADE:.2g} % a logarithmic creep needs to move the creep row by more "
-            "than its 0.3 % target in the decade after the hold"
-            if gamma < LOG_CREEP_MIN_PER_DECADE
+            f"in the decade after the hold the creep rises {100 * beyond:.2g} % of the step beyond what the "
+            f"model's creep draws, under the {100 * LOG_CREEP_MIN_PER_DECADE:.2g} % a logarithmic creep needs to "
+            "move the creep row by more than its 0.3 % target"
+            if beyond < LOG_CREEP_MIN_PER_DECADE
             else ""
         ),
     )
