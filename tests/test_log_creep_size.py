@@ -64,7 +64,7 @@ def test_a_log_rise_too_small_to_matter_is_not_named_but_said(seed):
     f = cause_logarithmic_creep(_context(runs))
     assert f is not None and f.parameters["per_decade"] < LOG_CREEP_MIN_PER_DECADE
     assert f.gain_pct >= MIN_GAIN_PCT  # the tail predicts the hold's end better: the size alone refuses it
-    assert not f.accepted and "per decade beyond the poles" in f.too_small
+    assert not f.accepted and "in the decade after the hold beyond what the model's creep draws" in f.too_small
     d = dg.diagnose(dg.Model(PI, creep=POLES), runs, ["triangle-0.1hz"], causes=["logarithmic_creep"])
     assert not d.findings
     (tested,) = d.tested

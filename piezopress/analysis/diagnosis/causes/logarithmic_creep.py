@@ -224,7 +224,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         floor,
         named(ext),  # a drift judged against is not part of the finding
         too_small=(
-            f"in the decade after the hold the creep rises {100 * beyond:.2g} % of the step beyond what the "
+            f"the creep rises {100 * beyond:.2g} % of the step in the decade after the hold beyond what the "
             f"model's creep draws, under the {100 * LOG_CREEP_MIN_PER_DECADE:.2g} % a logarithmic creep needs to "
             "move the creep row by more than its 0.3 % target"
             if beyond < LOG_CREEP_MIN_PER_DECADE
