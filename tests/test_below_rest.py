@@ -183,9 +183,9 @@ def test_a_held_steps_creep_is_not_the_chains_lag_at_its_edge():
 def test_the_edge_is_aligned_only_for_a_step():
     u = np.where(np.arange(1000) >= 100, 10.0, 0.0)
     y = np.concatenate([np.zeros(4), u[:-4]])
-    np.testing.assert_array_equal(C._edge_aligned(u, y, 1000.0), y)
+    np.testing.assert_array_equal(C.edge_aligned(u, y, 1000.0), y)
     ramp = np.linspace(0.0, 10.0, 1000)  # no edge: left alone
-    np.testing.assert_array_equal(C._edge_aligned(ramp, np.roll(ramp, 5), 1000.0), ramp)
+    np.testing.assert_array_equal(C.edge_aligned(ramp, np.roll(ramp, 5), 1000.0), ramp)
 
 
 # --------------------------------------------------------------------------- the chain's lead

@@ -135,6 +135,28 @@ def test_forward_model_and_extended():
     assert b.settings.slew_v_per_s is None  # the bundle itself is unchanged
 
 
+def test_the_bundle_says_how_its_creep_was_fitted_and_a_found_log_creep_says_it_anew():
+    """``creep.fit.edge_aligned`` reaches the forward model (a creep fitted again on a hold is
+    fitted as this one was); a bundle written before it was recorded says nothing (None). The
+    log creep a diagnosis found was fitted past the step's edge: its extended bundle says so."""
+    from dataclasses import replace
+
+    from piezopress.analysis import diagnosis as dg
+
+    doc = base_doc()
+    doc["creep"]["fit"].pop("edge_aligned", None)
+    assert Bundle.from_dict(doc).forward_model().creep_edge_aligned is None
+    doc["creep"]["fit"]["edge_aligned"] = False
+    b = Bundle.from_dict(doc)
+    assert b.creep_edge_aligned is False and b.forward_model().creep_edge_aligned is False
+    m = b.forward_model()
+    log = replace(m, creep=CreepModel.log(0.97, 0.012), creep_edge_aligned=True)
+    finding = dg.Finding("logarithmic_creep", "test", 1.0, 0.5, 50.0, {}, [], [], 1.0, 0.1, log)
+    ext = b.extended([finding])
+    assert ext.to_dict()["creep"]["fit"]["edge_aligned"] is True and ext.forward_model().creep_edge_aligned is True
+    assert b.to_dict()["creep"]["fit"]["edge_aligned"] is False  # the bundle itself is unchanged
+
+
 # --------------------------------------------------------------------------- issue 14's probes
 
 
@@ -195,6 +217,10 @@ PROBES = {
     "um hysteresis, N creep (unit recorded)": (
         lambda d: (_um_hysteresis(d), d["creep"]["fit"].__setitem__("output_unit", "N"), d)[2],
         "creep.fit.output_unit = 'N'; expected 'um', the hysteresis model's output unit",
+    ),
+    "edge_aligned = 'yes'": (
+        _set("creep.fit.edge_aligned", "yes"),
+        "creep.fit.edge_aligned = 'yes'; expected true or false (was the creep fitted past the step's edge)",
     ),
     "um hysteresis, N shaper": (_um_hysteresis_n_shaper, "shaper.mode.output_unit = 'N'; expected 'um'"),
     "um hysteresis, N rate limit": (

@@ -490,9 +490,9 @@ def test_on_the_shared_data_sets_diagnose_says_what_it_tested_what_not_why_and_t
 
 def test_the_creep_refitted_without_a_gain_drift_is_the_base_creep_where_nothing_drifts(sample_base_bundle):
     """The gain drift's extension fits the base's creep again on its hold with the drift taken
-    out: with no drift, that fit must give the base's creep back (it fits the step as ``fit --base``
-    does, :func:`creep.edge_aligned_for`). Aligned where the base was not, the sample's creep comes
-    back 20 % of its size off; fitted alike, exactly (here within 1 %)."""
+    out: with no drift, that fit must give the base's creep back (it fits the step as the bundle
+    records its creep was fitted, ``creep.fit.edge_aligned``). Aligned where the base was not, the
+    sample's creep comes back 20 % of its size off; fitted alike, exactly (here within 1 %)."""
     from piezopress.analysis.diagnosis.causes import sensitivity_drift as SD
 
     checked = D.read_bundle(sample_base_bundle)
@@ -507,6 +507,11 @@ def test_the_creep_refitted_without_a_gain_drift_is_the_base_creep_where_nothing
     base, again = model.creep.step_creep(n, hold.fs_hz), refit.step_creep(n, hold.fs_hz)
     assert np.max(np.abs(again - base)) <= 0.01 * np.max(np.abs(base))
     assert refit.static_gain == pytest.approx(model.creep.static_gain, rel=1e-3)
+    # the record is what is read: fit --base fitted the thesis's poles on the step as it is
+    assert checked.to_dict()["creep"]["fit"]["edge_aligned"] is False and model.creep_edge_aligned is False
+    said_aligned = dg.Context(runs, dataclasses.replace(model, creep_edge_aligned=True), ctx.fitted_runs, ctx.floor)
+    off = SD._creep_without_drift(said_aligned, hold, 0.0, {r.ident: 0.0 for r in runs}, 0.0)
+    assert np.max(np.abs(off.step_creep(n, hold.fs_hz) - base)) >= 0.05 * np.max(np.abs(base))
 
 
 def test_a_log_creep_is_sized_by_what_it_adds_in_the_decade_after_the_hold():

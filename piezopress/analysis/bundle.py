@@ -20,7 +20,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -284,6 +284,10 @@ def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:
     if kc + sum(gains) <= 0:
         c.fail(f"{w}.gains", list(gains), f"a positive long-time gain K_c + sum(gains) (K_c = {kc:g})")
     fit = sec.get("fit") if isinstance(sec.get("fit"), Mapping) else {}
+    if "edge_aligned" in fit and not isinstance(fit["edge_aligned"], bool):
+        c.fail(
+            "creep.fit.edge_aligned", fit["edge_aligned"], "true or false (was the creep fitted past the step's edge)"
+        )
     fit_unit = fit.get("output_unit")
     if fit_unit is not None and units.normalise(fit_unit) != unit:
         c.fail(
@@ -651,16 +655,24 @@ class Bundle:
         wn, zeta, lp = self.mode if self.mode is not None else (None, None, None)
         # the drive chain's bandwidth is the press's own (a lag a low-pass chain explains is no
         # input delay, no slew limit); an identified slew stays for diagnose to name, as with a monitor
+        base = dg.Model(self.hysteresis, self.creep, wn, zeta, lp, creep_edge_aligned=self.creep_edge_aligned)
         series = _lowpass_delay(self._chain_doc)
         if series is not None and series[1] < 1.0:
             wc, zc, d = series
             fs = self._chain_doc.get("steps_sample_rate_hz")
             own = SAMPLING_DELAY_SAMPLES / fs if _positive(fs) else 0.0
-            return dg.Model(
-                self.hysteresis, self.creep, wn, zeta, lp, drive_lowpass=(wc, zc), drive_delay_s=min(d, own)
-            )
+            return replace(base, drive_lowpass=(wc, zc), drive_delay_s=min(d, own))
         _, tau = self.drive_chain
-        return dg.Model(self.hysteresis, self.creep, wn, zeta, lp, drive_tau_s=tau or 0.0)
+        return replace(base, drive_tau_s=tau or 0.0)
+
+    @property
+    def creep_edge_aligned(self) -> bool | None:
+        """Whether the creep was fitted past the held step's edge (``creep.fit.edge_aligned``,
+        :func:`creep.edge_aligned`); None where the bundle does not say (written before it was
+        recorded). A creep fitted again on a hold is fitted as this one was."""
+        fit = self.doc.get("creep", {}).get("fit") if isinstance(self.doc, dict) else None
+        aligned = fit.get("edge_aligned") if isinstance(fit, dict) else None
+        return aligned if isinstance(aligned, bool) else None
 
     @property
     def _chain_doc(self) -> dict[str, Any] | None:
@@ -869,6 +881,8 @@ def extend_logarithmic_creep(ext: dict[str, Any], comp: dict[str, Any], f: Any) 
     )
     ext["creep"]["model"] = creep_for_compensator(log).to_dict()
     ext["creep"]["extended_by"] = "diagnose: logarithmic_creep"
+    if isinstance(ext["creep"].get("fit"), dict):  # the finding fitted its creep past the step's edge
+        ext["creep"]["fit"]["edge_aligned"] = True
 
 
 def modal_delay_s(model: Any) -> float:

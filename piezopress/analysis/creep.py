@@ -1261,24 +1261,24 @@ def fit_held_step(
     """Creep of a held step: ``static`` (the hysteresis model's prediction above its rest) in,
     the measured ``output`` above its level before the step out, both slowed to
     :data:`FIT_RATE_HZ` (:func:`slow_part`), then :func:`fit_creep`. ``align``: the static
-    prediction delayed by the output's lag at the step edge first (:func:`_edge_aligned`);
+    prediction delayed by the output's lag at the step edge first (:func:`edge_aligned`);
     ``fit --base`` fits the thesis's creep on the step as it is."""
     y = np.asarray(output, float) - rest_level(np.asarray(output, float), np.asarray(command_v, float))
-    u = _edge_aligned(np.asarray(static, float), y, fs_hz) if align else np.asarray(static, float)
+    u = edge_aligned(np.asarray(static, float), y, fs_hz) if align else np.asarray(static, float)
     t, u, y = slow_part(np.asarray(t_s, float), u, y, fs_hz)
     return fit_creep(t, u, y, holdout_fraction=holdout_fraction, forms=forms)
 
 
 def edge_aligned_for(form: str, *, base: bool) -> bool:
     """Whether a held step's creep of ``form`` is fitted past the step's edge
-    (:func:`_edge_aligned`): always, but for the thesis's step forms (:data:`FORMS`) in
+    (:func:`edge_aligned`): always, but for the thesis's step forms (:data:`FORMS`) in
     ``fit --base``, which fits them on the step as it is. One rule for every fit of a held step's
     creep: a creep fitted again (with an effect taken out of the hold) in a way its model was not
     fitted reshapes it. Unaligned, a spectrum's elements of 40-190 ms fit the edge's lag."""
     return not base or form not in FORMS
 
 
-def _edge_aligned(u: np.ndarray, y: np.ndarray, fs_hz: float) -> np.ndarray:
+def edge_aligned(u: np.ndarray, y: np.ndarray, fs_hz: float) -> np.ndarray:
     """``u`` delayed by the lag of the output's step edge behind it (the time from ``u``'s
     largest jump to ``y`` crossing half of it): the drive chain's delay and the mode's rise
     (milliseconds) are not creep. Left unaligned, the fit's low-passed edge shows ``y`` behind

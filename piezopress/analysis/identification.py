@@ -480,6 +480,7 @@ def creep_section(
             f"rms_{units.key(model.output_unit)}": fit.rms,
             "output_unit": model.output_unit,
             "holdout_fraction": holdout_fraction,
+            "edge_aligned": align,
             "candidates": [plain(c) for c in fit.candidates],
         },
     }

@@ -179,6 +179,9 @@ class Model:
     # (output unit): a stroke the stack keeps at rest (a remanent one) creeps from every run's
     # start where the press does not carry the creep's state from run to run
     creep_bias: float = 0.0
+    # not an extension: whether the bundle's creep was fitted past the held step's edge (``creep.fit.edge_aligned``,
+    # :func:`creep.edge_aligned`); None: the bundle does not say (written before it was recorded)
+    creep_edge_aligned: bool | None = None
 
     @property
     def unit(self) -> str:

@@ -105,7 +105,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # past the step's edge, as fit fits a held step: on the step as it is, the output's lag at the
     # edge went into elements of 0.05-0.5 s (3 % of the step on the virtual rig), which read the
     # 5-100 Hz sweeps 23-45 % worse, and a coupling was named beside the creep to take that up
-    h = creep_mod._edge_aligned(ctx.model.static(run), y_full, run.fs_hz)
+    h = creep_mod.edge_aligned(ctx.model.static(run), y_full, run.fs_hz)
     t, u = _slow(run, h)
     # a trend of the hold that the runs at other drive levels show too is a drift of the
     # reading, not creep: when they evidence one (:func:`_drift_fit`), the log tail is judged
@@ -140,6 +140,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
             ctx.model,
             hysteresis=replace(m, y0=m.y0 + c),
             creep=creep,
+            creep_edge_aligned=True,
             drift_per_s=drift + d,
             drift_warmup=(e, DRIFT_WARMUP_TAU_S) if e else ctx.model.drift_warmup,
             creep_bias=bias,

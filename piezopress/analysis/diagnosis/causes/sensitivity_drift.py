@@ -80,15 +80,18 @@ def _detrended(a: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _creep_without_drift(ctx: Context, hold: RunData, rate: float, clock: dict[str, float], ref: float):
-    """The base model's creep fitted again, in its form and as ``fit --base`` fits it
-    (:func:`creep.edge_aligned_for`), on ``hold`` with the gain drift taken out (None where its
-    form is not one a held step fits, or the fit fails). Fitted unaligned, the third test press's
+    """The model's creep fitted again in its form, on ``hold`` with the gain drift taken out,
+    as it was fitted (past the step's edge or not: the bundle's record,
+    :attr:`Model.creep_edge_aligned`; a bundle that does not say is taken as ``fit --base`` fits:
+    :func:`creep.edge_aligned_for`). None where its form is not one a held step fits, or the fit
+    fails. Fitted unaligned, the third test press's
     spectrum put 4 % of the step into elements of 40-190 ms where the base holds 0.2 %, and its
     5-10 Hz sweeps read 0.4-0.7 N -> 3.9-4.5 N off (level-free, seed 0)."""
     creep = ctx.model.creep
     if creep is None or creep.form not in creep_mod.FORMS + ("spectrum",):
         return None
     gain = 1.0 + rate * (clock[hold.ident] + hold.t_s - ref)
+    aligned = ctx.model.creep_edge_aligned
     try:
         fit = creep_mod.fit_held_step(
             hold.t_s,
@@ -97,7 +100,7 @@ def _creep_without_drift(ctx: Context, hold: RunData, rate: float, clock: dict[s
             hold.y / gain,
             hold.fs_hz,
             forms=(creep.form,),
-            align=creep_mod.edge_aligned_for(creep.form, base=True),
+            align=aligned if aligned is not None else creep_mod.edge_aligned_for(creep.form, base=True),
         )
         fit.model.check_stable(hold.fs_hz)
     except (creep_mod.FitError, CompensatorUnstableError, ValueError, np.linalg.LinAlgError):
