@@ -47,6 +47,10 @@ class _DriftFit:
     creep_tau_s: float
     creep_gain: float
     floor: float
+    # with ``tail_taus``: held-out RMS with a log-time creep tail beside the drift and the creep
+    # element, and the tail's rate (fraction of the drive's static response per decade)
+    with_tail: float | None = None
+    tail_per_decade: float | None = None
 
     @property
     def gain_pct(self) -> float:
@@ -93,13 +97,20 @@ def _run_offsets(sizes: list[int]) -> np.ndarray:
     return linalg.block_diag(*(np.ones((n, 1)) for n in sizes))
 
 
-def _drift_fit(ctx: Context) -> _DriftFit | None:
-    """See :func:`cause_sensor_offset_drift`."""
-    rows = []  # (run, t, slow residual, slow creep responses per tau, floor of the averages)
+def _drift_fit(ctx: Context, tail_taus: np.ndarray | None = None) -> _DriftFit | None:
+    """See :func:`cause_sensor_offset_drift`. With ``tail_taus`` (a log creep's elements, equal
+    gains per half decade: :func:`creep.log_taus`), the drift is fitted again with a log-time
+    creep tail beside it (its rate free): a drift moves every run alike, a creep moves each run
+    with its own drive, so across runs at other drive levels the two are told apart where one
+    held step alone cannot tell them."""
+    rows = []  # (run, t, slow residual, slow creep responses per tau (the tail's last), floor of the averages)
     for r, window in _long_runs(ctx):
         t, res = _slow_residual(r, r.y - ctx.pred(r), window)
         h = ctx.model.static(r)
         creeps = [_slow_residual(r, signals.first_order(h, tau, r.fs_hz), window)[1] for tau in DRIFT_CREEP_TAUS_S]
+        if tail_taus is not None:
+            tail = 0.5 * sum(signals.first_order(h, float(tau), r.fs_hz) for tau in tail_taus)
+            creeps.append(_slow_residual(r, tail, window)[1])
         rows.append((r, t, res, creeps, ctx.floor[r.name] / math.sqrt(window * r.fs_hz)))
     if not rows:
         return None
@@ -110,22 +121,28 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
     R = np.concatenate([res for _, _, res, _, _ in rows])
     if fit_m.sum() < n_runs + 3 or (~fit_m).sum() < 3:
         return None
+    tail = np.concatenate([c[-1] for _, _, _, c, _ in rows]) if tail_taus is not None else None
 
-    def solve(warmups):
+    def solve(warmups, with_tail=False):
         best = None
         for j, tau in enumerate(DRIFT_CREEP_TAUS_S):
             S = np.concatenate([c[j] for _, _, _, c, _ in rows])
             for w in warmups:  # None: no drift; inf: a steady one; else it settles over w
                 D = [] if w is None else [T if np.isinf(w) else -w * np.expm1(-T / w)]
-                A = np.column_stack([onehot, S] + D)
+                A = np.column_stack([onehot, S] + D + ([tail] if with_tail else []))
                 coef, *_ = np.linalg.lstsq(A[fit_m], R[fit_m], rcond=None)
                 e = rms(R[fit_m] - A[fit_m] @ coef)
                 if best is None or e < best[0]:
                     best = (e, tau, coef, rms(R[~fit_m] - A[~fit_m] @ coef), w)
         return best
 
+    warmups = [math.inf, 1000.0, DRIFT_WARMUP_TAU_S]
     _, _, _, b, _ = solve([None])
-    _, tau1, coef1, e, w = solve([math.inf, 1000.0, DRIFT_WARMUP_TAU_S])
+    _, tau1, coef1, e, w = solve(warmups)
+    with_tail = per_decade = None
+    if tail is not None:
+        _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)
+        per_decade = float(coef2[-1])
     return _DriftFit(
         [r for r, _, _, _, _ in rows],
         b,
@@ -135,6 +152,8 @@ def _drift_fit(ctx: Context) -> _DriftFit | None:
         tau1,
         float(coef1[n_runs]),
         float(np.median([fl for _, _, _, _, fl in rows])),
+        with_tail,
+        per_decade,
     )
 
 
