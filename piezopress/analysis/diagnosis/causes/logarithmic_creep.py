@@ -225,11 +225,11 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         if across is None or across.with_tail is None:
             return None
         b, floor = across.extended, across.floor
-        e = across.with_tail if (across.tail_per_decade or 0.0) > 0 else b
+        e = across.with_tail if across.tail_per_decade > 0 else b  # (both set with ``tail_taus``)
         names = sorted(r.name for r in across.runs)
         ev += (
             "; the runs show a drift of the reading, so the tail was judged across every long run against it and "
-            f"a slow creep element ({100 * (across.tail_per_decade or 0.0):.3g} % per decade there)"
+            f"a slow creep element ({100 * across.tail_per_decade:.3g} % per decade there)"
         )
     return Finding(
         "logarithmic_creep",
