@@ -110,8 +110,16 @@ def test_without_a_repeat_it_is_not_tested_and_the_need_is_said(tmp_path, sample
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("rig", ["virtual", "second"])
-def test_the_virtual_rig_and_the_second_press_drifts_are_named_alone(tmp_path, rig):
+@pytest.mark.parametrize(
+    ("rig", "seed"), [("virtual", 3), ("virtual", 7), ("virtual", 12), ("virtual", 15), ("second", 3)]
+)
+def test_the_virtual_rig_and_the_second_press_drifts_are_named_alone(tmp_path, rig, seed):
+    """Seeds 7, 12 and 15 (the bench's draws) read the virtual rig's 12-bit input, whose 0.49 N
+    steps are coarser than its noise: the rest run's level, falling with the gain, reads still,
+    and the held step's averages wander about its creep by the steps. Judged against the white
+    noise's floor of such averages (50 times too low), an offset drift (seed 7) or a log creep
+    and a coupling after it (12, 15) were named beside the gain drift; against the floor a
+    quantized reading keeps (:func:`residuals.average_floor`), the drift is named alone."""
     import independent_press as ip
 
     from piezopress.acquisition.rig_config import hidden_effect
@@ -121,7 +129,7 @@ def test_the_virtual_rig_and_the_second_press_drifts_are_named_alone(tmp_path, r
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    rng = np.random.default_rng([3, 99])
+    rng = np.random.default_rng([seed, 99])
     press = (
         VirtualRig(hidden_effect("sensitivity_drift", rng))
         if rig == "virtual"

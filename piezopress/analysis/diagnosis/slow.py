@@ -10,8 +10,18 @@ from scipy import linalg
 
 from piezopress import signals
 from piezopress.analysis.diagnosis.judging import Context
-from piezopress.analysis.diagnosis.model import Model, RunData
-from piezopress.analysis.diagnosis.residuals import rms
+from piezopress.analysis.diagnosis.model import Model, RunData, _memo
+from piezopress.analysis.diagnosis.residuals import average_floor, rms
+
+_FLOOR_MEMO: dict[tuple, tuple] = {}  # a run's floor of averages, by (id(run), samples averaged, its noise)
+
+
+def _average_floor(ctx: Context, run: RunData, window_s: float) -> float:
+    """The floor of ``run``'s averages over ``window_s`` (:func:`residuals.average_floor`: a
+    reading coarser than its noise keeps an error its averages do not bring down), with the
+    context's noise floor of the run; kept per run."""
+    n, noise = window_s * run.fs_hz, ctx.floor[run.name]
+    return _memo(_FLOOR_MEMO, (id(run), n, noise), run, lambda: average_floor(run.y, n, noise))
 
 
 def _slow_residual(run: RunData, v: np.ndarray, window_s: float, step_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
@@ -88,8 +98,9 @@ def _slow_judge(ctx: Context, model: Model) -> tuple[float, float]:
         if fit_m.sum() < 2 or (~fit_m).sum() < 2:
             continue
         held.append(res[~fit_m] - res[fit_m].mean())
-        floors.append(ctx.floor[r.name] / math.sqrt(window * r.fs_hz))
-    return (rms(np.concatenate(held)), float(np.median(floors))) if held else (float("nan"), float("nan"))
+        floors.append(np.full(held[-1].size, _average_floor(ctx, r, window)))
+    # the floor pooled as the residuals are: what a perfect model's held-out RMS would read
+    return (rms(np.concatenate(held)), rms(np.concatenate(floors))) if held else (float("nan"), float("nan"))
 
 
 def _run_offsets(sizes: list[int]) -> np.ndarray:
@@ -111,7 +122,7 @@ def _drift_fit(ctx: Context, tail_taus: np.ndarray | None = None) -> _DriftFit |
         if tail_taus is not None:
             tail = 0.5 * sum(signals.first_order(h, float(tau), r.fs_hz) for tau in tail_taus)
             creeps.append(_slow_residual(r, tail, window)[1])
-        rows.append((r, t, res, creeps, ctx.floor[r.name] / math.sqrt(window * r.fs_hz)))
+        rows.append((r, t, res, creeps, _average_floor(ctx, r, window)))
     if not rows:
         return None
     n_runs = len(rows)
@@ -151,7 +162,8 @@ def _drift_fit(ctx: Context, tail_taus: np.ndarray | None = None) -> _DriftFit |
         w,
         tau1,
         float(coef1[n_runs]),
-        float(np.median([fl for _, _, _, _, fl in rows])),
+        # the floor pooled as the held-out residuals are: what a perfect model's RMS would read
+        rms(np.concatenate([np.full(t.size, fl) for _, t, _, _, fl in rows])[~fit_m]),
         with_tail,
         per_decade,
     )
@@ -182,7 +194,7 @@ def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
         R.append(res)
         C.append(tr)
         fit_m.append(t <= 0.6 * r.t_s[-1])
-        floors.append(ctx.floor[r.name] / math.sqrt(5.0 * r.fs_hz))
+        floors.append(_average_floor(ctx, r, 5.0))
     if not R:
         return 0.0
     fm = np.concatenate(fit_m)
