@@ -95,7 +95,7 @@ class RunData:
                 held_out=None,
             )
 
-        return _memo(_PREFIX_MEMO, (id(self), stop), self, cut)
+        return memo(_PREFIX_MEMO, (id(self), stop), self, cut)
 
 
 #: Static predictions of recent (run, static map) pairs: (run, prediction) by (id(run), map parameters).
@@ -112,7 +112,7 @@ _INTERFERENCE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive current's art
 MEMO_SIZE = 64
 
 
-def _memo(store: dict[tuple, tuple[Any, Any]], key: tuple, owner: Any, compute: Callable[[], Any]) -> Any:
+def memo(store: dict[tuple, tuple[Any, Any]], key: tuple, owner: Any, compute: Callable[[], Any]) -> Any:
     """``compute()``, kept in ``store`` under ``key`` while ``owner`` (whose ``id`` the key
     holds) is the same object; an array kept is made read-only (a tuple's parts are the
     caller's to protect)."""
@@ -203,13 +203,13 @@ class Model:
                 felt = self.felt(run, run.x)
                 return felt, self._plays(felt)
 
-            felt, plays = _memo(_PLAY_MEMO, (id(run), *chain), run, felt_plays)
+            felt, plays = memo(_PLAY_MEMO, (id(run), *chain), run, felt_plays)
             rate = None
             if self.rate_v_per_kv_s > 0 or self.rate_loss_per_kv_s > 0:
-                rate = _memo(_RATE_MEMO, (id(run), *chain, *rate_form[2:]), run, lambda: self._rate(run, felt))
+                rate = memo(_RATE_MEMO, (id(run), *chain, *rate_form[2:]), run, lambda: self._rate(run, felt))
             return self.static_at_rate(felt, rate, plays=None if self.rate_v_per_kv_s else plays)
 
-        return _memo(_STATIC_MEMO, (id(run), *chain, *rate_form), run, compute)
+        return memo(_STATIC_MEMO, (id(run), *chain, *rate_form), run, compute)
 
     def felt(self, run: RunData, x: np.ndarray) -> np.ndarray:
         """The drive the stack feels for the command ``x``: through the amplifier's own lag and
@@ -293,7 +293,7 @@ class Model:
         if h.flags.writeable:
             out = self.creep.output(h, run.fs_hz)
         else:
-            out = _memo(_CREEP_MEMO, (id(h), self.creep, run.fs_hz), h, lambda: self.creep.output(h, run.fs_hz))
+            out = memo(_CREEP_MEMO, (id(h), self.creep, run.fs_hz), h, lambda: self.creep.output(h, run.fs_hz))
         if self.creep_bias:  # the stroke from below the rest level creeps too; its static part stays in y0
             out = out + self.creep_bias * self.creep_transient(run)
         return out
@@ -304,7 +304,7 @@ class Model:
         if self.creep is None:
             return np.zeros(run.t_s.size)
         creep = self.creep
-        return _memo(_TRANSIENT_MEMO, (id(run), creep), run, lambda: creep.step_creep(run.t_s.size, run.fs_hz))
+        return memo(_TRANSIENT_MEMO, (id(run), creep), run, lambda: creep.step_creep(run.t_s.size, run.fs_hz))
 
     def reading(self, run: RunData, f: np.ndarray) -> np.ndarray:
         """What the sensor reads of the force ``f``: interference, delay, gain drift, drift, hum."""
@@ -376,4 +376,4 @@ def interference_reading(
             out = out + g_signed * signals.smoothed_rate(run.drive, run.fs_hz, tau_s)
         return out * np.ones(run.drive.size)
 
-    return _memo(_INTERFERENCE_MEMO, (id(run), g, e0, tau, g_signed, tau_signed), run, compute)
+    return memo(_INTERFERENCE_MEMO, (id(run), g, e0, tau, g_signed, tau_signed), run, compute)

@@ -10,7 +10,7 @@ from scipy import linalg
 
 from piezopress import signals
 from piezopress.analysis.diagnosis.judging import Context
-from piezopress.analysis.diagnosis.model import Model, RunData, _memo
+from piezopress.analysis.diagnosis.model import Model, RunData, memo
 from piezopress.analysis.diagnosis.residuals import average_floor, rms
 
 _FLOOR_MEMO: dict[tuple, tuple] = {}  # a run's floor of averages, by (id(run), samples averaged, its noise)
@@ -21,7 +21,7 @@ def _average_floor(ctx: Context, run: RunData, window_s: float) -> float:
     reading coarser than its noise keeps an error its averages do not bring down), with the
     context's noise floor of the run; kept per run."""
     n, noise = window_s * run.fs_hz, ctx.floor[run.name]
-    return _memo(_FLOOR_MEMO, (id(run), n, noise), run, lambda: average_floor(run.y, n, noise))
+    return memo(_FLOOR_MEMO, (id(run), n, noise), run, lambda: average_floor(run.y, n, noise))
 
 
 def _slow_residual(run: RunData, v: np.ndarray, window_s: float, step_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
