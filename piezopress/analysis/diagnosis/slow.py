@@ -24,6 +24,12 @@ def _average_floor(ctx: Context, run: RunData, window_s: float) -> float:
     return memo(_FLOOR_MEMO, (id(run), n, noise), run, lambda: average_floor(run.y, n, noise))
 
 
+def _pooled(floors: list[float], counts: list[int]) -> float:
+    """Runs' floors of averages pooled as their residuals are (the RMS over the ``counts``
+    averages judged in each run): what a perfect model's held-out RMS would read."""
+    return math.sqrt(float(np.average(np.square(floors), weights=counts)))
+
+
 def _slow_residual(run: RunData, v: np.ndarray, window_s: float, step_s: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """``v`` averaged over the trailing ``window_s`` (a drive cycle: the loop's shape and the
     noise average out), every ``step_s`` from ``window_s`` on: (times, averages)."""
@@ -98,9 +104,10 @@ def _slow_judge(ctx: Context, model: Model) -> tuple[float, float]:
         if fit_m.sum() < 2 or (~fit_m).sum() < 2:
             continue
         held.append(res[~fit_m] - res[fit_m].mean())
-        floors.append(np.full(held[-1].size, _average_floor(ctx, r, window)))
-    # the floor pooled as the residuals are: what a perfect model's held-out RMS would read
-    return (rms(np.concatenate(held)), rms(np.concatenate(floors))) if held else (float("nan"), float("nan"))
+        floors.append(_average_floor(ctx, r, window))
+    if not held:
+        return float("nan"), float("nan")
+    return rms(np.concatenate(held)), _pooled(floors, [h.size for h in held])
 
 
 def _run_offsets(sizes: list[int]) -> np.ndarray:
@@ -162,8 +169,7 @@ def _drift_fit(ctx: Context, tail_taus: np.ndarray | None = None) -> _DriftFit |
         w,
         tau1,
         float(coef1[n_runs]),
-        # the floor pooled as the held-out residuals are: what a perfect model's RMS would read
-        rms(np.concatenate([np.full(t.size, fl) for _, t, _, _, fl in rows])[~fit_m]),
+        _pooled([fl for *_, fl in rows], [int((t > 0.6 * r.t_s[-1]).sum()) for r, t, *_ in rows]),
         with_tail,
         per_decade,
     )
