@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import math
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from piezopress import runformat
+from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.diagnosis import CAUSES
-from piezopress.analysis.signatures import fit_line, line_of
+from piezopress.analysis.diagnosis.judging import _level_free_err
+from piezopress.analysis.hysteresis import PIModel
+from piezopress.analysis.signatures import fit_line, line_of, notched
 
 ROOT = Path(__file__).resolve().parents[1]
 CHAR = ROOT / "sample_runs" / "characterization"
@@ -38,6 +42,46 @@ def test_a_line_is_refined_to_its_frequency_and_extrapolates_its_phase(df):
     assert f == pytest.approx(50.0 + df, abs=2e-3)
     assert math.hypot(a, b) == pytest.approx(0.6, rel=0.05)
     assert np.sqrt(np.mean((line_of(t[k:], f, a, b) - hum[k:]) ** 2)) < 0.1 * 0.6 / math.sqrt(2)
+
+
+@pytest.mark.parametrize(("hz", "fs"), [(50.0, 1000.0), (60.0, 2000.0), (150.0, 10000.0)])
+def test_a_notch_takes_out_its_line_and_keeps_the_rest(hz, fs):
+    """A line at ``hz`` whose size wanders by 20 % over 20 s is cut below 3 % of itself; sines
+    5 Hz either side keep at least 85 % of their size, one an octave away 99 %; a line at the
+    Nyquist frequency is left alone."""
+    t = np.arange(0, 20, 1 / fs)
+    hum = (1 + 0.2 * np.sin(2 * np.pi * 0.05 * t)) * np.sin(2 * np.pi * hz * t + 1.0)
+    keep = {d: np.sin(2 * np.pi * d * t + 0.3) for d in (hz - 5.0, hz + 5.0, hz / 2.0)}
+    inner = slice(int(fs), -int(fs))  # a second at either end: the filter's edges
+    assert np.std(notched(hum, [hz], fs)[inner]) < 0.03 * np.std(hum[inner])
+    for d, s in keep.items():
+        kept = np.std(notched(s, [hz], fs)[inner]) / np.std(s[inner])
+        assert kept > (0.99 if d == hz / 2.0 else 0.85), (d, kept)
+    assert np.array_equal(notched(hum, [fs / 2.0], fs), hum)
+
+
+def test_a_hum_not_fitted_in_a_run_is_not_judged_there():
+    """With the hum fitted in one run (the model's reading carries its line there), another
+    run's level-free residual is judged without the same hum (notched), and the run it was
+    fitted in is judged as it is: what is left is the white noise beside it."""
+    fs = 1000.0
+    t = np.arange(0, 6, 1 / fs)
+    x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    rng = np.random.default_rng(3)
+    runs = []
+    for name, phase in (("a", 0.4), ("b", 2.0)):
+        clean = model.predict(dg.RunData(name, "sweep", t, x, np.zeros_like(t), fs))
+        hum = 0.8 * np.sin(2 * np.pi * 50.02 * t + phase)
+        runs.append(dg.RunData(name, "sweep", t, x, clean + hum + rng.normal(0, 0.05, t.size), fs))
+    f, a, b = fit_line(t, runs[0].y - model.predict(runs[0]), 50.0, fs)
+    with_hum = replace(model, hum=(("a", f, a, b),))
+    assert with_hum.unfitted_lines(runs[0]) == () and with_hum.unfitted_lines(runs[1]) == (f,)
+    inner = slice(int(fs), -int(fs))
+    for r in runs:
+        e = _level_free_err([(r, inner)], with_hum)
+        assert np.std(e) < 0.08, (r.name, np.std(e))  # the hum alone is 0.57 RMS
+    assert np.std(_level_free_err([(runs[1], inner)], model)) > 0.5  # without the hum found: judged with it
 
 
 def test_the_catalogue_holds_mains_pickup_as_a_reading_artefact():

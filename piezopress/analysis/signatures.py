@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import signal
 
 __all__ = [
     "Line",
@@ -228,3 +229,31 @@ def line_of(t: np.ndarray, f: float, a: float, b: float) -> np.ndarray:
     """The line ``a sin(2 pi f t) + b cos(2 pi f t)`` at the times ``t``."""
     w = 2 * np.pi * f * np.asarray(t, float)
     return a * np.sin(w) + b * np.cos(w)
+
+
+#: Half the width (Hz) of the notch :func:`notched` puts at each line: a hum whose size wanders
+#: over tens of seconds (sidebands within a tenth of a hertz) is taken out whole.
+NOTCH_HALF_HZ = 1.0
+
+
+def notched(e: np.ndarray, freqs: Sequence[float], fs: float) -> np.ndarray:
+    """``e`` (sampled at ``fs``) with a zero-phase notch of :data:`NOTCH_HALF_HZ` at each of
+    ``freqs``; a frequency within 5 % of the Nyquist frequency, or a record too short for the
+    filter's padding, is left as it is.
+
+    >>> fs = 1000.0
+    >>> t = np.arange(0, 2, 1 / fs)
+    >>> e = np.sin(2 * np.pi * 50 * t) + np.sin(2 * np.pi * 7 * t)
+    >>> out = notched(e, [50.0], fs)
+    >>> bool(np.std((out - np.sin(2 * np.pi * 7 * t))[200:-200]) < 0.02)
+    True
+    """
+    out = np.asarray(e, float)
+    for f in freqs:
+        if not 0.0 < f < 0.45 * fs:
+            continue
+        b, a = signal.iirnotch(f, f / (2.0 * NOTCH_HALF_HZ), fs)
+        if out.size <= 3 * max(a.size, b.size):
+            continue
+        out = signal.filtfilt(b, a, out)
+    return out

@@ -108,6 +108,9 @@ _PREFIX_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a run's first samples, by (id
 _RATE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive rate felt, by (id(run), chain, smoothing, saturation)
 _TRANSIENT_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a held unit stroke's creep, by (id(run), creep)
 _INTERFERENCE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive current's artefact, by (id(run), parameters)
+#: Two hum lines fitted in different runs within this many hertz are one line (each run refines
+#: its line's frequency within 0.1 Hz).
+HUM_SAME_LINE_HZ = 0.5
 #: Entries each memo keeps (the oldest leaves first).
 MEMO_SIZE = 64
 
@@ -319,6 +322,17 @@ class Model:
             if ident == run.ident:
                 y = y + line_of(run.t_s, hz, a, b)
         return y
+
+    def unfitted_lines(self, run: RunData) -> tuple[float, ...]:
+        """The hum's frequencies (one per line, as fitted in other runs) at which ``run`` carries
+        no fitted line: where its drive moved at the line's frequency, or it was too short to fit
+        it. The hum is still in its reading there."""
+        own = [hz for ident, hz, _, _ in self.hum if ident == run.ident]
+        out: list[float] = []
+        for _, hz, _, _ in self.hum:
+            if all(abs(hz - o) > HUM_SAME_LINE_HZ for o in own + out):
+                out.append(hz)
+        return tuple(out)
 
     def reading_delay_s(self, fs_hz: float) -> float:
         """The reading's delay at the sample rate ``fs_hz``: an input delay in time, and one

@@ -242,6 +242,9 @@ def diagnose(
             if f is not None:
                 tried.append(f)
                 last_try[cid] = f
+                failed.pop(cid, None)
+            elif cid in failed:  # its fit raised this round: said, not an earlier round's result
+                last_try.pop(cid, None)
             if on_progress:
                 on_progress(
                     CauseProgress(
