@@ -65,15 +65,18 @@ def test_a_delay_a_slew_limit_or_a_clean_press_shows_no_second_peak(effect):
 
 
 @pytest.mark.slow
-def test_diagnose_names_the_frame_mode_in_series_on_the_third_press(tmp_path):
+@pytest.mark.parametrize("seed", [0, 4])
+def test_diagnose_names_the_frame_mode_in_series_on_the_third_press(tmp_path, seed):
     # seed 0: before the series form the frame mode was named an input delay (the parallel form
-    # leaned on its bounds); on seeds 1, 3 and 4 a rate dependence, a delay and nothing
+    # leaned on its bounds); on seeds 1, 3 and 4 a rate dependence, a delay and nothing. Seed 4:
+    # with the chain identified as a first-order lag and no delay, the series fit could not move
+    # that lag into a delay and leaned on its lowest frequency: nothing named
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import characterize as char
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    press = tp.hidden_press("second_resonance", np.random.default_rng([0, 97]))
+    press = tp.hidden_press("second_resonance", np.random.default_rng([seed, 97]))
     char.characterize(tmp_path / "runs", backend=press)
     B.write_document(F.fit_bundle([tmp_path / "runs"], base=True).doc, tmp_path / "base.json")
     result, _ = D.diagnose([tmp_path / "runs"], tmp_path / "base.json", tmp_path / "diag")
