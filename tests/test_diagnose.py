@@ -327,3 +327,41 @@ def test_a_log_creep_is_named_alone_where_its_hold_lags_the_command(tmp_path):
     the decade after the hold: the tail's own rate trades off with the elements beside it)."""
     result = run_diagnosis(tmp_path, hidden_effect("logarithmic_creep", np.random.default_rng([0, 99])))
     assert [f.cause for f in result.findings] == ["logarithmic_creep"], [(f.cause, f.evidence) for f in result.findings]
+
+
+def test_a_cause_whose_fit_raises_in_a_later_round_is_said_not_fitted(monkeypatch):
+    """A cause that returned a finding in the first round and whose fit raises in the second is
+    reported under ``tested`` as not fitted, with the error, not by the first round's result."""
+    from dataclasses import replace as _replace
+
+    from piezopress.analysis.diagnosis import search
+    from piezopress.analysis.hysteresis import PIModel
+
+    t = np.arange(4000) / 1000.0
+    x = 75 * (1 - np.cos(2 * np.pi * 0.5 * t))
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    y = model.predict(dg.RunData("r", "triangle", t, x, np.zeros_like(t), 1000.0))
+    run = dg.RunData("slow", "custom", t, x, y + np.random.default_rng(0).normal(0, 0.1, t.size), 1000.0)
+    calls = {"b": 0}
+
+    def finding(cause, ctx, gain):
+        return dg.Finding(cause, "test", 1.0, 1.0 - gain / 100, gain, {}, ["slow"], ["slow"], 100.0, 0.01, ctx.model)
+
+    def fit_a(ctx):
+        return finding("input_delay", ctx, 50.0)
+
+    def fit_b(ctx):
+        calls["b"] += 1
+        if calls["b"] > 1:
+            raise RuntimeError("second round broke")
+        return finding("sensor_offset_drift", ctx, 20.0)
+
+    causes = dict(search.CAUSES)
+    causes["input_delay"] = _replace(causes["input_delay"], run=fit_a, needs=())
+    causes["sensor_offset_drift"] = _replace(causes["sensor_offset_drift"], run=fit_b, needs=())
+    monkeypatch.setattr(search, "CAUSES", causes)
+    result = dg.diagnose(model, [run], causes=["input_delay", "sensor_offset_drift"])
+    tested = {t["cause"]: t["result"] for t in result.tested}
+    assert calls["b"] == 2
+    assert tested["input_delay"] == "found"
+    assert tested["sensor_offset_drift"].startswith("not fitted (RuntimeError: second round broke")
