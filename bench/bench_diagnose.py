@@ -20,7 +20,11 @@ within 5 points of the full metadata's (issue 20).
 ``--gain`` measures instead the gain on the press of every cause whose extension enters the
 compensator (``pipelines/gain.py``): the table per cause, base bundle against extended on every
 validation row, with each row's noise, beside the finding's prediction gain; ``--gain-out``
-writes it as ``compensated_gain.csv``.
+writes it as ``compensated_gain.csv``. With ``--rig second`` or ``third`` it is measured on that
+press written apart (:func:`press_gain_one`): each cause drawn as for the matrices (seeds
+``--first-seed`` on), both bundles played on copies of the press as its characterization left it
+(the same state and noise: the difference is the bundles'), the ``clean`` column from the same
+seeds' clean presses; a row's noise is then its range over the passes.
 
 The cases run as a batch on a local Dask cluster of ``--workers`` processes (issue 23): every
 characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` (what
@@ -32,12 +36,13 @@ Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
-         [--slew-capacitance-uf 8]
+         [--slew-capacitance-uf 8] [--rig second|third --first-seed 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 import tempfile
@@ -87,6 +92,15 @@ def _third_press(effect: str, seed: int):
 
     rng = np.random.default_rng([seed, 97])
     return (tp.clean_press(rng) if effect == "none" else tp.hidden_press(effect, rng)), _repeat_plan(effect)
+
+
+def _press_effects(rig: str) -> list[str]:
+    """The effects a test press written apart can hide (its own catalogue)."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    import independent_press as ip
+    import third_press as tp
+
+    return list((tp if rig == "third" else ip).DETECTABLE)
 
 
 def _backend(rig: str, effect: str, seed: int):
@@ -407,6 +421,49 @@ def gain_one(args: tuple[str, int]):
         return G.compensated_gain(cfg, Path(tmp) / "gain", cause=cause, seeds=seeds)
 
 
+def press_gain_one(args: tuple[str, str, int]):
+    """One pass of the gain on a test press written apart (``--gain --rig second|third``): that
+    press with ``cause`` hidden (drawn as for the matrices, from ``seed``): characterize, fit
+    --base, diagnose, and the base and extended bundles each validated (the validation and tracking
+    plans) on a copy of the press as its characterization left it: the same state (its clock, the
+    plane's memory, its creep) and the same noise for both, so that the difference is the bundles'.
+    ``cause`` ``none``: the clean press through the base pipeline (the ``clean`` column; its
+    extended rows are empty)."""
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+    from piezopress.pipelines import gain as G
+    from piezopress.pipelines.bundle import write_document
+    from piezopress.pipelines.validate import validate
+
+    rig, cause, seed = args
+
+    def rows(press, bundle: Path, work: Path) -> dict[str, float]:
+        press = copy.deepcopy(press)  # both bundles meet the press as characterization left it
+        validate(work / "validation", bundle, backend=press)
+        validate(work / "tracking", bundle, plan_path=G.TRACKING_PLAN, backend=press)
+        return G.row_values([work / "validation", work / "tracking"])
+
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        press, plan = _backend(rig, cause, seed)
+        char.characterize(work / "char", backend=press, **({"plan_path": plan} if plan else {}))
+        write_document(F.fit_bundle([work / "char"], press.limits, base=True).doc, work / "base.json")
+        base = rows(press, work / "base.json", work / "base")
+        if cause == "none":
+            return G.Sample(base, {}, (), ())
+        result, _ = D.diagnose([work / "char"], work / "base.json", work / "diag")
+        ext = work / "diag" / "extended_bundle.json"
+        applied, findings = G.extension_causes(json.loads(ext.read_text()))
+        return G.Sample(
+            base,
+            rows(press, ext, work / "extended"),
+            applied,
+            findings,
+            {f.cause: float(f.gain_pct) for f in result.findings},
+        )
+
+
 def gain_main(a) -> None:
     """The gain on the press: for every cause whose extension enters the compensator (the
     catalogue's ``in_compensator``), the virtual rig with that effect on at its gain
@@ -417,16 +474,30 @@ def gain_main(a) -> None:
     from piezopress.pipelines import gain as G
 
     causes = [c for c in (a.effects or list(CAUSES)) if c in CAUSES and CAUSES[c].in_compensator]
+    if a.rig != "ours":  # the causes that press can hide
+        causes = [c for c in causes if c in _press_effects(a.rig)]
     start = time.perf_counter()
     with ProcessPoolExecutor(a.workers) as pool:
-        results = list(pool.map(gain_one, [(c, a.gain_seeds, a.slew_capacitance_uf) for c in causes]))
+        if a.rig == "ours":
+            results = list(pool.map(gain_one, [(c, a.gain_seeds, a.slew_capacitance_uf) for c in causes]))
+        else:  # a test press written apart: one pass per task, the clean press's base pipeline first
+            seeds = range(a.first_seed, a.first_seed + a.gain_seeds)
+            parts = list(pool.map(press_gain_one, [(a.rig, c, s) for c in ("none", *causes) for s in seeds]))
+            clean = G._mean_rows([p.base for p in parts[: a.gain_seeds]])
+            n = a.gain_seeds
+            results = [G.combine(parts[(k + 1) * n : (k + 2) * n], clean, c) for k, c in enumerate(causes)]
     wall = time.perf_counter() - start
     out = a.gain_out or Path(tempfile.gettempdir()) / G.GAIN_CSV
     G.write_csv(results, out)
     slew = f"; the slew limit with a {a.slew_capacitance_uf:g} uF stack" if a.slew_capacitance_uf else ""
+    where = (
+        f"the virtual rig with each effect on (gain magnitudes: pipelines/gain.py{slew})"
+        if a.rig == "ours"
+        else f"the {a.rig} test press with each effect on (drawn as for the matrices, seeds "
+        f"{_ranges(list(range(a.first_seed, a.first_seed + a.gain_seeds)))}; 'clean': the same seeds' clean presses)"
+    )
     print(
-        "The gain on the press: validation on the virtual rig with each effect on (gain magnitudes: "
-        f"pipelines/gain.py{slew}), "
+        f"The gain on the press: validation on {where}, "
         f"base bundle (fit --base) against diagnose's extended bundle; {a.gain_seeds} passes of the whole chain per "
         "cause\n"
     )

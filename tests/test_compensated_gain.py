@@ -3,6 +3,7 @@ compensated-gain table end to end (base bundle against extended, on the virtual 
 effect on): the row the effect targets improves by >= 30 % and no row gets worse beyond its noise.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -198,6 +199,44 @@ def test_a_delay_found_with_the_chains_low_pass_refitted_records_it_and_leads_it
     assert ext["compensation"]["delay_lead_samples"] == pytest.approx(8.0)
     assert Bundle.from_dict(ext).forward_model().drive_lowpass == pytest.approx((wc, zc))
     assert bundle["shaper"]["mode"]["drive_chain"]["lowpass_hz"] == 900.0  # the base bundle untouched
+
+
+@pytest.mark.parametrize("fs_hz", [2_000.0, 20_000.0, 50_000.0])
+def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_lead(fs_hz):
+    # steps at 20 kHz behind a FIFO of 4 samples: the chain's delay (0.28 ms) holds the FIFO; the
+    # forward model diagnose judged with keeps only the sampling's own 2 samples (0.1 ms) of it,
+    # and the FIFO is found in samples. The drive's whole lead at every rate is then the model's
+    # lag (low-pass, the delay kept, the samples found), once: the FIFO's 0.2 ms at 20 kHz is not
+    # led a second time through the chain's delay
+    from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES, Bundle
+    from piezopress.analysis.mode_fit import lowpass_delay_group_delay_s
+    from piezopress.pipelines import diagnose as D
+
+    steps_fs = 20_000.0
+    bundle = {"bundle_version": 1, **_slow_mode_bundle()}
+    wc, zc, d = 2 * math.pi * 1300.0, 0.65, 2.8e-4
+    chain = {"form": "lowpass_delay", "lowpass_hz": 1300.0, "lowpass_damping": zc, "delay_s": d}
+    chain["steps_sample_rate_hz"] = steps_fs
+    bundle["shaper"]["mode"]["drive_chain"] = chain
+    was = lowpass_delay_group_delay_s(wc, zc, d)
+    bundle["compensation"] = {"lead_s": 2 * 0.5 / 3000.0 + was, "chain_lead_s": was}
+    model = Bundle.from_dict(bundle).forward_model()
+    kept = SAMPLING_DELAY_SAMPLES / steps_fs
+    assert model.drive_delay_s == pytest.approx(kept)
+    found = dataclasses.replace(model, delay_samples=3.6)
+    finding = dg.Finding(
+        "input_delay", "", 1.0, 0.1, 90.0, {"delay_samples": 3.6, "delay_s": 3.6 / steps_fs}, [], [], 100.0, 0.1, found
+    )
+    ext = Bundle.from_dict(D.extend_bundle(bundle, [finding], found))
+    lag = 2 * 0.5 / 3000.0 + lowpass_delay_group_delay_s(wc, zc, kept) + 3.6 / fs_hz
+    assert ext.compensator().lead_at(fs_hz) == pytest.approx(lag, rel=1e-9)
+    doubled = 2 * 0.5 / 3000.0 + was + 3.6 / fs_hz  # what the lead was before: the FIFO twice at the steps' rate
+    assert ext.compensator().lead_at(fs_hz) < doubled - 0.9 * (d - kept)
+    got = ext.doc["shaper"]["mode"]["drive_chain"]
+    assert got["delay_s"] == pytest.approx(kept) and got["delay_before_diagnose_s"] == pytest.approx(d)
+    assert "input_delay" in got["extended_by"]
+    assert ext.forward_model().drive_delay_s == pytest.approx(kept)  # read back as the diagnosis judged it
+    assert bundle["shaper"]["mode"]["drive_chain"]["delay_s"] == d  # the base bundle untouched
 
 
 @pytest.mark.parametrize(
