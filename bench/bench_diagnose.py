@@ -294,9 +294,17 @@ def main() -> None:
         "3-8 uF)",
     )
     ap.add_argument(
+        "--fitted",
+        action="store_true",
+        help="with --gain on a press written apart: fit's bundle (not --base) against the findings' "
+        "extensions applied to it, as `diagnose --gain --fitted` measures",
+    )
+    ap.add_argument(
         "--gain-out", type=Path, default=None, help="with --gain: write the table here (compensated_gain.csv)"
     )
     a = ap.parse_args()
+    if a.fitted and not (a.gain and a.rig != "ours"):
+        raise SystemExit("--fitted measures the gain on a press written apart: add --gain --rig second or third")
     if a.gain:
         return gain_main(a)
     if a.rig == "third":
@@ -421,22 +429,24 @@ def gain_one(args: tuple[str, int]):
         return G.compensated_gain(cfg, Path(tmp) / "gain", cause=cause, seeds=seeds)
 
 
-def press_gain_one(args: tuple[str, str, int]):
+def press_gain_one(args: tuple[str, str, int, bool]):
     """One pass of the gain on a test press written apart (``--gain --rig second|third``): that
     press with ``cause`` hidden (drawn as for the matrices, from ``seed``): characterize, fit
     --base, diagnose, and the base and extended bundles each validated (the validation and tracking
     plans) on a copy of the press as its characterization left it: the same state (its clock, the
     plane's memory, its creep) and the same noise for both, so that the difference is the bundles'.
     ``cause`` ``none``: the clean press through the base pipeline (the ``clean`` column; its
-    extended rows are empty)."""
+    extended rows are empty). ``fitted``: the bundle a user compensates with, ``fit`` (not
+    ``--base``), against the same findings' extensions applied to it (what ``diagnose --gain
+    --fitted`` measures), in place of the base and the extended bundle."""
     from piezopress.pipelines import characterize as char
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
     from piezopress.pipelines import gain as G
-    from piezopress.pipelines.bundle import write_document
+    from piezopress.pipelines.bundle import read_bundle, write_document
     from piezopress.pipelines.validate import validate
 
-    rig, cause, seed = args
+    rig, cause, seed, fitted = args
 
     def rows(press, bundle: Path, work: Path) -> dict[str, float]:
         press = copy.deepcopy(press)  # both bundles meet the press as characterization left it
@@ -449,11 +459,18 @@ def press_gain_one(args: tuple[str, str, int]):
         press, plan = _backend(rig, cause, seed)
         char.characterize(work / "char", backend=press, **({"plan_path": plan} if plan else {}))
         write_document(F.fit_bundle([work / "char"], press.limits, base=True).doc, work / "base.json")
-        base = rows(press, work / "base.json", work / "base")
+        used = work / "base.json"
+        if fitted:
+            write_document(F.fit_bundle([work / "char"], press.limits).doc, work / "fitted.json")
+            used = work / "fitted.json"
+        base = rows(press, used, work / "base")
         if cause == "none":
             return G.Sample(base, {}, (), ())
         result, _ = D.diagnose([work / "char"], work / "base.json", work / "diag")
         ext = work / "diag" / "extended_bundle.json"
+        if fitted:
+            ext = work / "fitted_extended.json"
+            write_document(read_bundle(used).extended(result.findings, result.model).to_dict(), ext)
         applied, findings = G.extension_causes(json.loads(ext.read_text()))
         return G.Sample(
             base,
@@ -482,7 +499,8 @@ def gain_main(a) -> None:
             results = list(pool.map(gain_one, [(c, a.gain_seeds, a.slew_capacitance_uf) for c in causes]))
         else:  # a test press written apart: one pass per task, the clean press's base pipeline first
             seeds = range(a.first_seed, a.first_seed + a.gain_seeds)
-            parts = list(pool.map(press_gain_one, [(a.rig, c, s) for c in ("none", *causes) for s in seeds]))
+            jobs = [(a.rig, c, s, a.fitted) for c in ("none", *causes) for s in seeds]
+            parts = list(pool.map(press_gain_one, jobs))
             clean = G._mean_rows([p.base for p in parts[: a.gain_seeds]])
             n = a.gain_seeds
             results = [G.combine(parts[(k + 1) * n : (k + 2) * n], clean, c) for k, c in enumerate(causes)]
@@ -496,11 +514,12 @@ def gain_main(a) -> None:
         else f"the {a.rig} test press with each effect on (drawn as for the matrices, seeds "
         f"{_ranges(list(range(a.first_seed, a.first_seed + a.gain_seeds)))}; 'clean': the same seeds' clean presses)"
     )
-    print(
-        f"The gain on the press: validation on {where}, "
-        f"base bundle (fit --base) against diagnose's extended bundle; {a.gain_seeds} passes of the whole chain per "
-        "cause\n"
+    pair = (
+        "fit's bundle against it with diagnose's extensions applied"
+        if a.fitted and a.rig != "ours"
+        else "base bundle (fit --base) against diagnose's extended bundle"
     )
+    print(f"The gain on the press: validation on {where}, {pair}; {a.gain_seeds} passes of the whole chain per cause\n")
     print(G.format_table(G.read_csv(out)))
     met = [r.verdict()[0] for r in results]
     print(
