@@ -444,15 +444,12 @@ def press_gain_one(args: tuple[str, str, int, bool]):
     from piezopress.pipelines import fit as F
     from piezopress.pipelines import gain as G
     from piezopress.pipelines.bundle import read_bundle, write_document
-    from piezopress.pipelines.validate import validate
 
     rig, cause, seed, fitted = args
 
     def rows(press, bundle: Path, work: Path) -> dict[str, float]:
-        press = copy.deepcopy(press)  # both bundles meet the press as characterization left it
-        validate(work / "validation", bundle, backend=press)
-        validate(work / "tracking", bundle, plan_path=G.TRACKING_PLAN, backend=press)
-        return G.row_values([work / "validation", work / "tracking"])
+        copied = copy.deepcopy(press)  # both bundles meet the press as characterization left it
+        return G.rows_on(bundle, lambda: copied, work)  # the two plans one after the other on that copy
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 import shutil
 import tempfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -183,16 +183,22 @@ def row_values(run_dirs: Iterable[str | Path]) -> dict[str, float]:
     return dict(sorted(out.items(), key=lambda kv: (order.index(kv[0]) if kv[0] in order else len(order), kv[0])))
 
 
-def validate_rows(bundle_path: str | Path, cfg: RigConfig, out_dir: str | Path) -> dict[str, float]:
-    """Validate a bundle on the virtual rig ``cfg`` (validation and tracking plans, into
-    ``out_dir/validation`` and ``out_dir/tracking``) and return the rows."""
-    from piezopress.acquisition.virtual_rig import VirtualRig
+def rows_on(bundle_path: str | Path, backend_for: Callable[[], Any], out_dir: str | Path) -> dict[str, float]:
+    """Validate a bundle (validation and tracking plans, into ``out_dir/validation`` and
+    ``out_dir/tracking``), each plan on the backend ``backend_for()`` gives, and return the rows."""
     from piezopress.pipelines.validate import validate
 
     out_dir = Path(out_dir)
-    validate(out_dir / "validation", bundle_path, backend=VirtualRig(cfg))
-    validate(out_dir / "tracking", bundle_path, plan_path=TRACKING_PLAN, backend=VirtualRig(cfg))
+    validate(out_dir / "validation", bundle_path, backend=backend_for())
+    validate(out_dir / "tracking", bundle_path, plan_path=TRACKING_PLAN, backend=backend_for())
     return row_values([out_dir / "validation", out_dir / "tracking"])
+
+
+def validate_rows(bundle_path: str | Path, cfg: RigConfig, out_dir: str | Path) -> dict[str, float]:
+    """:func:`rows_on` the virtual rig ``cfg`` (a fresh rig for each plan)."""
+    from piezopress.acquisition.virtual_rig import VirtualRig
+
+    return rows_on(bundle_path, lambda: VirtualRig(cfg), out_dir)
 
 
 def fit_base(char_dir: str | Path, out_path: str | Path, cfg: RigConfig | None = None) -> Path:
@@ -658,6 +664,7 @@ __all__ = [
     "TRACKING_PLAN",
     "effect_rig",
     "row_values",
+    "rows_on",
     "validate_rows",
     "fit_base",
     "sample",

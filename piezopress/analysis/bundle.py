@@ -970,9 +970,8 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
         # leads twice. On the third test press (a FIFO of 4 samples, seed 3) the chain's
         # 0.28 ms at the steps' 20 kHz and 4.9 samples found led the drive 0.71 ms there where
         # the press lags 0.48 ms.
-        kept = float(getattr(model, "drive_delay_s", 0.0) or 0.0)
-        delay_found = any(f.cause == "input_delay" for f in findings)
-        if delay_found and old[2] > kept + 1e-12:
+        kept = float(model.drive_delay_s)
+        if "input_delay" in refit_by and old[2] > kept + 1e-12:
             changes.update(delay_s=kept, delay_before_diagnose_s=old[2])
         if changes:
             was = chain_delay_s(chain)
