@@ -235,8 +235,9 @@ def rate_aware_inverse(
 #: The static inverse holds (:func:`_settled_at_holds`) where the loss form's boost at its rate is
 #: under this share of the plays' lag ...
 RATE_HOLD_BOOST = 0.005
-#: ... or the widening's under this (V) ...
-RATE_HOLD_WIDEN_V = 0.01
+#: ... or the widening's under this (V): a hold the creep compensator lowers at 10 V/s just after
+#: its step (third test press, seed 4; 0.03 V of widening) is still a hold ...
+RATE_HOLD_WIDEN_V = 0.05
 #: ... and a hold that lasts this many of the rate envelope's time constants is where a motion
 #: ends (the boost has decayed there): the drive reaches it without passing it.
 RATE_HOLD_TAUS = 5.0
