@@ -262,16 +262,14 @@ def _settled_at_holds(x: np.ndarray, z: np.ndarray, fs_hz: float, rate: RateDepe
     extension, a lag of milliseconds and no offset. Motions that end in a reversal (a loop's
     top) keep the fixed point: that reversal is the reference's own.
     """
-    rho = np.abs(np.diff(z, prepend=z[0])) * fs_hz / 1000.0  # kV/s
+    dz = np.diff(z, prepend=z[0])
+    rho = np.abs(dz) * fs_hz / 1000.0  # kV/s
     still = (rho * rate.loss_per_kv_s < RATE_HOLD_BOOST) & (rho * rate.widen_v_per_kv_s < RATE_HOLD_WIDEN_V)
-    flags = np.concatenate(([False], still, [False])).astype(np.int8)
-    starts = np.flatnonzero(np.diff(flags) == 1)  # each hold's first sample ...
-    ends = np.flatnonzero(np.diff(flags) == -1)  # ... and the sample after its last
     long_hold = max(2, int(math.ceil(RATE_HOLD_TAUS * rate.tau_s * fs_hz)))
     out = x.copy()
-    moved = np.sign(np.diff(z, prepend=z[0]))
+    moved = np.sign(dz)
     previous_end = 0
-    for h0, h1 in zip(starts.tolist(), ends.tolist()):
+    for h0, h1 in _segments(still):  # every hold: its first sample and the one after its last
         if h0 > 0 and h1 - h0 >= long_hold:
             d = moved[h0 - 1] or 1.0
             back = np.flatnonzero(moved[previous_end:h0] == -d)  # the motion starts after its last reversal
