@@ -208,6 +208,8 @@ def _bundle_figures(doc: dict[str, Any]) -> dict[str, Any]:
         "model_family": (
             f"PI + Preisach plane ({len((model.get('preisach_plane') or {}).get('weights', []))} cells)"
             if model.get("family") == "pi_preisach_plane"
+            else f"PI + Duhem elements ({len((model.get('duhem_elements') or {}).get('weights', []))})"
+            if model.get("family") == "pi_duhem"
             else "modified Prandtl-Ishlinskii"
         ),
         "plays": len(model.get("play_thresholds", [])),

@@ -69,9 +69,20 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     rest_reach = _rest_and_reach(bundle)  # a forward run of the model: once
     blocks += [Para(rest_reach)] if rest_reach else []
     plane = model.get("preisach_plane") or {}
+    elements = model.get("duhem_elements") or {}
     family = model.get("family", "modified_pi")
-    title = {"modified_pi": "modified Prandtl-Ishlinskii", "pi_preisach_plane": "Prandtl-Ishlinskii + Preisach plane"}
-    cells = f", a Preisach plane of {len(plane.get('weights', []))} KP hysterons" if plane else ""
+    title = {
+        "modified_pi": "modified Prandtl-Ishlinskii",
+        "pi_preisach_plane": "Prandtl-Ishlinskii + Preisach plane",
+        "pi_duhem": "Prandtl-Ishlinskii + Duhem (Bouc-Wen) elements",
+    }
+    cells = (
+        f", a Preisach plane of {len(plane.get('weights', []))} KP hysterons"
+        if plane
+        else f", {len(elements.get('weights', []))} Duhem (Bouc-Wen, exponent 1) elements"
+        if elements
+        else ""
+    )
     blocks += [
         Heading(f"Hysteresis ({title.get(family, family)})", 3),
         Para(

@@ -29,9 +29,10 @@ from piezopress import units
 from piezopress.analysis.compensation import RATE_TAU_S, Compensator, RateDependence
 from piezopress.analysis.creep import CreepModel
 from piezopress.analysis.hysteresis import (
-    FAMILY_PI,
+    FAMILY_DUHEM,
     FAMILY_PLANE,
     FAMILY_TITLES,
+    DuhemElements,
     PIModel,
     PreisachPlane,
     rest_offset,
@@ -194,11 +195,19 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
     if family not in FAMILY_TITLES:
         c.fail(f"{w}.family", family, f"a model family, one of {', '.join(FAMILY_TITLES)}")
     plane = check_plane(c, m, w, ou) if family == FAMILY_PLANE else None
-    if family == FAMILY_PI and m.get("preisach_plane") is not None:
-        c.fail(f"{w}.preisach_plane", "...", f"no plane in the {FAMILY_PI!r} family (or family {FAMILY_PLANE!r})")
-    model = PIModel(r, pw, d, s, x0, y0, "V", ou, plane)
+    duhem = check_duhem(c, m, w, ou) if family == FAMILY_DUHEM else None
+    for key, owner in (("preisach_plane", FAMILY_PLANE), ("duhem_elements", FAMILY_DUHEM)):
+        if family != owner and m.get(key) is not None:
+            c.fail(f"{w}.{key}", "...", f"no {key} in the {family!r} family (or family {owner!r})")
+    model = PIModel(r, pw, d, s, x0, y0, "V", ou, plane, duhem)
     if plane is not None and plane.max_slope() + sum(pw) <= 0:
         c.fail(f"{w}.play_weights", list(pw), "an increasing model")
+    if duhem is not None and duhem.least_slope() >= pw[0]:
+        c.fail(
+            f"{w}.duhem_elements.weights",
+            list(duhem.weights),
+            f"an increasing model: twice the negative weights' sum below the first play weight {pw[0]:g}",
+        )
     inv = model.inverse_parameters()
     if not all(np.all(np.isfinite(v)) for v in inv.values()):
         c.fail(f"{w}.play_weights", list(pw), "weights whose inverse is finite")
@@ -252,6 +261,26 @@ def check_plane(c: _Checker, m: Mapping[str, Any], w: str, ou: str) -> PreisachP
     if not isinstance(levels, int) or isinstance(levels, bool) or levels < 0:
         c.fail(f"{where}.levels", levels, "a non-negative integer")
     return PreisachPlane(a, b, h, mu, levels)
+
+
+def check_duhem(c: _Checker, m: Mapping[str, Any], w: str, ou: str) -> DuhemElements:
+    """The Duhem elements of a ``pi_duhem`` model: positive widths, finite weights, rest states
+    within their widths."""
+    where = f"{w}.duhem_elements"
+    el = c.mapping(c.get(m, w, "duhem_elements"), where, "a mapping (the elements' widths, weights and rest states)")
+    r = c.numbers(c.get(el, where, "widths"), f"{where}.widths", 0.0, MAX_DRIVE_V, "widths in V")
+    if min(r) <= 0:
+        c.fail(f"{where}.widths", list(r), "positive widths in V")
+    cw = c.numbers(
+        c.get(el, where, "weights"), f"{where}.weights", -MAX_WEIGHT, MAX_WEIGHT, f"weights in {units.label(ou)}/V"
+    )
+    rest = c.numbers(c.get(el, where, "rest_states"), f"{where}.rest_states", -MAX_DRIVE_V, MAX_DRIVE_V, "states in V")
+    if not len(r) == len(cw) == len(rest):
+        c.fail(f"{where}.weights", list(cw), f"one width, weight and rest state per element ({len(r)} widths)")
+    bad = [i for i, (e, x) in enumerate(zip(rest, r)) if abs(e) > x]
+    if bad:
+        c.fail(f"{where}.rest_states[{bad[0]}]", rest[bad[0]], f"within +- its width {r[bad[0]]:g} V")
+    return DuhemElements(r, cw, rest)
 
 
 def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:

@@ -172,8 +172,8 @@ class RateDependence:
         p = Y[:, : model.n_play] @ w
         if self.loss_per_kv_s > 0:  # the plays' lag behind the drive, scaled
             p = p + self.loss_per_kv_s * rho / 1000.0 * (p - w.sum() * u)
-        if model.plane is not None:
-            p = p + Y[:, model.n_play :] @ np.array(model.plane.weights)
+        if model.extra is not None:
+            p = p + Y[:, model.n_play :] @ np.array(model.extra.weights)
         return model.y0 + dead_zone_superposition(p, np.array(model.d), np.array(model.s))
 
 

@@ -280,12 +280,103 @@ class PreisachPlane:
         )
 
 
+@dataclass(frozen=True)
+class DuhemElements:
+    """Duhem (Bouc-Wen, exponent 1) elements beside the plays: saturation widths, signed weights
+    and the elements' states at rest (:func:`piezopress.operators.duhem`).
+
+    An element's slope is in [0, 2], steepest just after a reversal; weighed negatively it is the
+    Bouc-Wen form ``y = k x - h`` of a piezo stack (the loop's branch shallow after a reversal and
+    steepening exponentially, its minor loops not closing). The plays' slope just after a
+    reversal (``w_0``) bounds the negative weights (:meth:`least_slope`), so the model stays monotone.
+    """
+
+    widths: tuple[float, ...]
+    weights: tuple[float, ...]
+    rest: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not (len(self.widths) == len(self.weights) == len(self.rest)) or not self.widths:
+            raise HysteresisFitError("Duhem elements need one width, weight and rest state each, at least one")
+        if not all(math.isfinite(v) and v > 0 for v in self.widths):
+            raise HysteresisFitError(f"Duhem element widths {self.widths} must be finite and positive")
+        if not all(math.isfinite(v) for v in (*self.weights, *self.rest)):
+            raise HysteresisFitError("Duhem element weights and rest states must be finite")
+        if any(abs(e) > w * (1 + 1e-9) for e, w in zip(self.rest, self.widths)):
+            raise HysteresisFitError("a Duhem element's rest state must lie within +- its width")
+
+    @classmethod
+    def grid(cls, span: float, count: int, rest: str = "relaxed") -> DuhemElements:
+        """``count`` widths log-spaced over :data:`DUHEM_WIDTHS` of the input ``span``, weights 0,
+        at rest as :data:`DUHEM_RESTS` names (``relaxed``: every element at 0, the stack's domains
+        relaxed over the rest between runs; ``descended``: as a descent over the span from the top
+        leaves them, nothing relaxed)."""
+        if count < 1 or not (math.isfinite(span) and span > 0):
+            raise HysteresisFitError(f"Duhem elements need count >= 1 and a positive span, got {count} over {span}")
+        if rest not in DUHEM_RESTS:
+            raise HysteresisFitError(f"Duhem rest state {rest!r}; expected one of {', '.join(DUHEM_RESTS)}")
+        r = span * np.geomspace(DUHEM_WIDTHS[0], DUHEM_WIDTHS[1], count)
+        at_rest = -r + 2 * r * np.exp(-span / r) if rest == "descended" else np.zeros(count)
+        return cls(tuple(map(float, r)), (0.0,) * count, tuple(map(float, at_rest)))
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.widths)
+
+    def rest_state(self) -> np.ndarray:
+        return np.array(self.rest)
+
+    def rest_output(self) -> float:
+        return float(np.array(self.weights) @ self.rest_state())
+
+    def columns(
+        self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None, u_prev: float = 0.0
+    ) -> np.ndarray:
+        """The elements' states for ``u`` relative to their rest states (``u_prev``: the input the
+        ``state`` was left at; ``widen`` does not act on them: a rate law widens the plays)."""
+        st = self.rest_state() if state is None else np.asarray(state, float)
+        return operators.duhem(np.asarray(u, float), np.array(self.widths), st, u_prev) - self.rest_state()
+
+    def least_slope(self) -> float:
+        """The most the elements can lower the model's slope (all just after a reversal)."""
+        return 2.0 * float(np.sum(np.maximum(-np.array(self.weights), 0.0)))
+
+    def most_slope(self) -> float:
+        """The most the elements can raise it."""
+        return 2.0 * float(np.sum(np.maximum(np.array(self.weights), 0.0)))
+
+    def smoothness(self) -> np.ndarray:
+        """Differences of neighbouring widths' weights."""
+        n = self.n_cells
+        return np.eye(n)[:-1] - np.eye(n, k=1)[:-1] if n > 1 else np.zeros((0, n))
+
+    def with_weights(self, c: np.ndarray) -> DuhemElements:
+        return replace(self, weights=tuple(map(float, c)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"widths": list(self.widths), "weights": list(self.weights), "rest_states": list(self.rest)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> DuhemElements:
+        return cls(tuple(map(float, d["widths"])), tuple(map(float, d["weights"])), tuple(map(float, d["rest_states"])))
+
+
+#: The Duhem elements' widths, as shares of the input span (log-spaced between).
+DUHEM_WIDTHS = (0.005, 0.5)
+#: The elements' states at the start of a run that the search tries (each run starts at rest;
+#: which state the rest leaves the stack in, relaxed or as the last descent left it, the
+#: held-out rows decide: on the second test press relaxed predicted them 3-4x better).
+DUHEM_RESTS = ("relaxed", "descended")
+
+
 #: The model families, as the bundle names them.
 FAMILY_PI = "modified_pi"
 FAMILY_PLANE = "pi_preisach_plane"
+FAMILY_DUHEM = "pi_duhem"
 FAMILY_TITLES = {
     FAMILY_PI: "modified Prandtl-Ishlinskii (play operators and dead zones)",
     FAMILY_PLANE: "Prandtl-Ishlinskii plus a Preisach plane of KP hysterons",
+    FAMILY_DUHEM: "Prandtl-Ishlinskii plus Duhem (Bouc-Wen, exponent 1) elements",
 }
 
 
@@ -307,6 +398,8 @@ class PIModel:
     output_unit: str = "N"
     #: the Preisach plane beside the plays (None: the modified PI family)
     plane: PreisachPlane | None = None
+    #: or the Duhem elements beside them
+    duhem: DuhemElements | None = None
 
     def __post_init__(self) -> None:
         if len(self.r) != len(self.w) or len(self.d) != len(self.s):
@@ -315,6 +408,8 @@ class PIModel:
             raise HysteresisFitError(f"play thresholds {self.r} must start at 0 and increase")
         if 0.0 not in self.d or any(b <= a for a, b in zip(self.d, self.d[1:])):
             raise HysteresisFitError(f"dead-zone thresholds {self.d} must increase and contain 0")
+        if self.plane is not None and self.duhem is not None:
+            raise HysteresisFitError("a model holds a Preisach plane or Duhem elements beside its plays, not both")
 
     @property
     def n_play(self) -> int:
@@ -326,13 +421,18 @@ class PIModel:
 
     @property
     def family(self) -> str:
-        return FAMILY_PI if self.plane is None else FAMILY_PLANE
+        return FAMILY_PLANE if self.plane is not None else FAMILY_DUHEM if self.duhem is not None else FAMILY_PI
+
+    @property
+    def extra(self) -> PreisachPlane | DuhemElements | None:
+        """The operators beside the plays (a plane's hysterons or Duhem elements; None: none)."""
+        return self.plane if self.plane is not None else self.duhem
 
     def rest_state(self) -> np.ndarray:
-        """The state at rest: the plays' (0), then the plane's hysterons'."""
-        if self.plane is None:
+        """The state at rest: the plays' (0), then the plane's hysterons' or the Duhem elements'."""
+        if self.extra is None:
             return np.zeros(self.n_play)
-        return np.concatenate([np.zeros(self.n_play), self.plane.rest_state()])
+        return np.concatenate([np.zeros(self.n_play), self.extra.rest_state()])
 
     def play(self, u: np.ndarray, state: np.ndarray | None = None) -> np.ndarray:
         """The play operators' outputs (``n`` x ``n_play``) for relative input ``u``."""
@@ -341,17 +441,19 @@ class PIModel:
 
     def columns(self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None) -> np.ndarray:
         """The operators' outputs side by side: plays, then the plane's hysterons (the
-        thresholds of both widened by ``widen``); :meth:`column_weights` weighs them into the
-        superposition."""
+        thresholds of both widened by ``widen``) or the Duhem elements (relative to their rest
+        states, as the plane's); :meth:`column_weights` weighs them into the superposition."""
         st = self.rest_state() if state is None else np.asarray(state, float)
         Y = operators.play(u, np.array(self.r), st[: self.n_play], widen=widen)
-        if self.plane is None:
-            return Y
-        return np.hstack([Y, self.plane.columns(u, st[self.n_play :], widen)])
+        if self.plane is not None:
+            return np.hstack([Y, self.plane.columns(u, st[self.n_play :], widen)])
+        if self.duhem is not None:  # the threshold-0 play's state is the last input
+            return np.hstack([Y, self.duhem.columns(u, st[self.n_play :], u_prev=float(st[0]))])
+        return Y
 
     def column_weights(self) -> np.ndarray:
         w = np.array(self.w)
-        return w if self.plane is None else np.concatenate([w, np.array(self.plane.weights)])
+        return w if self.extra is None else np.concatenate([w, np.array(self.extra.weights)])
 
     def forward(self, x: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Model output ``y`` for input ``x``, and the operators' state after the last sample."""
@@ -359,24 +461,26 @@ class PIModel:
         Y = self.columns(x - self.x0, state)
         p = Y @ self.column_weights()
         last = Y[-1].copy()
-        if self.plane is not None:  # the plane's columns are relative to its rest: the state is not
-            last[self.n_play :] += self.plane.rest_state()
+        if self.extra is not None:  # the extra columns are relative to their rest: the state is not
+            last[self.n_play :] += self.extra.rest_state()
         return self.y0 + dead_zone_superposition(p, np.array(self.d), np.array(self.s)), last
 
     def inverse(self, y_ref: np.ndarray, state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Input ``x`` that makes the model output ``y_ref``: analytic (Eq. 3.9) for the modified
-        PI family, exact piecewise-linear inversion stretch by stretch with a Preisach plane.
+        PI family, exact piecewise-linear inversion stretch by stretch with a Preisach plane, and
+        stretch by stretch to :data:`DUHEM_INVERSE_TOL` (relative) with Duhem elements.
 
         ``state`` is the *forward* model's state (as returned by :meth:`forward`);
         the state returned is the forward state after the last sample, so forward and
         inverse can be chained in chunks.
         """
         y_ref = np.asarray(y_ref, float)
-        if self.plane is not None:
+        if self.extra is not None:
             d_inv, s_inv = invert_dead_zone_weights(np.array(self.d), np.array(self.s))
             p = dead_zone_superposition(y_ref - self.y0, d_inv, s_inv)
             st = self.rest_state() if state is None else np.asarray(state, float)
-            u, last = _invert_with_plane(self, p + self.plane.rest_output(), st)
+            invert = _invert_with_plane if self.plane is not None else _invert_with_duhem
+            u, last = invert(self, p + self.extra.rest_output(), st)
             return self.x0 + u, last
         w = np.array(self.w)
         r_inv, w_inv = invert_play_weights(np.array(self.r), w)
@@ -393,12 +497,13 @@ class PIModel:
         return {"r_inv": r_inv.tolist(), "w_inv": w_inv.tolist(), "d_inv": d_inv.tolist(), "s_inv": s_inv.tolist()}
 
     def to_dict(self) -> dict[str, Any]:
-        if self.plane is not None:
-            # no closed-form inverse to print: the compensator inverts numerically (exactly)
+        if self.extra is not None:
+            # no closed-form inverse to print: the compensator inverts numerically
+            key = "preisach_plane" if self.plane is not None else "duhem_elements"
             return {
                 "family": self.family,
                 **{k: v for k, v in self._pi_dict().items() if k != "inverse"},
-                "preisach_plane": self.plane.to_dict(),
+                key: self.extra.to_dict(),
             }
         return {"family": self.family, **self._pi_dict()}
 
@@ -428,6 +533,7 @@ class PIModel:
             input_unit=iu,
             output_unit=ou,
             plane=PreisachPlane.from_dict(d["preisach_plane"]) if d.get("preisach_plane") else None,
+            duhem=DuhemElements.from_dict(d["duhem_elements"]) if d.get("duhem_elements") else None,
         )
 
 
@@ -480,6 +586,91 @@ def _rising(target, y, s, r, w, al, h, mu) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 # --------------------------------------------------------------------------- data and fit
+
+
+#: The Duhem family's inverse stops when the model output is this close to the reference
+#: (relative to the reference's size, at least 1) ...
+DUHEM_INVERSE_TOL = 1e-10
+#: ... or after this many safeguarded Newton steps.
+DUHEM_INVERSE_STEPS = 60
+#: Points of the first look along a stretch (the guess Newton's steps start from).
+_DUHEM_GRID = 64
+
+
+def _invert_with_duhem(model: PIModel, p: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The relative input ``u`` whose plays-plus-Duhem output is ``p``, from the forward ``state``.
+
+    Along a monotone stretch of ``p`` the input moves one way; from the stretch's start state
+    every element follows its closed form in ``u`` (:func:`piezopress.operators.duhem_along`), so
+    the superposition ``g(u)`` is a function of ``u`` alone, rising with slope at least
+    ``w_0 - 2 sum(max(-c, 0)) > 0``; each sample's ``u`` is found at once, vectorised over the
+    stretch, by Newton steps kept inside a bracket (:func:`_rising_duhem`). A falling stretch is a
+    rising one mirrored (``u -> -u``, states and output negated: both operators are odd).
+    """
+    r, w = np.array(model.r), np.array(model.w)
+    R, c = np.array(model.duhem.widths), np.array(model.duhem.weights)
+    n_play = r.size
+    y, e = state[:n_play].copy(), state[n_play:].copy()
+    least = float(w[0]) - model.duhem.least_slope()
+    if not least > 0:
+        raise HysteresisFitError(
+            f"the model's least slope {least:g} (the threshold-0 play's weight less twice the Duhem elements' "
+            "negative weights) must be positive for an inverse; expected a model fitted by fit_structure"
+        )
+    pp = np.concatenate([[float(w @ y + c @ e)], np.asarray(p, float)])
+    out = np.empty(pp.size)
+    out[0] = y[0]
+    bounds = np.append(operators.monotone_runs(pp), pp.size)
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        a1 = a if a > 0 else 1
+        if a1 >= b:
+            continue
+        if pp[b - 1] >= pp[a1 - 1]:
+            out[a1:b], y, e = _rising_duhem(pp[a1:b], y, e, r, w, R, c, least)
+        else:
+            seg, ym, em = _rising_duhem(-pp[a1:b], -y, -e, r, w, R, c, least)
+            out[a1:b], y, e = -seg, -ym, -em
+    return out[1:], np.concatenate([y, e])
+
+
+def _rising_duhem(target, y, e, r, w, R, c, least) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A rising stretch of the plays-plus-Duhem output to ``target`` from the state ``(y, e)``
+    (``y[0]``: the last input), its slope at least ``least``: the inputs, and the state at its end."""
+    u0 = float(y[0])
+    sat = e - R  # each element's distance below its saturation at u0
+
+    def g_and_slope(U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        shift = U[:, None] - r
+        decay = np.exp(-(U[:, None] - u0) / R) * sat
+        return np.maximum(y, shift) @ w + (R + decay) @ c, (shift > y) @ w - (decay / R) @ c
+
+    g0 = float(w @ y + c @ e)
+    reach = max(float(target.max()) - g0, 0.0)
+    top = u0 + reach / least * (1 + 1e-9) + 1e-12
+    if target.size > _DUHEM_GRID:  # a long stretch: a first look along it, then Newton from there
+        kinks = y + r
+        U = np.unique(np.concatenate([np.linspace(u0, top, _DUHEM_GRID), kinks[(kinks > u0) & (kinks < top)]]))
+        G = np.maximum.accumulate(g_and_slope(U)[0])
+        k = np.clip(np.searchsorted(G, target), 1, U.size - 1)
+        lo, hi = U[k - 1], U[k]
+        x = np.clip(np.interp(target, G, U), lo, hi)
+    else:
+        lo, hi = np.full(target.size, u0), np.full(target.size, top)
+        start = float(g_and_slope(np.array([u0]))[1][0])  # the slope just after u0
+        x = np.minimum(u0 + (target - g0) / max(start, least), top)
+    scale = max(1.0, float(np.max(np.abs(target))))
+    for _ in range(DUHEM_INVERSE_STEPS):
+        gx, dg = g_and_slope(x)
+        f = gx - target
+        if np.max(np.abs(f)) <= DUHEM_INVERSE_TOL * scale:
+            break
+        lo = np.where(f < 0, x, lo)
+        hi = np.where(f > 0, x, hi)
+        step = x - f / np.maximum(dg, least)
+        x = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+    x = np.maximum(x, u0)
+    u_end = float(x[-1])
+    return x, np.maximum(y, u_end - r), R + sat * np.exp(-(u_end - u0) / R)
 
 
 @dataclass(frozen=True)
@@ -701,11 +892,20 @@ class Candidate:
     m_dead_zone: int
     #: levels of a Preisach plane beside the plays (0: none, the modified PI family)
     plane_levels: int = 0
+    #: Duhem elements beside the plays (0: none), and their state at rest (:data:`DUHEM_RESTS`)
+    duhem_elements: int = 0
+    duhem_rest: str = DUHEM_RESTS[0]
 
     @property
     def label(self) -> str:
         plane = f" plane={self.plane_levels}" if self.plane_levels else ""
-        return f"n={self.n_play} gamma={self.gamma:g} m={self.m_dead_zone}{plane}"
+        duhem = f" duhem={self.duhem_elements}" if self.duhem_elements else ""
+        duhem += f" rest={self.duhem_rest}" if self.duhem_elements and self.duhem_rest != DUHEM_RESTS[0] else ""
+        return f"n={self.n_play} gamma={self.gamma:g} m={self.m_dead_zone}{plane}{duhem}"
+
+    @property
+    def family(self) -> str:
+        return FAMILY_PLANE if self.plane_levels else FAMILY_DUHEM if self.duhem_elements else FAMILY_PI
 
 
 def plane_for(data: HysteresisData, levels: int) -> PreisachPlane | None:
@@ -879,12 +1079,13 @@ def fit_structure(
     plays: Sequence[np.ndarray],
     rows: str = "train",
     plane: PreisachPlane | None = None,
+    duhem: DuhemElements | None = None,
 ) -> PIModel:
     """Fit weights for fixed play thresholds ``r`` and inverse dead-zone thresholds ``d_inv``
-    (and the weights of ``plane``'s cells, when given).
+    (and the weights of ``plane``'s cells, or of the ``duhem`` elements, when given).
 
     ``plays`` are the play outputs of each run for thresholds ``r`` (whole runs), followed by
-    the plane's hysterons' when there is a plane (:func:`columns_for`); ``rows``
+    the plane's hysterons' or the Duhem elements' (:func:`columns_for`); ``rows``
     selects the samples fitted (``train``, or ``all``: training and held-out rows, never
     the skipped start). Both quadratic programs estimate the output offset with the weights,
     and bound the slopes (:data:`PLAY_SLOPE_MIN`, :data:`PLAY_SLOPE_MAX`,
@@ -901,9 +1102,14 @@ def fit_structure(
     n_neg, n_pos = idx0, d_inv.size - idx0 - 1
     M = _partial_sums(idx0, n_neg, n_pos)
     nr = r.size
-    nc = plane.n_cells if plane is not None else 0
+    if plane is not None and duhem is not None:
+        raise HysteresisFitError("a model holds a Preisach plane or Duhem elements beside its plays, not both")
+    extra = plane if plane is not None else duhem
+    nc = extra.n_cells if extra is not None else 0
     if A[0].shape[1] != nr + nc:
-        raise HysteresisFitError(f"expected {nr + nc} operator columns (plays, then plane cells), got {A[0].shape[1]}")
+        raise HysteresisFitError(
+            f"expected {nr + nc} operator columns (plays, then plane cells or Duhem elements), got {A[0].shape[1]}"
+        )
     u_max = data.u_absmax
     g = _mean_gain(data)
     k = DEAD_ZONE_SLOPE_RATIO
@@ -911,12 +1117,13 @@ def fit_structure(
     # weights mu, inverse dead-zone weights v and an offset c (the rest level is an estimate)
     G = _gram([(a, np.ones((a.shape[0], 1)), -b) for a, b in zip(A, B)])
     L = _factor(G)
+    kind = "plane cells" if plane is not None else "Duhem elements"
     what = (
-        f"play/dead-zone fit ({nr} plays, {nc} plane cells, {d_inv.size} dead zones)"
+        f"play/dead-zone fit ({nr} plays, {nc} {kind}, {d_inv.size} dead zones)"
         if nc
         else f"play/dead-zone fit ({nr} plays, {d_inv.size} dead zones)"
     )
-    if plane is None:  # one compiled program per shape, its data as parameters
+    if extra is None:  # one compiled program per shape, its data as parameters
         qp = _template(("plays", nr, d_inv.size, idx0), lambda: _plays_program(nr, d_inv.size, M))
         for name, value in (("L", L), ("load", np.maximum(u_max - r, 0.0)), ("u_max", u_max)):
             qp.params[name].value = value
@@ -930,25 +1137,35 @@ def fit_structure(
         objective = cp.sum_squares(L @ theta)
         cons = [w[0] >= PLAY_SLOPE_MIN, w[1:] >= 0, M @ v >= 1.0 / (k * g), M @ v <= k / g]
         mu = theta[nr : nr + nc]
-        rows_a, rows_b = plane._membership()
-        rest = plane.rest_state()
-        loaded = plane.states(np.array([0.0, u_max]))[-1] - rest
-        load = load + loaded @ mu
+        load = load + extra.columns(np.array([0.0, u_max]))[-1] @ mu
         energy = float(np.trace(G[nr : nr + nc, nr : nr + nc])) / nc
-        D = plane.smoothness()
+        D = extra.smoothness()
         if D.size:
             objective = objective + PLANE_SMOOTHING * energy * cp.sum_squares(D @ mu)
-        cons += [
-            mu >= 0,
-            cp.sum(w) + rows_a @ mu / plane.width <= PLAY_SLOPE_MAX,
-            cp.sum(w) + rows_b @ mu / plane.width <= PLAY_SLOPE_MAX,
-        ]
+        if plane is not None:
+            rows_a, rows_b = plane._membership()
+            cons += [
+                mu >= 0,
+                cp.sum(w) + rows_a @ mu / plane.width <= PLAY_SLOPE_MAX,
+                cp.sum(w) + rows_b @ mu / plane.width <= PLAY_SLOPE_MAX,
+            ]
+        else:  # an element's slope is in [0, 2]: the model's slope stays within the plays' bounds
+            cons += [
+                w[0] - 2 * cp.sum(cp.neg(mu)) >= PLAY_SLOPE_MIN,
+                cp.sum(w) + 2 * cp.sum(cp.pos(mu)) <= PLAY_SLOPE_MAX,
+            ]
         cons.append(load == u_max)
         _solve(cp.Problem(cp.Minimize(objective), cons), what)
     w, v = theta[:nr], theta[nr + nc + 1 :]
     w_val = np.maximum(np.asarray(w.value, float), 0.0)
     w_val[0] = max(w_val[0], PLAY_SLOPE_MIN)
-    mu_val = np.maximum(np.asarray(theta.value[nr : nr + nc], float), 0.0)
+    mu_val = np.asarray(theta.value[nr : nr + nc], float)
+    if plane is not None:
+        mu_val = np.maximum(mu_val, 0.0)
+    elif duhem is not None:  # the solver's tolerance must not cost the inverse its least slope
+        neg = np.maximum(-mu_val, 0.0).sum()
+        if 2 * neg > w_val[0] - 0.5 * PLAY_SLOPE_MIN:
+            mu_val = np.where(mu_val < 0, mu_val * (w_val[0] - 0.5 * PLAY_SLOPE_MIN) / (2 * neg), mu_val)
     cw = np.concatenate([w_val, mu_val])
     c1 = float(theta.value[nr + nc])
     d_img, _ = invert_dead_zone_weights(d_inv, np.asarray(v.value, float))
@@ -983,6 +1200,7 @@ def fit_structure(
         x0=data.x0,
         y0=data.y0 + float(offset.value[0]),
         plane=plane.with_weights(mu_val) if plane is not None else None,
+        duhem=duhem.with_weights(mu_val) if duhem is not None else None,
     )
 
 
@@ -1042,16 +1260,23 @@ def _plays_for(data: HysteresisData, r: np.ndarray, cache: dict) -> list[np.ndar
 
 
 def columns_for(
-    data: HysteresisData, r: np.ndarray, plane: PreisachPlane | None, cache: dict | None = None
+    data: HysteresisData,
+    r: np.ndarray,
+    extra: PreisachPlane | DuhemElements | None,
+    cache: dict | None = None,
 ) -> list[np.ndarray]:
-    """Each run's operator columns: the plays of thresholds ``r``, then ``plane``'s hysterons."""
+    """Each run's operator columns: the plays of thresholds ``r``, then ``extra``'s (a plane's
+    hysterons or Duhem elements; a model's :attr:`PIModel.extra`)."""
     cache = {} if cache is None else cache
     plays = _plays_for(data, r, cache)
-    if plane is None:
+    if extra is None:
         return plays
-    key = ("plane", plane.levels, plane.width, plane.alpha[0])
+    if isinstance(extra, PreisachPlane):
+        key = ("plane", extra.levels, extra.width, extra.alpha[0])
+    else:
+        key = ("duhem", extra.widths, extra.rest)
     if key not in cache:
-        cache[key] = [plane.columns(u) for u in data.u]
+        cache[key] = [extra.columns(u) for u in data.u]
     return [np.hstack([p, k]) for p, k in zip(plays, cache[key])]
 
 
@@ -1059,7 +1284,9 @@ def refit(data: HysteresisData, model: PIModel, rows: str = "train", cache: dict
     """``model``'s structure (plays, dead zones, plane cells) fitted again on ``data``."""
     d_inv, _ = invert_dead_zone_weights(np.array(model.d), np.array(model.s))
     r = np.array(model.r)
-    fitted = fit_structure(data, r, d_inv, columns_for(data, r, model.plane, cache), rows=rows, plane=model.plane)
+    fitted = fit_structure(
+        data, r, d_inv, columns_for(data, r, model.extra, cache), rows=rows, plane=model.plane, duhem=model.duhem
+    )
     return replace(fitted, input_unit=model.input_unit, output_unit=model.output_unit)
 
 
@@ -1089,6 +1316,7 @@ def fit_hysteresis(
     prune_below: float = 1e-3,
     refit_all: bool = True,
     plane_family: bool = True,
+    duhem_family: bool = True,
 ) -> HysteresisFit:
     """Choose operator numbers and thresholds on held-out data, prune, refit.
 
@@ -1101,7 +1329,9 @@ def fit_hysteresis(
     the held-out error beyond the tolerance.
     With ``plane_family`` (and no ``grid``) a fourth stage tries Preisach planes
     (:data:`PLANE_LEVELS`, the finer ones only while the plane family wins and refining helps:
-    :data:`PLANE_LEVELS_FIRST`) beside the chosen plays; a plane wins only by :data:`FAMILY_MARGIN`.
+    :data:`PLANE_LEVELS_FIRST`) beside the chosen plays; with ``duhem_family`` a fifth tries Duhem
+    elements (:data:`DUHEM_COUNTS`) beside them and beside the threshold-0 play alone. Another
+    family than the modified PI wins only by :data:`FAMILY_MARGIN`, the best of those that do.
     With ``refit_all`` the final model is refitted on all rows (``final_model``);
     ``model`` is the one scored on held-out data.
     """
@@ -1171,18 +1401,31 @@ def fit_hysteresis(
                 if len(fits) == fitted:
                     break  # the finer plane could not be fitted
                 held.append(fits[-1][0])
+        if duhem_family and DUHEM_COUNTS:  # the Duhem family, on the chosen plays and on the threshold-0 play alone
+            _, (_, _, c4, _) = choose([f for f in fits if not f[2].plane_levels])
+            plays_tried = sorted({c4.n_play, 1})
+            _score(
+                data,
+                [
+                    Candidate(n, c4.gamma if n > 1 else 1.0, c4.m_dead_zone, duhem_elements=k, duhem_rest=rest)
+                    for n in plays_tried
+                    for k in DUHEM_COUNTS
+                    for rest in DUHEM_RESTS
+                ],
+                cache,
+                rows,
+                fits,
+            )
     else:
         _score(data, grid, cache, rows, fits)
     if not fits:
         raise HysteresisFitError("no candidate model could be fitted: " + "; ".join(r_["note"] for r_ in rows)[:400])
-    best, (ho, n_ops, cand, model) = choose(fits)
     family = _family_reason(fits, choose, MIN_PI_PLAYS if grid is None else 0)
-    if family[0] is not None:  # the modified PI family: a plane does not win by the margin, or none was tried
-        best, (ho, n_ops, cand, model) = family[0]
+    best, (ho, n_ops, cand, model) = family[0]
     if full is not data:  # fit the chosen structure on every sample
         cache = {}
         model = refit(full, model, cache=cache)
-        ho = rms_error(model, full, columns_for(full, np.array(model.r), model.plane, cache), "holdout")
+        ho = rms_error(model, full, columns_for(full, np.array(model.r), model.extra, cache), "holdout")
     return _finish(
         full, model, ho, cand, best, len(fits), rows, cache, out_range, tolerance, prune_below, refit_all, family[1]
     )
@@ -1202,6 +1445,10 @@ PLANE_LEVELS = (4, 8, 12, 16, 20)
 #: (by the search's tolerance): on a press of the modified PI family, and on the real data sets,
 #: the finer planes cost twice the fit's time for nothing.
 PLANE_LEVELS_FIRST = 12
+#: Duhem elements tried beside the chosen plays (and beside the threshold-0 play alone). A
+#: stack's loop of the Bouc-Wen kind (the branch shallow after a reversal and steepening
+#: exponentially, minor loops that do not close) is drawn by plays only as a staircase of slopes.
+DUHEM_COUNTS = (4, 8, 16)
 #: A plane is chosen only when it predicts the held-out rows this much better (relative RMS)
 #: than the best modified PI model: a richer family must earn its cells. The held-out rows are
 #: the ends of the fitted runs, and compensation plays other amplitudes: on the second test
@@ -1226,15 +1473,19 @@ MIN_PI_PLAYS = 12
 
 
 def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
-    """``(choice, why)``: the modified PI choice (``choose``'s ``(best, fit)`` among the PI
-    candidates with at least ``min_plays`` plays, if any) when the PI family is chosen, else
-    None (a plane wins by :data:`FAMILY_MARGIN`); and a sentence on which family won and why."""
-    pi = [f for f in fits if not f[2].plane_levels]
-    planes = [f for f in fits if f[2].plane_levels]
-    fine = [f for f in pi if f[2].n_play >= min_plays]
+    """``(choice, why)``: ``choose``'s ``(best, fit)`` in the family chosen, and a sentence on which
+    family won and why. The modified PI family (among its candidates with at least ``min_plays``
+    plays, if any) unless another family predicts the held-out rows :data:`FAMILY_MARGIN` better;
+    of those that do, the best."""
+    pools: dict[str, list] = {}
+    for f in fits:
+        pools.setdefault(f[2].family, []).append(f)
+    pi = pools.pop(FAMILY_PI, [])
     title = FAMILY_TITLES[FAMILY_PI]
     if not pi:
-        return None, f"{FAMILY_TITLES[FAMILY_PLANE]} (the only family tried)"
+        best_family = min(pools, key=lambda k: min(f[0] for f in pools[k]))
+        return choose(pools[best_family]), f"{FAMILY_TITLES[best_family]} (the only family tried)"
+    fine = [f for f in pi if f[2].n_play >= min_plays]
     best_pi, pi_choice = choose(fine or pi)
     note = ""
     if fine and len(fine) < len(pi):
@@ -1245,19 +1496,24 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
                 f"better, but the family is chosen among candidates of at least {min_plays} plays (held-out ends "
                 "are mostly the largest loops, and fewer plays draw the smaller ones coarsely)"
             )
-    if not planes:
+    if not pools:
         return (best_pi, pi_choice), f"{title} (no other family tried){note}"
-    best_plane = min(f[0] for f in planes)
-    gain = 1.0 - best_plane / best_pi if best_pi > 0 else 0.0
-    if gain >= FAMILY_MARGIN:
-        return None, (
-            f"{FAMILY_TITLES[FAMILY_PLANE]}: held-out RMS {best_plane:.4g} against {best_pi:.4g} for the "
-            f"best modified PI model ({100 * gain:.0f} % lower; needs {100 * FAMILY_MARGIN:g} %)"
+    best = {k: min(f[0] for f in v) for k, v in pools.items()}
+    gain = {k: (1.0 - b / best_pi if best_pi > 0 else 0.0) for k, b in best.items()}
+    others = "; ".join(
+        f"{FAMILY_TITLES[k]}: {best[k]:.4g} ({100 * gain[k]:.0f} % lower)" for k in sorted(best, key=best.get)
+    )
+    winners = [k for k in best if gain[k] >= FAMILY_MARGIN]
+    if winners:
+        won = min(winners, key=best.get)
+        return choose(pools[won]), (
+            f"{FAMILY_TITLES[won]}: held-out RMS {best[won]:.4g} against {best_pi:.4g} for the "
+            f"best modified PI model ({100 * gain[won]:.0f} % lower; needs {100 * FAMILY_MARGIN:g} %)"
+            + (f"; tried also: {others}" if len(best) > 1 else "")
         )
     return (best_pi, pi_choice), (
-        f"{title}: a Preisach plane predicts the held-out rows {100 * gain:.0f} % better "
-        f"({best_plane:.4g} against {best_pi:.4g}), short of the {100 * FAMILY_MARGIN:g} % a richer family needs"
-        f"{note}"
+        f"{title}: held-out RMS {best_pi:.4g}; no other family predicts the held-out rows "
+        f"{100 * FAMILY_MARGIN:g} % better, as a richer family must ({others}){note}"
     )
 
 
@@ -1269,8 +1525,9 @@ def _score(data: HysteresisData, grid: Sequence[Candidate], cache: dict, rows: l
         d_inv = dead_zone_thresholds(c.m_dead_zone, z_lo, z_hi)
         try:
             plane = plane_for(data, c.plane_levels)
-            plays = columns_for(data, r, plane, cache)
-            model = fit_structure(data, r, d_inv, plays, plane=plane)
+            duhem = DuhemElements.grid(data.u_span, c.duhem_elements, c.duhem_rest) if c.duhem_elements else None
+            plays = columns_for(data, r, plane or duhem, cache)
+            model = fit_structure(data, r, d_inv, plays, plane=plane, duhem=duhem)
         except HysteresisFitError as exc:
             rows.append(
                 {
@@ -1283,7 +1540,7 @@ def _score(data: HysteresisData, grid: Sequence[Candidate], cache: dict, rows: l
             )
             continue
         tr, ho = rms_error(model, data, plays, "train"), rms_error(model, data, plays, "holdout")
-        n_ops = model.n_play + model.n_dead_zone + (model.plane.n_cells if model.plane is not None else 0)
+        n_ops = model.n_play + model.n_dead_zone + (model.extra.n_cells if model.extra is not None else 0)
         rows.append(
             {
                 "candidate": c.label,
@@ -1311,9 +1568,9 @@ def _finish(
     r_final = np.array(model.r)[keep_r]
     if pruned:
         d_inv_full, _ = invert_dead_zone_weights(d, s)
-        plays = columns_for(data, r_final, model.plane, cache)
+        plays = columns_for(data, r_final, model.extra, cache)
         try:
-            pm = fit_structure(data, r_final, d_inv_full[keep_d], plays, plane=model.plane)
+            pm = fit_structure(data, r_final, d_inv_full[keep_d], plays, plane=model.plane, duhem=model.duhem)
             pho = rms_error(pm, data, plays, "holdout")
             if pho <= ho * (1 + tolerance):
                 model, ho = pm, pho
@@ -1321,9 +1578,15 @@ def _finish(
                 pruned, r_final = 0, np.array(model.r)
         except HysteresisFitError:
             pruned, r_final = 0, np.array(model.r)
-    plays = columns_for(data, np.array(model.r), model.plane, cache)
+    plays = columns_for(data, np.array(model.r), model.extra, cache)
     tr = rms_error(model, data, plays, "train")
-    cells = f", {model.plane.n_cells} plane cells" if model.plane is not None else ""
+    cells = (
+        f", {model.plane.n_cells} plane cells"
+        if model.plane is not None
+        else f", {model.duhem.n_cells} Duhem elements"
+        if model.duhem is not None
+        else ""
+    )
     reason = (
         f"{cand.label} ({model.n_play} plays, {model.n_dead_zone} dead zones{cells} after pruning {pruned}): "
         "held-out RMS "

@@ -690,7 +690,7 @@ def base_structure(
     alternation's passes (None: searched again in each), the searched section and fit (None: the
     thesis's structure) and the sentence for ``base_structure``."""
     h, fit = hysteresis_section(sweeps, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows)
-    if fit.model.plane is None or fit.candidate is None:
+    if fit.model.extra is None or fit.candidate is None:
         return THESIS_GRID, None, ""
     note = (
         f"the structure searched as fit's is ({fit.candidate.label} on the sweeps as measured) instead of the thesis's "

@@ -198,7 +198,8 @@ def judged_rows(data: H.HysteresisData) -> tuple[tuple[int, int, int], ...]:
     )
 
 
-def _candidate(label: str) -> tuple[int, float, int, int]:
-    """``Candidate`` fields from its label ``n=.. gamma=.. m=.. [plane=..]``."""
+def _candidate(label: str) -> tuple[int, float, int, int, int, str]:
+    """``Candidate`` fields from its label ``n=.. gamma=.. m=.. [plane=..] [duhem=.. [rest=..]]``."""
     parts = dict(p.split("=") for p in label.split())
-    return int(parts["n"]), float(parts["gamma"]), int(parts["m"]), int(parts.get("plane", 0))
+    n, g, m = int(parts["n"]), float(parts["gamma"]), int(parts["m"])
+    return n, g, m, int(parts.get("plane", 0)), int(parts.get("duhem", 0)), parts.get("rest", H.DUHEM_RESTS[0])

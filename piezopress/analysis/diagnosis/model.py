@@ -240,12 +240,12 @@ class Model:
 
     def _plays(self, x: np.ndarray, widen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(u, plays, plane)``: the input relative to the map's origin, the plays' weighted sum
-        (thresholds widened by ``widen``) and the plane's (0 without one)."""
+        (thresholds widened by ``widen``) and the plane's or the Duhem elements' (0 without)."""
         m = self.hysteresis
         u = np.asarray(x, float) - m.x0
         Y = m.columns(u, widen=widen)
         p = Y[:, : m.n_play] @ np.array(m.w)
-        plane = Y[:, m.n_play :] @ np.array(m.plane.weights) if m.plane is not None else np.zeros_like(p)
+        plane = Y[:, m.n_play :] @ np.array(m.extra.weights) if m.extra is not None else np.zeros_like(p)
         for a in (u, p, plane):
             a.setflags(write=False)
         return u, p, plane

@@ -122,9 +122,9 @@ MODEL_PARTS: dict[str, tuple[str, Callable[[Model], bool]]] = {
     ),
     "mode": ("a mode in the bundle (fitted with a low-amplitude step)", lambda m: bool(m.wn)),
     "operators": (
-        "a loop of play operators in the bundle (a Preisach plane is there because the structure search chose it: "
-        "what more operators would draw, it holds)",
-        lambda m: m.hysteresis.plane is None,
+        "a loop of play operators in the bundle (a Preisach plane or Duhem elements are there because the "
+        "structure search chose them: what more operators would draw, they hold)",
+        lambda m: m.hysteresis.extra is None,
     ),
 }
 

@@ -38,7 +38,10 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         n_dz = max(0, len([d for d in m.d if d > 0]))
         try:
             levels = m.plane.levels if m.plane is not None else 0
-            base_fit = H.fit_hysteresis(data, [H.Candidate(max(2, len(m.r)), 1.0, n_dz, levels)], refit_all=False)
+            elements = m.duhem.n_cells if m.duhem is not None else 0
+            rest = H.DUHEM_RESTS[0] if m.duhem is None or not any(m.duhem.rest) else "descended"
+            base = H.Candidate(max(2, len(m.r)), 1.0, n_dz, levels, elements, rest)
+            base_fit = H.fit_hysteresis(data, [base], refit_all=False)
             rich_fit = H.fit_hysteresis(data, refit_all=False)
         except H.HysteresisFitError:
             return None
@@ -50,7 +53,13 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     # be taken for a force and clipped at 0 N)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
     base_model = replace(base_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
-    cells = f" and a Preisach plane of {rich.plane.n_cells} cells" if rich.plane is not None else ""
+    cells = (
+        f" and a Preisach plane of {rich.plane.n_cells} cells"
+        if rich.plane is not None
+        else f" and {rich.duhem.n_cells} Duhem elements"
+        if rich.duhem is not None
+        else ""
+    )
     ev = (
         f"on the slow sweeps the residual follows the drive level: {rich.n_play} plays and {rich.n_dead_zone} dead "
         f"zones{cells} (chosen on "

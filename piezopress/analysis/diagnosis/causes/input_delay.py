@@ -66,8 +66,8 @@ def _delay_on_sweeps(ctx: Context) -> Finding | None:
         data = prep(k / fs)
         data = H.decimate(data, step) if step > 1 else data
         cache: dict = {}
-        model = H.refit(data, m, cache=cache)  # the base model's structure (plays, dead zones, plane)
-        return H.rms_error(model, data, H.columns_for(data, np.array(m.r), m.plane, cache), "train"), model
+        model = H.refit(data, m, cache=cache)  # the base model's structure (plays, dead zones, plane or elements)
+        return H.rms_error(model, data, H.columns_for(data, np.array(m.r), m.extra, cache), "train"), model
 
     fs = min(r.fs_hz for r in runs)
     fits = {k: refit(k) for k in range(0, 9)}  # whole samples, then half a sample either side
