@@ -1,4 +1,5 @@
-"""Rate-independent hysteresis operators on sampled signals: play (backlash) and dead zone.
+"""Rate-independent hysteresis operators on sampled signals: play (backlash), dead zone, KP
+hysteron and Duhem (Bouc-Wen, exponent 1) element.
 
 Pure numpy, shared by the virtual rig (physics) and the Prandtl-Ishlinskii model (analysis).
 

@@ -71,3 +71,25 @@ def smoothed_rate(drive: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
     """The signed ``dV/dt`` of a sampled drive (V/s), smoothed over ``tau_s``, from rest: a
     first-order high-pass of the drive with its corner at ``1 / (2 pi tau_s)``, times ``1 / tau_s``."""
     return first_order(np.diff(drive, prepend=drive[0]) * fs_hz, tau_s, fs_hz)
+
+
+def noise_floor(y: np.ndarray, window: int = 64) -> float:
+    """RMS of the sensor's noise: sample-to-sample scatter in the quietest stretches,
+    and never below the quantization's ``q / sqrt(12)``."""
+    y = np.asarray(y, float)
+    if y.size < 2 * window:
+        window = max(4, y.size // 4)
+    n = (y.size - 1) // window
+    d = np.diff(y)[: n * window].reshape(n, window)
+    per = d.std(axis=1) / math.sqrt(2.0)
+    scatter = float(np.percentile(per, 20)) if per.size else 0.0
+    return max(scatter, quantum(y) / math.sqrt(12.0), 1e-12)
+
+
+def quantum(y: np.ndarray) -> float:
+    """The reading's quantization step (the smallest spacing of the values it takes), 0 where it
+    takes too many values to be quantized (a reading in floating point, or a dithered one
+    resampled)."""
+    levels = np.unique(np.asarray(y, float))
+    steps = np.diff(levels)
+    return float(np.min(steps)) if steps.size and np.min(steps) > 0 and levels.size < np.size(y) / 4 else 0.0

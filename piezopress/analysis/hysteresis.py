@@ -43,6 +43,16 @@ monotone too, and ``P + K`` from the stretch's start state is a piecewise-linear
 function of the drive (kinks where a play or a hysteron starts or stops moving), inverted by
 interpolation stretch by stretch. The family is chosen on the held-out rows: the plane must
 predict them :data:`FAMILY_MARGIN` better than the best modified PI model.
+
+A third family strictly contains the first too: ``p = P[u] + sum_j c_j E_{r_j}[u]``, the plays
+plus Duhem (Bouc-Wen, exponent 1) elements of widths ``r_j`` (:class:`DuhemElements`,
+:func:`piezopress.operators.duhem`) with signed weights, ``c = 0`` being the modified PI model.
+An element's minor loops do not close (no wiping out), and its branch after a reversal is
+exponential, not piecewise linear: the Bouc-Wen loop ``y = k x - h`` of many stacks. The
+weights enter the first quadratic program as the plane's do, bounded so that the slope stays
+within the plays' bounds; the inverse solves each monotone stretch of the reference at once
+(every element has a closed form in the drive along it) by bracketed Newton steps. It wins by
+the same margin; where the plane and the elements both do, the better one.
 """
 
 from __future__ import annotations

@@ -10,30 +10,9 @@ import numpy as np
 from scipy import signal, special
 
 from piezopress.analysis.diagnosis.model import RunData
+from piezopress.signals import noise_floor, quantum  # noqa: F401 - the residuals' floor, used here and by the causes
 
 # --------------------------------------------------------------------------- residual analysis
-
-
-def noise_floor(y: np.ndarray, window: int = 64) -> float:
-    """RMS of the sensor's noise: sample-to-sample scatter in the quietest stretches,
-    and never below the quantization's ``q / sqrt(12)``."""
-    y = np.asarray(y, float)
-    if y.size < 2 * window:
-        window = max(4, y.size // 4)
-    n = (y.size - 1) // window
-    d = np.diff(y)[: n * window].reshape(n, window)
-    per = d.std(axis=1) / math.sqrt(2.0)
-    scatter = float(np.percentile(per, 20)) if per.size else 0.0
-    return max(scatter, quantum(y) / math.sqrt(12.0), 1e-12)
-
-
-def quantum(y: np.ndarray) -> float:
-    """The reading's quantization step (the smallest spacing of the values it takes), 0 where it
-    takes too many values to be quantized (a reading in floating point, or a dithered one
-    resampled)."""
-    levels = np.unique(np.asarray(y, float))
-    steps = np.diff(levels)
-    return float(np.min(steps)) if steps.size and np.min(steps) > 0 and levels.size < np.size(y) / 4 else 0.0
 
 
 def noise_under_steps(y: np.ndarray, q: float, moved: float = 0.0) -> float:
