@@ -173,7 +173,10 @@ class RateDependence:
         if self.loss_per_kv_s > 0:  # the plays' lag behind the drive, scaled
             p = p + self.loss_per_kv_s * rho / 1000.0 * (p - w.sum() * u)
         if model.extra is not None:
-            p = p + Y[:, model.n_play :] @ np.array(model.extra.weights)
+            extra = Y[:, model.n_play :] @ np.array(model.extra.weights)
+            if self.loss_per_kv_s > 0 and model.duhem is not None:  # the elements' term is all loss: scaled too
+                extra = extra * (1.0 + self.loss_per_kv_s * rho / 1000.0)
+            p = p + extra
         return model.y0 + dead_zone_superposition(p, np.array(model.d), np.array(model.s))
 
 

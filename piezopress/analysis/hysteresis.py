@@ -457,8 +457,11 @@ class PIModel:
         Y = operators.play(u, np.array(self.r), st[: self.n_play], widen=widen)
         if self.plane is not None:
             return np.hstack([Y, self.plane.columns(u, st[self.n_play :], widen)])
-        if self.duhem is not None:  # the threshold-0 play's state is the last input
-            return np.hstack([Y, self.duhem.columns(u, st[self.n_play :], u_prev=float(st[0]))])
+        if self.duhem is not None:  # the threshold-0 play's state is the last input the elements saw
+            # widened thresholds are the plays behind a play of the widening (H_{r+d} = H_r o H_d):
+            # the elements see that play's output too
+            seen = u if widen is None else Y[:, 0]
+            return np.hstack([Y, self.duhem.columns(seen, st[self.n_play :], u_prev=float(st[0]))])
         return Y
 
     def column_weights(self) -> np.ndarray:

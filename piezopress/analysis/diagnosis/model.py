@@ -266,6 +266,8 @@ class Model:
         u, p, plane = plays
         if self.rate_loss_per_kv_s > 0 and rate is not None:  # the plays' lag behind the drive, scaled
             p = p + self.rate_loss_per_kv_s * rate / 1000.0 * (p - float(np.sum(m.w)) * u)
+            if m.duhem is not None:  # the Duhem elements' term is all loss: scaled too
+                plane = plane * (1.0 + self.rate_loss_per_kv_s * rate / 1000.0)
         return H.dead_zone_superposition(p + plane, np.array(m.d), np.array(m.s))
 
     def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
