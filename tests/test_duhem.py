@@ -260,3 +260,31 @@ def test_the_base_keeps_the_thesis_structure_while_it_fits_within_its_bound_of_t
     else:
         assert grid is None and searched is not None
         assert "Duhem" in note and searched[1].model.family == H.FAMILY_DUHEM
+
+
+@pytest.mark.parametrize("form", ["widen", "loss"])
+def test_the_rate_dependence_reaches_the_elements_and_the_rate_aware_inverse_undoes_it(form):
+    # a Bouc-Wen press whose loop widens with the rate, its loop all on the elements (the
+    # threshold-0 play alone beside them): both forms of the rate dependence must act on the
+    # elements, and the rate-aware inverse played through the same rate model gives back the reference
+    from piezopress.analysis.compensation import RateDependence, rate_aware_inverse
+
+    el = H.DuhemElements.grid(120.0, 6).with_weights(np.array([-0.02, -0.03, -0.05, -0.05, -0.04, -0.02]))
+    m = H.PIModel((0.0,), (1.0,), (0.0,), (1.0,), 10.0, 40.0, duhem=el)
+    fs, f = 20_000.0, 20.0
+    t = np.arange(int(3 * fs / f)) / fs
+    x = 70.0 + 60.0 * (2 * np.abs(2 * ((t * f) % 1.0) - 1.0) - 1.0)
+    rate = (
+        RateDependence(widen_v_per_kv_s=0.4, tau_s=5e-4)
+        if form == "widen"
+        else RateDependence(loss_per_kv_s=0.05, tau_s=5e-4)
+    )
+    moved = rate.forward(m, x, fs) - m.forward(x)[0]
+    loop = m.forward(x)[0] - (m.y0 + (x - m.x0))  # the elements' share of the output
+    # the rate moves the output by a good share of the elements' loop (nothing, if it missed them)
+    assert np.sqrt(np.mean(moved**2)) > 0.1 * np.sqrt(np.mean(loop**2))
+    ref = m.forward(x)[0]
+    drive, _ = rate_aware_inverse(m, ref, fs, rate)
+    err = rate.forward(m, drive, fs) - ref
+    static_err = rate.forward(m, m.inverse(ref)[0], fs) - ref
+    assert np.sqrt(np.mean(err**2)) <= 0.2 * np.sqrt(np.mean(static_err**2))
