@@ -1519,10 +1519,15 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
     winners = [k for k in best if gain[k] >= FAMILY_MARGIN]
     if winners:
         won = min(winners, key=best.get)
+        rest = "; ".join(
+            f"{FAMILY_TITLES[k]}: {best[k]:.4g} ({100 * gain[k]:.0f} % lower)"
+            for k in sorted(best, key=best.get)
+            if k != won
+        )
         return choose(pools[won]), (
             f"{FAMILY_TITLES[won]}: held-out RMS {best[won]:.4g} against {best_pi:.4g} for the "
             f"best modified PI model ({100 * gain[won]:.0f} % lower; needs {100 * FAMILY_MARGIN:g} %)"
-            + (f"; tried also: {others}" if len(best) > 1 else "")
+            + (f"; tried also: {rest}" if rest else "")
         )
     return (best_pi, pi_choice), (
         f"{title}: held-out RMS {best_pi:.4g}; no other family predicts the held-out rows "
