@@ -566,20 +566,34 @@ def _invert_with_plane(model: PIModel, p: np.ndarray, state: np.ndarray) -> tupl
     h = model.plane.width
     n_play = r.size
     y, s = state[:n_play].copy(), state[n_play:].copy()
-    pp = np.concatenate([[float(w @ y + mu @ s)], np.asarray(p, float)])
+    st = [y, s]
+
+    def stretch(target: np.ndarray, rising: bool) -> np.ndarray:
+        y, s = st
+        if rising:
+            seg, st[0], st[1] = _rising(target, y, s, r, w, al, h, mu)
+            return seg
+        seg, ym, sm = _rising(mu.sum() - target, -y, 1.0 - s, r, w, -(be + h), h, mu)
+        st[0], st[1] = -ym, 1.0 - sm
+        return -seg
+
+    u = _by_stretches(np.asarray(p, float), float(w @ y + mu @ s), float(y[0]), stretch)
+    return u, np.concatenate(st)
+
+
+def _by_stretches(p: np.ndarray, p_now: float, u_now: float, stretch: Callable) -> np.ndarray:
+    """The inputs for the reference ``p`` (the output now ``p_now`` at the input ``u_now``),
+    monotone stretch by monotone stretch: ``stretch(target, rising)`` inverts one from the state
+    the last one left (which it keeps)."""
+    pp = np.concatenate([[p_now], p])
     out = np.empty(pp.size)
-    out[0] = y[0]
+    out[0] = u_now
     bounds = np.append(operators.monotone_runs(pp), pp.size)
     for a, b in zip(bounds[:-1], bounds[1:]):
         a1 = a if a > 0 else 1
-        if a1 >= b:
-            continue
-        if pp[b - 1] >= pp[a1 - 1]:
-            out[a1:b], y, s = _rising(pp[a1:b], y, s, r, w, al, h, mu)
-        else:
-            seg, ym, sm = _rising(mu.sum() - pp[a1:b], -y, 1.0 - s, r, w, -(be + h), h, mu)
-            out[a1:b], y, s = -seg, -ym, 1.0 - sm
-    return out[1:], np.concatenate([y, s])
+        if a1 < b:
+            out[a1:b] = stretch(pp[a1:b], bool(pp[b - 1] >= pp[a1 - 1]))
+    return out[1:]
 
 
 def _rising(target, y, s, r, w, al, h, mu) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -630,20 +644,16 @@ def _invert_with_duhem(model: PIModel, p: np.ndarray, state: np.ndarray) -> tupl
             f"the model's least slope {least:g} (the threshold-0 play's weight less twice the Duhem elements' "
             "negative weights) must be positive for an inverse; expected a model fitted by fit_structure"
         )
-    pp = np.concatenate([[float(w @ y + c @ e)], np.asarray(p, float)])
-    out = np.empty(pp.size)
-    out[0] = y[0]
-    bounds = np.append(operators.monotone_runs(pp), pp.size)
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        a1 = a if a > 0 else 1
-        if a1 >= b:
-            continue
-        if pp[b - 1] >= pp[a1 - 1]:
-            out[a1:b], y, e = _rising_duhem(pp[a1:b], y, e, r, w, R, c, least)
-        else:
-            seg, ym, em = _rising_duhem(-pp[a1:b], -y, -e, r, w, R, c, least)
-            out[a1:b], y, e = -seg, -ym, -em
-    return out[1:], np.concatenate([y, e])
+    st = [y, e]
+
+    def stretch(target: np.ndarray, rising: bool) -> np.ndarray:
+        sign = 1.0 if rising else -1.0  # both operators are odd: a falling stretch is a rising one mirrored
+        seg, ym, em = _rising_duhem(sign * target, sign * st[0], sign * st[1], r, w, R, c, least)
+        st[0], st[1] = sign * ym, sign * em
+        return sign * seg
+
+    u = _by_stretches(np.asarray(p, float), float(w @ y + c @ e), float(y[0]), stretch)
+    return u, np.concatenate(st)
 
 
 def _rising_duhem(target, y, e, r, w, R, c, least) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
