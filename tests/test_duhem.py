@@ -288,3 +288,32 @@ def test_the_rate_dependence_reaches_the_elements_and_the_rate_aware_inverse_und
     err = rate.forward(m, drive, fs) - ref
     static_err = rate.forward(m, m.inverse(ref)[0], fs) - ref
     assert np.sqrt(np.mean(err**2)) <= 0.2 * np.sqrt(np.mean(static_err**2))
+
+
+@pytest.mark.parametrize("family", [H.FAMILY_PI, H.FAMILY_PLANE, H.FAMILY_DUHEM])
+@pytest.mark.parametrize("form", ["widen", "loss", "both"])
+def test_the_compensator_and_diagnose_draw_the_same_rate_dependent_loop(family, form):
+    # one definition of the rate forms (hysteresis.rate_loss_output): the compensator's rate model
+    # and diagnose's forward model give the same output for the same drive and rate, every family
+    from piezopress.analysis.compensation import RateDependence
+    from piezopress.analysis.diagnosis.model import Model
+
+    m = _model(3)
+    if family == H.FAMILY_PI:
+        m = H.PIModel(m.r, m.w, m.d, m.s, m.x0, m.y0)
+    elif family == H.FAMILY_PLANE:
+        plane = H.PreisachPlane.grid(-10.0, 150.0, 5)
+        plane = plane.with_weights(np.random.default_rng(2).uniform(0.0, 0.3, plane.n_cells))
+        m = H.PIModel(m.r, m.w, m.d, m.s, m.x0, m.y0, plane=plane)
+    assert m.family == family
+    widen, loss = {"widen": (0.4, 0.0), "loss": (0.0, 0.05), "both": (0.3, 0.03)}[form]
+    rate = RateDependence(widen_v_per_kv_s=widen, loss_per_kv_s=loss, tau_s=5e-4)
+    fs = 20_000.0
+    x = _signal("smooth", 4000, 1)
+    rho = rate.rate(x, fs)
+    diag = Model(m, rate_v_per_kv_s=widen, rate_loss_per_kv_s=loss)
+    want = rate.forward(m, x, fs)
+    np.testing.assert_allclose(m.y0 + diag.static_at_rate(x, rho), want, atol=1e-9)
+    # and the rate moves the output (a comparison of two outputs the rate never reached proves nothing)
+    assert np.max(np.abs(want - m.forward(x)[0])) > 0.05
+    np.testing.assert_allclose(m.y0 + diag.static_at_rate(x, None), m.forward(x)[0], atol=1e-9)

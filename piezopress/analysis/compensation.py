@@ -47,7 +47,7 @@ import numpy as np
 
 from piezopress import signals, units
 from piezopress.analysis.creep import CreepModel
-from piezopress.analysis.hysteresis import PIModel, dead_zone_superposition
+from piezopress.analysis.hysteresis import PIModel, rate_loss_output
 from piezopress.analysis.shaper import Shaper
 from piezopress.errors import FitError
 
@@ -167,17 +167,10 @@ class RateDependence:
         rho = self.rate(x, fs_hz)
         u = np.asarray(x, float) - model.x0
         widen = self.widen_v_per_kv_s * rho / 1000.0 if self.widen_v_per_kv_s > 0 else None
-        w = np.array(model.w)
         Y = model.columns(u, widen=widen)
-        p = Y[:, : model.n_play] @ w
-        if self.loss_per_kv_s > 0:  # the plays' lag behind the drive, scaled
-            p = p + self.loss_per_kv_s * rho / 1000.0 * (p - w.sum() * u)
-        if model.extra is not None:
-            extra = Y[:, model.n_play :] @ np.array(model.extra.weights)
-            if self.loss_per_kv_s > 0 and model.duhem is not None:  # the elements' term is all loss: scaled too
-                extra = extra * (1.0 + self.loss_per_kv_s * rho / 1000.0)
-            p = p + extra
-        return model.y0 + dead_zone_superposition(p, np.array(model.d), np.array(model.s))
+        extra = Y[:, model.n_play :] @ np.array(model.extra.weights) if model.extra is not None else None
+        loss = self.loss_per_kv_s * rho / 1000.0 if self.loss_per_kv_s > 0 else 0.0
+        return model.y0 + rate_loss_output(model, u, Y[:, : model.n_play] @ np.array(model.w), extra, loss)
 
 
 #: The rate-aware inverse stops when the drive moves less than this (V) from one pass to the next ...

@@ -166,6 +166,22 @@ def dead_zone_superposition(p: np.ndarray, d: np.ndarray, s: np.ndarray) -> np.n
     return np.interp(p, knots, at)
 
 
+def rate_loss_output(
+    model: PIModel, u: np.ndarray, plays: np.ndarray, extra: np.ndarray | None, loss: np.ndarray | float
+) -> np.ndarray:
+    """The model's output above ``y0`` under the loss form of rate dependence: ``plays`` (the
+    weighted plays' sum for the input ``u``, relative to the model's rest input) lag behind
+    ``u`` by ``plays - sum(w) u``, and ``loss`` (a share, sample by sample: 0 is the
+    rate-independent model) scales that lag; the Duhem elements' term ``extra`` is all lag and
+    is scaled as a whole, a plane's is not. One definition for the compensator
+    (:class:`piezopress.analysis.compensation.RateDependence`) and ``diagnose``'s forward model."""
+    lossy = not np.isscalar(loss) or loss != 0.0
+    p = plays + loss * (plays - float(np.sum(model.w)) * u) if lossy else plays
+    if extra is not None:
+        p = p + (extra * (1.0 + loss) if lossy and model.duhem is not None else extra)
+    return dead_zone_superposition(p, np.array(model.d), np.array(model.s))
+
+
 # --------------------------------------------------------------------------- the model
 
 

@@ -264,11 +264,8 @@ class Model:
         if plays is None or widen is not None:
             plays = self._plays(x, widen)
         u, p, plane = plays
-        if self.rate_loss_per_kv_s > 0 and rate is not None:  # the plays' lag behind the drive, scaled
-            p = p + self.rate_loss_per_kv_s * rate / 1000.0 * (p - float(np.sum(m.w)) * u)
-            if m.duhem is not None:  # the Duhem elements' term is all loss: scaled too
-                plane = plane * (1.0 + self.rate_loss_per_kv_s * rate / 1000.0)
-        return H.dead_zone_superposition(p + plane, np.array(m.d), np.array(m.s))
+        loss = self.rate_loss_per_kv_s * rate / 1000.0 if self.rate_loss_per_kv_s > 0 and rate is not None else 0.0
+        return H.rate_loss_output(m, u, p, plane, loss)
 
     def force(self, run: RunData, h: np.ndarray) -> np.ndarray:
         """Creep, mode(s), sensor low-pass and contact applied to the static prediction."""
