@@ -111,7 +111,14 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # reading, not creep: when they evidence one (:func:`_drift_fit`), the extension's creep is
     # fitted against the same Kelvin-Voigt elements and a free drift (linear and settling), and
     # the tail is judged across the runs (below)
-    ramp = bool(drift or ctx.model.drift_warmup)  # a drift found already: its form may not be exact
+    # a drift found already (its form may not be exact), or a drifting gain the hold's reading
+    # keeps (:func:`~piezopress.analysis.diagnosis.causes.sensitivity_drift._with_drift` leaves it
+    # in the hold its base creep was fitted on): over a hold its level hardly moves, the gain's
+    # ramp is a drift of the reading there, which a log tail beside saturating poles would take up
+    gain = ctx.model.gain_drift
+    ramp = bool(drift or ctx.model.drift_warmup) or (
+        bool(gain) and any(ident == run.ident and not inside for ident, _, inside in gain[2])
+    )
     most = float(np.ptp(u))  # a stroke kept at rest is less than the hold's
     drift_ctx = ctx
     if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)
