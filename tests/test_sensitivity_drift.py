@@ -98,6 +98,19 @@ def test_without_start_times_the_repeat_still_shows_the_gain_change(tmp_path, sa
     # the two plays sit side by side in the runs' order (either way round): one play apart
     assert abs(f.parameters["gain_change_per_play"]) == pytest.approx(gain, rel=0.1)
     assert "record no start times" in f.evidence
+    # when the other runs were played is unknown: they read at the reference gain, and only one play
+    # of the repeated drive reads scaled (read by the runs' order as given, a file listing's, every
+    # run read a gain of its place: on the third press a coupling was named to take that up)
+    rate, ref, starts = f.model.gain_drift
+    runs_by_key = {runformat.sha256_file(p): runformat.read_run(p) for p in runs.glob("*.parquet")}
+    gains = {}
+    for key, start, inside in starts:
+        r = runs_by_key[key]
+        assert not inside
+        gains[r.name] = rate * (start + 0.5 * (r.t_s[-1] - r.t_s[0] + 1.0 / r.sample_rate_hz) - ref)
+    scaled = {name: g for name, g in gains.items() if abs(g) > 1e-9}
+    assert set(scaled) <= {"triangle-0.1hz", "triangle-0.1hz-again"} and len(scaled) == 1, gains
+    assert abs(next(iter(scaled.values()))) == pytest.approx(gain, rel=0.1)
 
 
 def test_without_a_repeat_it_is_not_tested_and_the_need_is_said(tmp_path, sample_base_bundle):
