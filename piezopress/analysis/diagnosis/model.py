@@ -338,15 +338,27 @@ class Model:
         counted in samples."""
         return self.delay_s + self.delay_samples / fs_hz
 
+    def _gain_start(self, run: RunData) -> tuple[float, bool] | None:
+        """``run``'s start on the gain drift's clock and whether the drift goes on inside it (None:
+        no gain drift, or none for this run)."""
+        if not self.gain_drift:
+            return None
+        return next(((start, inside) for ident, start, inside in self.gain_drift[2] if ident == run.ident), None)
+
     def reading_gain(self, run: RunData) -> np.ndarray | float:
         """The reading's gain over ``run`` relative to the base model's (1 without a gain drift)."""
-        if not self.gain_drift:
+        at = self._gain_start(run)
+        if at is None:
             return 1.0
-        rate, ref, starts = self.gain_drift
-        for ident, start, inside in starts:
-            if ident == run.ident:
-                return 1.0 + rate * (start - ref + (run.t_s if inside else 0.5 * run.duration_s))
-        return 1.0
+        rate, ref, _ = self.gain_drift
+        start, inside = at
+        return 1.0 + rate * (start - ref + (run.t_s if inside else 0.5 * run.duration_s))
+
+    def gain_held_over(self, run: RunData) -> bool:
+        """Whether the model's gain drift is left out of ``run`` (read at its middle): the reading
+        still ramps with the drifting gain there."""
+        at = self._gain_start(run)
+        return at is not None and not at[1]
 
     def drift(self, run: RunData) -> np.ndarray | float:
         """The drift of the reading over ``run`` (0 without one)."""

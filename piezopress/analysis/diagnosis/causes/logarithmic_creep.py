@@ -115,10 +115,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # keeps (:func:`~piezopress.analysis.diagnosis.causes.sensitivity_drift._with_drift` leaves it
     # in the hold its base creep was fitted on): over a hold its level hardly moves, the gain's
     # ramp is a drift of the reading there, which a log tail beside saturating poles would take up
-    gain = ctx.model.gain_drift
-    ramp = bool(drift or ctx.model.drift_warmup) or (
-        bool(gain) and any(ident == run.ident and not inside for ident, _, inside in gain[2])
-    )
+    ramp = bool(drift or ctx.model.drift_warmup) or ctx.model.gain_held_over(run)
     most = float(np.ptp(u))  # a stroke kept at rest is less than the hold's
     drift_ctx = ctx
     if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)

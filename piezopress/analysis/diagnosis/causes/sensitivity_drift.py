@@ -201,13 +201,12 @@ def cause_sensitivity_drift(ctx: Context) -> Finding | None:
         # No start times: when the other runs were played is not known (their order as given is a
         # file listing's, not the test's), so each reads at the reference gain, and only a repeat
         # reads its group's first play scaled, by the plays between them (the drift inside a run
-        # unknown: read at its middle). Read by the runs' order, a gain of 0.38 % per play put the
-        # third press's fast sweeps up to 2 % off (seed 3, the four required fields), which a
-        # coupling named beside the drift took up.
+        # unknown: read at its middle). Read by the runs' order (a gain of 0.38 % per play, third
+        # press, seed 3, the four required fields), every run read a gain of its place in the
+        # listing, and a coupling was named beside the drift to take that up.
         play = {r.ident: ref for r in ctx.runs}
         for g in groups:
-            first = clock[g[0].ident]
-            play.update({r.ident: play[g[0].ident] + clock[r.ident] - first for r in g[1:]})
+            play.update({r.ident: ref + clock[r.ident] - clock[g[0].ident] for r in g[1:]})
         starts = tuple(sorted((r.ident, play[r.ident] - 0.5 * r.duration_s, False) for r in ctx.runs))
         ext = replace(ctx.model, gain_drift=(k_all, ref, starts))
     u = ctx.model.unit
