@@ -88,3 +88,38 @@ def test_diagnose_names_the_hum_on_the_third_press(tmp_path):
     assert "50.0 Hz component" in res.summary
     doc = json.loads((out / "diagnosis.json").read_text())
     assert doc["signatures"][0]["amplitude_n"] == pytest.approx(press.mains_n, rel=0.15)
+
+
+def _slow_sweep(fs: float = 500.0, seconds: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+    """A 0.1 Hz triangle of 300 N read with white noise of 0.05 N: what ``fit --base`` judges."""
+    t = np.arange(0.0, seconds, 1.0 / fs)
+    loop = 50.0 + 300.0 * (1 - np.abs(((t * 0.1) % 1.0) * 2 - 1))
+    return t, loop + np.random.default_rng(3).normal(0.0, 0.05, t.size)
+
+
+@pytest.mark.parametrize(("mains_hz", "amplitude"), [(50.0, 1.0), (60.0, 0.3), (50.0, 3.0)])
+def test_a_hum_is_no_noise(mains_hz, amplitude):
+    # the third test press's mains (a 1 N line at 50 Hz and a third of it at 150 Hz): its
+    # sample-to-sample scatter read as noise 5 times the sensor's, and fit --base kept a
+    # structure that misfit the loop 95 times the noise floor for one within 20 times it
+    from piezopress import signals
+    from piezopress.analysis.signatures import noise_floor_without_lines
+
+    fs = 500.0
+    t, y = _slow_sweep(fs)
+    clean = signals.noise_floor(y)
+    hum = amplitude * (np.sin(2 * np.pi * mains_hz * t + 0.4) + 0.3 * np.sin(2 * np.pi * 3 * mains_hz * t))
+    assert signals.noise_floor(y + hum) > 3.0 * clean  # what the hum does to the plain estimate
+    assert noise_floor_without_lines(y + hum, fs) == pytest.approx(clean, rel=0.15)
+
+
+def test_without_lines_the_noise_floor_is_the_plain_one():
+    from piezopress import signals
+    from piezopress.analysis.signatures import noise_floor_without_lines
+
+    t, y = _slow_sweep()
+    assert noise_floor_without_lines(y, 500.0) == signals.noise_floor(y)
+    # a reading quantized coarser than its noise keeps the quantization's floor, lines or not
+    q = 0.5
+    coarse = np.round((y + np.sin(2 * np.pi * 50.0 * t)) / q) * q
+    assert noise_floor_without_lines(coarse, 500.0) >= q / np.sqrt(12.0) - 1e-12
