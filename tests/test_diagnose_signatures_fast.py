@@ -273,7 +273,16 @@ def test_a_lag_of_the_model_on_the_sweeps_is_not_a_coupling():
     assert f is not None and f.gain_pct > 20.0  # it predicts better: the lag is there to take up
     assert not f.accepted and "one time shift" in f.refused, f.refused
     shift = float(f.refused.split("reads the sweeps ")[1].split(" us")[0])
-    assert shift == pytest.approx(80.0, abs=20.0)
+    assert shift == pytest.approx(80.0, abs=20.0) and "us earlier" in f.refused
+    # the unknown is said: the summary names the lag, in its own terms, with no cause
+    ctx = _fast_context(lead_s=80e-6)
+    d = dg.diagnose(MODE, ctx.runs, causes=["drive_coupled_interference"])
+    assert d.findings == []
+    (sig,) = [s for s in d.signatures if s["kind"] == "measured_by_cause"]
+    assert "us earlier than the model's drive chain" in sig["text"] and sig["text"] in d.summary
+    # a chain that lags the sweeps instead reads later
+    f = ic.cause_drive_coupled_interference(_fast_context(lead_s=-80e-6))
+    assert f is not None and not f.accepted and "us later" in f.refused, f.refused
 
 
 def test_a_coupling_through_a_slow_high_pass_is_no_time_shift():

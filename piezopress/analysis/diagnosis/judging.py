@@ -118,6 +118,9 @@ class Finding:
     #: them): such a finding is tried again in a pair (:func:`search._together`); a refusal on the
     #: cause's own parameters (a slew that grows with the step) is not
     refused_by_runs: bool = False
+    #: structure the cause's fit measured that no catalogue cause explains, in its own terms (a lag
+    #: of the model on the sweeps, say): the summary says it where the cause is not named
+    signature: str = ""
 
     @property
     def unit(self) -> str:

@@ -309,6 +309,11 @@ def diagnose(
         for ln in lines
     ]
     found = {f.cause: f for f in findings}
+    signatures += [
+        {"kind": "measured_by_cause", "cause": f.cause, "text": f.signature}
+        for f in last_try.values()
+        if f.signature and f.cause not in found
+    ]
     tested: list[dict[str, Any]] = []
     for cid in asked:
         if not checks[cid].testable:
