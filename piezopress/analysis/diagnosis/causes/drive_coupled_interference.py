@@ -165,7 +165,7 @@ def _visible_on_sweeps(ctx: Context, held: list, without: Model, with_it: Model)
 #: default, above half the current limit) leaves the sweeps to the baseline.
 SHIFT_GATE_PCT = 10.0
 #: The time shifts tried (s): a chain's lag misjudged by up to a few hundred microseconds.
-SHIFTS_S = tuple(float(s) for s in np.arange(-300e-6, 300.1e-6, 10e-6))
+SHIFTS_S = tuple(k * 1e-5 for k in range(-30, 31))  # 10 us apart, 0 exactly among them
 
 
 def _shifted_sweeps(fit: list, held: list, base: Model) -> tuple[float, float, float] | None:
