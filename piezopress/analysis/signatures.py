@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from piezopress import signals
+
 __all__ = [
     "Line",
     "drive_independent_lines",
@@ -245,7 +247,7 @@ def notched(e: np.ndarray, freqs: Sequence[float], fs: float) -> np.ndarray:
     >>> t = np.arange(0, 2, 1 / fs)
     >>> e = np.sin(2 * np.pi * 50 * t) + np.sin(2 * np.pi * 7 * t)
     >>> out = notched(e, [50.0], fs)
-    >>> bool(np.std((out - np.sin(2 * np.pi * 7 * t))[200:-200]) < 0.02)
+    >>> bool(np.std((out - np.sin(2 * np.pi * 7 * t))[500:-500]) < 0.01)  # past the notch's ringing (0.3 s)
     True
     """
     out = np.asarray(e, float)
@@ -279,15 +281,12 @@ def noise_floor_without_lines(y: np.ndarray, fs: float) -> float:
     >>> t = np.arange(0, 30, 1 / fs)
     >>> noise = np.random.default_rng(0).normal(0.0, 0.05, t.size)
     >>> hum = np.sin(2 * np.pi * 50 * t) + 0.3 * np.sin(2 * np.pi * 150 * t)
-    >>> from piezopress import signals
     >>> plain = signals.noise_floor(noise)
     >>> round(signals.noise_floor(noise + hum) / plain), round(noise_floor_without_lines(noise + hum, fs) / plain, 1)
     (9, 1.0)
     >>> noise_floor_without_lines(noise, fs) == plain
     True
     """
-    from piezopress import signals
-
     y = np.asarray(y, float)
     plain = signals.noise_floor(y)
     if y.size < 64 or fs / 2.5 <= NOISE_LINES_FROM_HZ:
