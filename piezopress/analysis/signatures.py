@@ -111,6 +111,15 @@ def _is_mains(f: float) -> bool:
     return any(abs(f - k * m) <= 0.01 * k * m for m in MAINS_HZ for k in range(1, 6))
 
 
+def _peak_bins(amp: np.ndarray, idx: np.ndarray) -> list[int]:
+    """The bins of ``idx`` (an ascending band of the amplitude spectrum ``amp``, its ends left out)
+    that are local maxima :data:`PEAK_OVER_MEDIAN` times the band's median: a line."""
+    med = float(np.median(amp[idx]))
+    return [
+        int(i) for i in idx[1:-1] if amp[i] > PEAK_OVER_MEDIAN * med and amp[i] >= amp[i - 1] and amp[i] >= amp[i + 1]
+    ]
+
+
 def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list[Line]:
     """Lines in the residuals where the drive is constant, each checked in the runs that move
     (see the module). ``runs``: ``(t_s, drive, residual, fs_hz, name)``; lines below
@@ -129,21 +138,19 @@ def drive_independent_lines(runs: Sequence[Run], *, min_hz: float = 5.0) -> list
             idx = np.flatnonzero(ok)
             if idx.size < 8:
                 continue
-            med = float(np.median(amp[idx]))
-            for i in idx[1:-1]:
-                if amp[i] > PEAK_OVER_MEDIAN * med and amp[i] >= amp[i - 1] and amp[i] >= amp[i + 1]:
-                    # the peak's frequency refined between its neighbours (a parabola through the bins)
-                    a0, a1, a2 = amp[i - 1], amp[i], amp[i + 1]
-                    den = a0 - 2 * a1 + a2
-                    shift = 0.5 * (a0 - a2) / den if den else 0.0
-                    fr = float(f[i] + shift * res)
-                    if seg_t[-1] - seg_t[0] >= 8 * DEMOD_BLOCK_S:
-                        # refined again by demodulation: off by 0.04 Hz, a fit over two minutes turns
-                        # by five periods and finds a tenth of the line
-                        fr, a, b = fit_line(seg_t, seg_e, fr, fs)
-                        peaks.append((fr, math.hypot(a, b), name, float(res)))
-                    else:
-                        peaks.append((fr, _sine_amplitude(seg_t, seg_e, fr), name, float(res)))
+            for i in _peak_bins(amp, idx):
+                # the peak's frequency refined between its neighbours (a parabola through the bins)
+                a0, a1, a2 = amp[i - 1], amp[i], amp[i + 1]
+                den = a0 - 2 * a1 + a2
+                shift = 0.5 * (a0 - a2) / den if den else 0.0
+                fr = float(f[i] + shift * res)
+                if seg_t[-1] - seg_t[0] >= 8 * DEMOD_BLOCK_S:
+                    # refined again by demodulation: off by 0.04 Hz, a fit over two minutes turns
+                    # by five periods and finds a tenth of the line
+                    fr, a, b = fit_line(seg_t, seg_e, fr, fs)
+                    peaks.append((fr, math.hypot(a, b), name, float(res)))
+                else:
+                    peaks.append((fr, _sine_amplitude(seg_t, seg_e, fr), name, float(res)))
     if not peaks:
         return []
     peaks.sort()
@@ -295,12 +302,7 @@ def noise_floor_without_lines(y: np.ndarray, fs: float) -> float:
     idx = np.flatnonzero((f >= NOISE_LINES_FROM_HZ) & (f <= fs / 2.5))
     if idx.size < 8:
         return plain
-    med = float(np.median(amp[idx]))
-    peaks = [
-        (float(amp[i]), float(f[i]))
-        for i in idx[1:-1]
-        if amp[i] > PEAK_OVER_MEDIAN * med and amp[i] >= amp[i - 1] and amp[i] >= amp[i + 1]
-    ]
+    peaks = [(float(amp[i]), float(f[i])) for i in _peak_bins(amp, idx)]
     lines: list[float] = []
     for _, fr in sorted(peaks, reverse=True):
         if len(lines) < NOISE_MAX_LINES and all(abs(fr - g) > 2.0 * NOTCH_HALF_HZ for g in lines):

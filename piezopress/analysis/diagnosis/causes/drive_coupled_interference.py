@@ -168,11 +168,11 @@ SHIFT_GATE_PCT = 10.0
 SHIFTS_S = tuple(k * 1e-5 for k in range(-30, 31))  # 10 us apart, 0 exactly among them
 
 
-def _shifted_sweeps(fit: list, held: list, base: Model) -> tuple[float, float, float] | None:
+def _shifted_sweeps(fit: list, held: list, base: Model) -> tuple[float, float, float, float] | None:
     """The time shift of ``base``'s reading of the sweeps (s; negative: the sweeps read earlier
     than the model) that best predicts the fitting sweeps' level-free residual, and the held-out
     runs' level-free RMS with it: all of them (the steps read by ``base`` as it is) and the sweeps
-    alone; None without sweeps both to fit and to judge."""
+    alone, and the held-out sweeps' without it; None without sweeps both to fit and to judge."""
     fs_, hs_ = ([(r, sl) for r, sl in segs if r.kind != "step"] for segs in (fit, held))
     if not fs_ or not hs_:
         return None
@@ -182,7 +182,8 @@ def _shifted_sweeps(fit: list, held: list, base: Model) -> tuple[float, float, f
         return lambda r: pred[id(r)] if r.kind == "step" else np.interp(r.t_s - s, r.t_s, pred[id(r)])
 
     s = min(SHIFTS_S, key=lambda s: rms(_level_free_err(fs_, base, shifted(s))))
-    return s, rms(_level_free_err(held, base, shifted(s))), rms(_level_free_err(hs_, base, shifted(s)))
+    sweeps_at = (rms(_level_free_err(hs_, base, shifted(d))) for d in (s, 0.0))
+    return s, rms(_level_free_err(held, base, shifted(s))), *sweeps_at
 
 
 def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
@@ -280,8 +281,7 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     worse = {n: g for n, g in worse_on.items() if g < -SWEEP_WORSE_PCT or visible.get(n, False)}
     shift = _shifted_sweeps(fit, held, base) if not worse and found.gain_pct > 0 else None
     if shift is not None and shift[0] != 0.0 and found.extended_rms > (1.0 - SHIFT_GATE_PCT / 100.0) * shift[1]:
-        s, with_shift, sweeps_shifted = shift
-        sweeps_held = [(r, sl) for r, sl in held if r.kind != "step"]
+        s, with_shift, sweeps_shifted, sweeps_as_is = shift
         u = units.label(ctx.model.unit)
         way = "earlier" if s < 0 else "later"
         return replace(
@@ -293,7 +293,7 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
             "them apart: the chain's lag on the sweeps is off, not the reading",
             refused_by_runs=True,
             signature=f"the fast sweeps read {abs(s) * 1e6:.0f} us {way} than the model's drive chain, identified "
-            f"on the steps, draws (held-out sweeps {rms(_level_free_err(sweeps_held, base)):.3g} {u} RMS, "
+            f"on the steps, draws (held-out sweeps {sweeps_as_is:.3g} {u} RMS, "
             f"{sweeps_shifted:.3g} {u} shifted): the chain's lag on the sweeps is off; no cause in the catalogue, "
             "and a coupling through a fast high-pass cannot be told from it there",
         )
