@@ -284,18 +284,29 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
         s, with_shift, sweeps_shifted, sweeps_as_is = shift
         u = units.label(ctx.model.unit)
         way = "earlier" if s < 0 else "later"
+        # the lag is said only where the shift itself predicts the held-out sweeps better by the
+        # gate (third test press, rate dependence found, seed 3: 1.69 N as they are, 1.68 N
+        # shifted 10 us: no lag to speak of)
+        lag = sweeps_shifted < (1.0 - SHIFT_GATE_PCT / 100.0) * sweeps_as_is
+        why = (
+            f"the force reads the sweeps {abs(s) * 1e6:.0f} us {way} than the model's chain, identified on the steps, "
+            "draws. On the sweeps a coupling through a fast high-pass is a derivative of the drive, as is a lag, and "
+            "the runs cannot tell them apart: the chain's lag on the sweeps is off, not the reading"
+            if lag
+            else f"neither changes the held-out sweeps much ({sweeps_as_is:.3g} {u} as they are, {sweeps_shifted:.3g} "
+            f"{u} shifted {abs(s) * 1e6:.0f} us): what the coupling takes up is no artefact of the drive current"
+        )
         return replace(
             found,
             refused=f"one time shift of the model's sweeps predicts the held-out runs as well ({with_shift:.3g} {u} "
-            f"against {found.extended_rms:.3g} {u} with the coupling): the force reads the sweeps "
-            f"{abs(s) * 1e6:.0f} us {way} than the model's chain, identified on the steps, draws. On the sweeps a "
-            "coupling through a fast high-pass is a derivative of the drive, as is a lag, and the runs cannot tell "
-            "them apart: the chain's lag on the sweeps is off, not the reading",
+            f"against {found.extended_rms:.3g} {u} with the coupling): {why}",
             refused_by_runs=True,
             signature=f"the fast sweeps read {abs(s) * 1e6:.0f} us {way} than the model's drive chain, identified "
             f"on the steps, draws (held-out sweeps {sweeps_as_is:.3g} {u} RMS, "
             f"{sweeps_shifted:.3g} {u} shifted): the chain's lag on the sweeps is off; no cause in the catalogue, "
-            "and a coupling through a fast high-pass cannot be told from it there",
+            "and a coupling through a fast high-pass cannot be told from it there"
+            if lag
+            else "",
         )
     if worse:
         found = replace(
