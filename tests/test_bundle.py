@@ -79,6 +79,19 @@ def test_from_dict_and_to_dict_round_trip_and_the_models_are_the_bundles():
     assert b.settings.lead_s == doc["compensation"]["lead_s"]
 
 
+def test_a_rate_law_as_a_power_of_the_rate_is_the_compensators():
+    # the power law diagnose may find (a viscous lag in the square root of the rate) reaches the
+    # compensator as written, and a bundle without one reads as the linear law
+    doc = base_doc()
+    doc["compensation"]["rate_dependence"] = {"widen_v_per_kv_s": 1.5, "exponent": 0.5, "tau_s": 0.002}
+    rate = Bundle.from_dict(doc).compensator().rate
+    assert (rate.widen_v_per_kv_s, rate.exponent, rate.saturation_v_per_s, rate.tau_s) == (1.5, 0.5, None, 0.002)
+    ramp = 4.0 * np.arange(1000)  # 4 kV/s at 1 kHz, read as 2 kV/s once the 2 ms envelope settles
+    assert rate.rate(ramp, 1000.0)[-1] == pytest.approx(2000.0, rel=1e-9)
+    del doc["compensation"]["rate_dependence"]["exponent"]
+    assert Bundle.from_dict(doc).compensator().rate.exponent == 1.0
+
+
 def test_compensator_is_the_one_the_bundle_describes():
     """The drive equals (to 1e-12 V) the compensator assembled by hand from the bundle's numbers."""
     doc = base_doc()
@@ -245,6 +258,10 @@ PROBES = {
     "no hysteresis": (lambda d: (d.pop("hysteresis"), d)[1], "has no hysteresis section"),
     "section not a mapping": (_set("creep", [1, 2]), "creep is a JSON list; expected a mapping"),
     "string number": (_set("compensation.lead_s", "0.001"), "compensation.lead_s = '0.001'; expected a finite number"),
+    "rate law saturating and a power": (
+        _set("compensation.rate_dependence", {"widen_v_per_kv_s": 1.0, "saturation_v_per_s": 2000.0, "exponent": 0.5}),
+        "compensation.rate_dependence.exponent = 0.5; expected 1 with saturation_v_per_s 2000",
+    ),
 }
 
 

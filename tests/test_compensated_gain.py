@@ -279,7 +279,13 @@ def _shaper_dict(wn, zeta):
 
 @pytest.mark.parametrize(
     "form",
-    [dict(widen_v_per_kv_s=0.15), dict(widen_v_per_kv_s=0.15, saturation_v_per_s=20_000.0), dict(loss_per_kv_s=0.05)],
+    [
+        dict(widen_v_per_kv_s=0.15),
+        dict(widen_v_per_kv_s=0.15, saturation_v_per_s=20_000.0),
+        dict(loss_per_kv_s=0.05),
+        dict(widen_v_per_kv_s=0.6, exponent=0.5),
+        dict(loss_per_kv_s=0.1, exponent=0.75),
+    ],
 )
 @pytest.mark.parametrize("freq", [5.0, 50.0])
 def test_the_rate_aware_inverse_played_through_the_same_rate_model_gives_back_the_reference(form, freq):
@@ -293,6 +299,7 @@ def test_the_rate_aware_inverse_played_through_the_same_rate_model_gives_back_th
         rate_loss_per_kv_s=rate.loss_per_kv_s,
         rate_saturation_v_per_s=rate.saturation_v_per_s,
         rate_tau_s=rate.tau_s,
+        rate_exponent=rate.exponent,
     )
     run = dg.RunData("r", "triangle", np.arange(ref.size) / fs, x, np.zeros_like(x), fs)
     err = model.static(run) - ref  # the diagnosis's own forward model, at the drive's own rate
@@ -320,7 +327,11 @@ def test_the_rate_aware_lead_ends_with_the_motion():
 
 @pytest.mark.parametrize(
     "form",
-    [dict(loss_per_kv_s=0.12, saturation_v_per_s=4000.0), dict(widen_v_per_kv_s=2.9, saturation_v_per_s=2000.0)],
+    [
+        dict(loss_per_kv_s=0.12, saturation_v_per_s=4000.0),
+        dict(widen_v_per_kv_s=2.9, saturation_v_per_s=2000.0),
+        dict(widen_v_per_kv_s=1.6, exponent=0.5),
+    ],
 )
 @pytest.mark.parametrize("levels", [(100.0,), (30.0, 60.0, 90.0, 40.0)])
 @pytest.mark.parametrize("smoothed", [False, True])

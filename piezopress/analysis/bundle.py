@@ -481,7 +481,20 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
             loss_per_kv_s=c.number(rd.get("loss_per_kv_s", 0.0), f"{q}.loss_per_kv_s", 0.0, 1e3, "per kV/s"),
             saturation_v_per_s=sat,
             tau_s=c.number(rd.get("tau_s", RATE_TAU_S), f"{q}.tau_s", 0.0, 1e3, "a time constant in s", lo_open=True),
+            exponent=c.number(
+                rd.get("exponent", 1.0), f"{q}.exponent", 0.0, 1.0, "the rate law's exponent, in (0, 1]", lo_open=True
+            ),
+            floor_v_per_s=c.number(
+                rd.get("floor_v_per_s", 0.0), f"{q}.floor_v_per_s", 0.0, MAX_RATE, "the loop's fitted rate, V/s"
+            ),
         )
+        if rate.saturation_v_per_s and rate.exponent != 1.0:
+            c.fail(
+                f"{q}.exponent",
+                rate.exponent,
+                f"1 with saturation_v_per_s {rate.saturation_v_per_s:g} (a rate law saturates or is a power law, "
+                "not both: give one, the other null or 1)",
+            )
     return Settings(lo, hi, rate_limit, lead, delay, slew, rate, chain, samples)
 
 
@@ -818,6 +831,8 @@ def rate_dependence(model: Any) -> dict[str, Any]:
         "loss_per_kv_s": float(getattr(model, "rate_loss_per_kv_s", 0.0)),
         "saturation_v_per_s": float(sat) if sat and np.isfinite(sat) else None,
         "tau_s": float(getattr(model, "rate_tau_s", 5e-4)),
+        "exponent": float(getattr(model, "rate_exponent", 1.0)),
+        "floor_v_per_s": float(getattr(model, "rate_floor_v_per_s", 0.0)),
     }
 
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from piezopress import signals, units
 from piezopress.analysis.creep import CreepModel
-from piezopress.analysis.hysteresis import PIModel, rate_loss_output
+from piezopress.analysis.hysteresis import PIModel, rate_law, rate_loss_output
 from piezopress.analysis.shaper import Shaper
 from piezopress.errors import FitError
 
@@ -141,7 +141,9 @@ class RateDependence:
     """Rate-dependent hysteresis as ``diagnose`` models it (``rate_dependent_hysteresis``).
 
     The stack feels the drive rate ``rho = env(|dx/dt|)`` smoothed over ``tau_s`` (and
-    saturating as ``sat tanh(rho / sat)`` when ``saturation_v_per_s`` is given). Either every
+    saturating as ``sat tanh(rho / sat)`` when ``saturation_v_per_s`` is given, or as a power law
+    of it, ``exponent``; read above ``floor_v_per_s``, the rate the static loop was fitted at:
+    :func:`piezopress.analysis.hysteresis.rate_law`). Either every
     play threshold widens by ``widen_v_per_kv_s * rho / 1000`` V, or the weighted plays' lag
     behind the drive grows by ``loss_per_kv_s * rho / 1000`` of itself (or both).
     """
@@ -150,6 +152,8 @@ class RateDependence:
     loss_per_kv_s: float = 0.0
     saturation_v_per_s: float | None = None
     tau_s: float = RATE_TAU_S
+    exponent: float = 1.0
+    floor_v_per_s: float = 0.0
 
     @property
     def active(self) -> bool:
@@ -157,10 +161,11 @@ class RateDependence:
 
     def rate(self, x: np.ndarray, fs_hz: float) -> np.ndarray:
         """The rate the stack feels (V/s) under the drive ``x``."""
-        rho = signals.rate_envelope(x, fs_hz, self.tau_s)
-        if self.saturation_v_per_s and math.isfinite(self.saturation_v_per_s):
-            rho = self.saturation_v_per_s * np.tanh(rho / self.saturation_v_per_s)
-        return rho
+        return self.law(signals.rate_envelope(x, fs_hz, self.tau_s))
+
+    def law(self, rho: np.ndarray) -> np.ndarray:
+        """The rate law read on a rate ``rho`` (V/s) the stack feels."""
+        return rate_law(rho, self.saturation_v_per_s, self.exponent, self.floor_v_per_s)
 
     def forward(self, model: PIModel, x: np.ndarray, fs_hz: float) -> np.ndarray:
         """The model's output (absolute, ``y0`` included) for the drive ``x``, at the drive's own rate."""
@@ -220,9 +225,7 @@ def rate_aware_inverse(
     if rate.widen_v_per_kv_s > 0 and rate.loss_per_kv_s == 0:
         # the lead never outlasts the motion: at most the widening at the static inverse's own
         # instantaneous rate (see the docstring)
-        rho = np.abs(np.diff(z, prepend=z[0])) * fs_hz
-        if rate.saturation_v_per_s and math.isfinite(rate.saturation_v_per_s):
-            rho = rate.saturation_v_per_s * np.tanh(rho / rate.saturation_v_per_s)
+        rho = rate.law(np.abs(np.diff(z, prepend=z[0])) * fs_hz)
         d = _direction(z)
         x = z + d * np.clip((x - z) * d, 0.0, rate.widen_v_per_kv_s * rho / 1000.0)
     return _settled_at_holds(x, z, fs_hz, rate), {"passes": passes, "residual_v": res}
@@ -259,7 +262,7 @@ def _settled_at_holds(x: np.ndarray, z: np.ndarray, fs_hz: float, rate: RateDepe
     top) keep the fixed point: that reversal is the reference's own.
     """
     dz = np.diff(z, prepend=z[0])
-    rho = np.abs(dz) * fs_hz / 1000.0  # kV/s
+    rho = rate.law(np.abs(dz) * fs_hz) / 1000.0  # kV/s, as the law reads it
     still = (rho * rate.loss_per_kv_s < RATE_HOLD_BOOST) & (rho * rate.widen_v_per_kv_s < RATE_HOLD_WIDEN_V)
     long_hold = max(2, int(math.ceil(RATE_HOLD_TAUS * rate.tau_s * fs_hz)))
     out = x.copy()

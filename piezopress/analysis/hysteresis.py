@@ -166,6 +166,44 @@ def dead_zone_superposition(p: np.ndarray, d: np.ndarray, s: np.ndarray) -> np.n
     return np.interp(p, knots, at)
 
 
+#: The rate (V/s) at which a rate law's gain is stated: ``g V per kV/s`` is the widening at 1 kV/s
+#: whatever the law's exponent.
+RATE_LAW_REF_V_PER_S = 1000.0
+
+
+def rate_law(
+    rho: np.ndarray, saturation_v_per_s: float | None = None, exponent: float = 1.0, floor_v_per_s: float = 0.0
+) -> np.ndarray:
+    """The rate a rate-dependent loop responds to, from the drive's rate envelope ``rho`` (V/s):
+    ``rho`` itself (linear), ``sat tanh(rho / sat)`` (saturating at ``saturation_v_per_s``), or
+    a power law ``ref (rho / ref)^exponent`` (``ref`` = :data:`RATE_LAW_REF_V_PER_S`): a viscous
+    lag growing as the rate's square root is ``exponent`` 0.5. The power law and the saturation
+    are one or the other; the output is in V/s, equal to ``rho`` at ``ref`` for every exponent.
+
+    ``floor_v_per_s``: the rate the rate-independent loop was fitted at (its slow sweeps'). That
+    loop holds the widening at that rate already, so the law is read above it, ``law(rho) -
+    law(floor)``, and never below 0: at 60 V/s (0.1 Hz triangles of 150 V) a square root holds a
+    quarter of its widening at 1 kV/s, which counted twice made the third test press's compensated
+    0.1 Hz loop 1.0 -> 2.0 %. One definition for the compensator
+    (:class:`piezopress.analysis.compensation.RateDependence`) and ``diagnose``'s forward model.
+
+    >>> rate_law(np.array([0.0, 250.0, 1000.0, 4000.0]), exponent=0.5).tolist()
+    [0.0, 500.0, 1000.0, 2000.0]
+    >>> rate_law(np.array([0.0, 250.0, 1000.0, 4000.0]), exponent=0.5, floor_v_per_s=250.0).tolist()
+    [0.0, 0.0, 500.0, 1500.0]
+    """
+
+    def law(r: np.ndarray) -> np.ndarray:
+        if saturation_v_per_s and math.isfinite(saturation_v_per_s):
+            return saturation_v_per_s * np.tanh(r / saturation_v_per_s)
+        if exponent != 1.0:
+            return RATE_LAW_REF_V_PER_S * (np.abs(r) / RATE_LAW_REF_V_PER_S) ** exponent
+        return r
+
+    read = law(np.asarray(rho, float))
+    return np.maximum(read - law(np.asarray(float(floor_v_per_s))), 0.0) if floor_v_per_s > 0 else read
+
+
 def rate_loss_output(
     model: PIModel, u: np.ndarray, plays: np.ndarray, extra: np.ndarray | None, loss: np.ndarray | float
 ) -> np.ndarray:

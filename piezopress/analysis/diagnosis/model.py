@@ -153,10 +153,13 @@ class Model:
     # rate_dependent_hysteresis: every play threshold grows by rate_v_per_kv_s V per kV/s of the
     # drive rate (smoothed over rate_tau_s), or the loop's width (the plays' lag behind the
     # drive) by rate_loss_per_kv_s of itself per kV/s; the rate saturating at
-    # rate_saturation_v_per_s (None: linear)
+    # rate_saturation_v_per_s (None: linear) or as a power law of it, rate_exponent (1: linear;
+    # the gains are then per kV/s at 1 kV/s, hysteresis.rate_law)
     rate_v_per_kv_s: float = 0.0
     rate_loss_per_kv_s: float = 0.0
     rate_saturation_v_per_s: float | None = None
+    rate_exponent: float = 1.0
+    rate_floor_v_per_s: float = 0.0  # the rate the static loop was fitted at: the law is read above it
     rate_tau_s: float = 5e-4
     # drive_coupled_interference: (gain output unit per V/s above a threshold of the unsigned rate
     # envelope, threshold V/s, tau s[, gain output unit per V/s of the signed rate (the drive current's sign)[,
@@ -199,7 +202,14 @@ class Model:
         # the search evaluates one static map on one run many times (only later stages change),
         # and many rate dependences on one drive felt (only the plays' widening changes)
         chain = (self.hysteresis, self.slew_v_per_s, self.drive_tau_s, self.drive_lowpass, self.drive_delay_s)
-        rate_form = (self.rate_v_per_kv_s, self.rate_loss_per_kv_s, self.rate_saturation_v_per_s, self.rate_tau_s)
+        rate_form = (
+            self.rate_v_per_kv_s,
+            self.rate_loss_per_kv_s,
+            self.rate_saturation_v_per_s,
+            self.rate_tau_s,
+            self.rate_exponent,
+            self.rate_floor_v_per_s,
+        )
 
         def compute() -> np.ndarray:
             def felt_plays() -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -234,9 +244,7 @@ class Model:
         if not (self.rate_v_per_kv_s > 0 or self.rate_loss_per_kv_s > 0):
             return None
         rate = signals.rate_envelope(felt, run.fs_hz, self.rate_tau_s)
-        if self.rate_saturation_v_per_s:
-            rate = self.rate_saturation_v_per_s * np.tanh(rate / self.rate_saturation_v_per_s)
-        return rate
+        return H.rate_law(rate, self.rate_saturation_v_per_s, self.rate_exponent, self.rate_floor_v_per_s)
 
     def _plays(self, x: np.ndarray, widen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(u, plays, plane)``: the input relative to the map's origin, the plays' weighted sum

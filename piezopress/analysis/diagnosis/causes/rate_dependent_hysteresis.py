@@ -27,6 +27,7 @@ from piezopress.analysis.diagnosis.judging import (
 from piezopress.analysis.diagnosis.model import Model
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import rms
+from piezopress.analysis.hysteresis import rate_law
 
 #: A rate dependence must predict the fast sweeps' held-out ends this much better (percent)
 #: than one widening for every fast rate. On the second test press a constant widening does
@@ -35,12 +36,22 @@ from piezopress.analysis.diagnosis.residuals import rms
 RATE_GATE_PCT = 10.0
 #: Rates at which the rate dependence's widening may saturate (None: it does not).
 RATE_SATURATIONS_V_PER_S = (None, 2e3, 4e3, 8e3, 2e4)
+#: Power laws of the rate tried beside them (exponents below 1; ``hysteresis.rate_law``). A
+#: viscous lag in the square root of the rate (the third test press's) drawn as a widening
+#: saturating at 2 kV/s, the best of the saturating forms, doubles the widening at 5-10 Hz where
+#: it is fitted to 50 Hz: compensated with it, the 10 Hz loop went from 1.28 to 3.39 % (seeds 3-4).
+RATE_EXPONENTS = (0.5, 0.75)
+#: The laws whose best linearised candidates are refined on the model itself.
+RATE_LAWS_REFINED = 4
+#: Every law tried: ``(saturation V/s or None, exponent)``.
+RATE_LAWS = tuple((sat, 1.0) for sat in RATE_SATURATIONS_V_PER_S) + tuple((None, p) for p in RATE_EXPONENTS)
 
 
 def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
     """Every form of rate dependence tried, each with its gain fitted: the widening as play
     thresholds growing with the rate, or as the loop's width scaled with it; the rate smoothed
-    over 0.5 or 2 ms; linear in the rate or saturating (tanh) at 2 to 20 kV/s. The gain of
+    over 0.5 or 2 ms; linear in the rate, saturating (tanh) at 2 to 20 kV/s or a power law of it
+    (:data:`RATE_LAWS`). The gain of
     each is fitted on the response linearised about the model (a small uniform widening's
     effect, scaled sample by sample by the form's rate and passed through creep, mode and
     sensor), then the best forms are refined on the model itself. Returns (cost, model),
@@ -58,7 +69,7 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
     shapes = {}
     for key, eps in (("rate_v_per_kv_s", 0.5), ("rate_loss_per_kv_s", 0.05)):
         # the static map's response to a uniform widening (eps V, or eps of the loop)
-        m = replace(model, **{key: eps}, rate_saturation_v_per_s=None)
+        m = replace(model, **{key: eps}, rate_saturation_v_per_s=None, rate_exponent=1.0, rate_floor_v_per_s=0.0)
         sens = {}
         for r in runs:  # a uniform rate of 1 kV/s
             sens[id(r)] = (m.static_at_rate(felt[id(r)], np.full(r.x.size, 1000.0)) - h0[id(r)]) / eps
@@ -66,11 +77,11 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
     cands = []
     for tau in (5e-4, 2e-3):
         rates = {id(r): signals.rate_envelope(felt[id(r)], r.fs_hz, tau) for r in runs}
-        for sat in RATE_SATURATIONS_V_PER_S:
+        for sat, p in RATE_LAWS:
             for key, sens in shapes.items():
                 cols = []
                 for r, sl in fit:
-                    g = rates[id(r)] if sat is None else sat * np.tanh(rates[id(r)] / sat)
+                    g = rate_law(rates[id(r)], sat, p, model.rate_floor_v_per_s)
                     dh = g / 1000.0 * sens[id(r)]
                     cols.append((model.reading(r, model.force(r, h0[id(r)] + dh)) - p0[id(r)])[sl])
                 a = np.concatenate(cols)
@@ -84,13 +95,21 @@ def _rate_forms(model: Model, fit: list[Segment]) -> list[tuple[float, Model]]:
                 b_sweeps = float(a[sweep] @ res[sweep]) / float(on) if on > 0 else 0.0
                 for bb in {b, b_sweeps}:
                     if bb > 0:
-                        cands.append((rms(res - bb * a), key, bb, tau, sat))
+                        cands.append((rms(res - bb * a), key, bb, tau, sat, p))
     cands.sort(key=lambda c: c[0])
+    # the best of each law, the first few refined on the model itself: linearised about the
+    # model, a widening of several volts is misjudged most where the laws differ (the slow end),
+    # so the refinement compares laws, not one law's variants (third test press, seed 4: the
+    # three best linearised were one law saturating at 4 kV/s, 2.48 N refined; the square root,
+    # fifth, 2.12 N)
+    best_of_law = {}
+    for c in cands:
+        best_of_law.setdefault((c[1], c[4], c[5]), c)
     out = []
-    for _, key, b, tau, sat in cands[:3]:  # refined on the model itself
+    for _, key, b, tau, sat, p in list(best_of_law.values())[:RATE_LAWS_REFINED]:
 
-        def model_of(v, key=key, tau=tau, sat=sat):
-            return replace(model, **{key: v}, rate_tau_s=tau, rate_saturation_v_per_s=sat)
+        def model_of(v, key=key, tau=tau, sat=sat, p=p):
+            return replace(model, **{key: v}, rate_tau_s=tau, rate_saturation_v_per_s=sat, rate_exponent=p)
 
         v = _search(lambda v: _cost(fit, model_of(v)), 0.3 * b, 2.0 * b, 9)
         out.append((_cost(fit, model_of(v)), model_of(v)))
@@ -132,11 +151,34 @@ def _with_mode_freed(base: Model, ext: Model, fit: list[Segment], ext_cost: floa
     return base, freed, base_cost, freed_cost
 
 
+#: A run the base was fitted on is a sweep where its drive moves over this share of its samples ...
+SWEEP_MOVING_SHARE = 0.5
+#: ... faster than this share of its fastest rate (a step's hold, a creep hold and a rest are
+#: still there: their rate envelope decays from the step's to nothing).
+SWEEP_MOVING_RATE = 0.01
+
+
+def fitted_rate(ctx: Context, tau_s: float = 2e-3) -> float:
+    """The drive rate (V/s) the base model's loop was fitted at: the median rate envelope of
+    the runs it was fitted on that are sweeps by their drive (it moves most of the time; a step,
+    a creep hold and a rest do not), 0 without one. The loop fitted there holds the widening at
+    that rate already; the rate law is read above it (``hysteresis.rate_law``)."""
+    moving = []
+    for r in ctx.runs:
+        if not ctx.is_fitted(r):
+            continue
+        env = signals.rate_envelope(r.x, r.fs_hz, tau_s)
+        fast = env > SWEEP_MOVING_RATE * float(np.max(env, initial=0.0))
+        if env.size and fast.mean() > SWEEP_MOVING_SHARE:
+            moving.append(env[fast])
+    return float(np.median(np.concatenate(moving))) if moving else 0.0
+
+
 def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     if not ctx.independent(ctx.sweeps(5.0)):
         return None
     fit, held = _fast_split(ctx)
-    base = _fast_base(ctx, fit)
+    base = replace(_fast_base(ctx, fit), rate_floor_v_per_s=fitted_rate(ctx))
     forms = _rate_forms(base, fit)
     if not forms:
         return None
@@ -145,7 +187,16 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     # freed before the form is judged: a mode distorted far enough (the third test press's
     # strongest widening read a 880 Hz mode as 278 Hz at damping 0.95) hides the widening from
     # a model that keeps it
+    freed_from = ext
     base, ext, base_cost, ext_cost = _with_mode_freed(base, ext, fit, ext_cost)
+    if ext.wn != freed_from.wn:
+        # the law again with the mode freed: the distorted mode took up part of the widening
+        # where the first law was chosen, so the law that draws it best is read on the freed mode
+        # (third test press, seed 3: a square root, held out 1.9 N, beside 4.0 N for the form
+        # saturating at 2 kV/s that the distorted mode chose)
+        again = _rate_forms(replace(ext, rate_v_per_kv_s=0.0, rate_loss_per_kv_s=0.0), fit)
+        if again and again[0][0] < ext_cost:
+            ext_cost, ext = again[0]
     if ext_cost >= base_cost:
         return None
     # Rate dependence is a widening that changes with the rate across the fast sweeps. A loop
@@ -161,7 +212,14 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     if slowest > 0:
 
         def constant(k):
-            return replace(base, rate_loss_per_kv_s=k, rate_saturation_v_per_s=0.1 * slowest, rate_tau_s=2e-3)
+            return replace(
+                base,
+                rate_loss_per_kv_s=k,
+                rate_saturation_v_per_s=0.1 * slowest,
+                rate_tau_s=2e-3,
+                rate_exponent=1.0,
+                rate_floor_v_per_s=0.0,
+            )
 
         k = _search(lambda k: _cost(fit, constant(k)), 0.0, 2.0 / (0.1 * slowest / 1000.0), 21)
         gate = _judge_dynamics(ctx, "rate_dependent_hysteresis", "", fit, held, ext, {}, constant(k))
@@ -170,15 +228,26 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
             or gate.baseline_rms - gate.extended_rms < MIN_IMPROVEMENT_TO_FLOOR * gate.floor
         ):
             return None
-    sat = ext.rate_saturation_v_per_s
-    form = f"saturating above {sat / 1e3:.3g} kV/s" if sat else "in proportion to it"
-    if ext.rate_v_per_kv_s:
-        how = f"every threshold grows {ext.rate_v_per_kv_s:.3g} V per kV/s"
+    sat, p = ext.rate_saturation_v_per_s, ext.rate_exponent
+    if sat:
+        form = f"saturating above {sat / 1e3:.3g} kV/s"
+    elif p != 1.0:
+        form = "as the square root of it" if p == 0.5 else f"as its power {p:g}"
     else:
-        how = f"the loop's width grows {100 * ext.rate_loss_per_kv_s:.3g} % per kV/s"
+        form = "in proportion to it"
+    at = " at 1 kV/s" if p != 1.0 else " per kV/s"
+    if ext.rate_v_per_kv_s:
+        how = f"every threshold grows {ext.rate_v_per_kv_s:.3g} V{at}"
+    else:
+        how = f"the loop's width grows {100 * ext.rate_loss_per_kv_s:.3g} %{at}"
     ev = (
         f"the loops widen with the drive rate beyond the model's dynamics, {form}: {how} "
-        f"(rate smoothed over {ext.rate_tau_s * 1e3:.3g} ms)"
+        f"(rate smoothed over {ext.rate_tau_s * 1e3:.3g} ms"
+        + (
+            f"; read above the {ext.rate_floor_v_per_s:.3g} V/s the base loop was fitted at, whose widening it holds)"
+            if ext.rate_floor_v_per_s > 0
+            else ")"
+        )
     )
     if mode_before[0] and ext.wn and abs(ext.wn / mode_before[0] - 1.0) > 0.1:
         ev += (
@@ -197,6 +266,8 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
             "rate_loss_per_kv_s": ext.rate_loss_per_kv_s,
             "rate_saturation_v_per_s": sat or math.inf,
             "rate_tau_s": ext.rate_tau_s,
+            "rate_exponent": p,
+            "rate_floor_v_per_s": ext.rate_floor_v_per_s,
         },
         base,
     )
@@ -207,7 +278,7 @@ CAUSE = Cause(
     "rate_dependent_hysteresis",
     "the stack's loop widens with the drive rate (domain walls lag a fast field)",
     "play thresholds r_i + beta |dV/dt|, or the loop's width scaled by 1 + k |dV/dt| (the rate smoothed, "
-    "linear or saturating)",
+    "linear, saturating or a power law of it)",
     cause_rate_dependent_hysteresis,
     needs=(Need((RunSpec("sweep", min_freq_hz=5.0),), 1, independent=True),),
     extend=_bundle.extend_rate_dependence,
