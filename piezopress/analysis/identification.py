@@ -568,7 +568,7 @@ def hysteresis_and_creep(
         # For the base (the forward model diagnose judges residuals against) the loop fitted
         # again with this creep removed is kept instead where it predicts the sweeps' held-out
         # ends better (third press: 13.3 -> 4.6 N, against 4.7 N for the loop alone). fit refits
-        # the loop in the structure the first loop chose (:func:`same_structure`): searched again on
+        # the loop in the structure the first loop's search chose (its one candidate): searched again on
         # the creep-removed sweeps, the greedy search took other plays and dead zones, and a plane
         # on them that predicted the sweeps worse (third press, seed 0: 0.51 N against 0.36 N in the
         # first structure) and compensated the 0.1 Hz loop worse (2.33 % against 1.05 %, 3 seeds)
@@ -584,9 +584,9 @@ def hysteresis_and_creep(
         )
         pairs = [(sweep_holdout_rms(sweeps, h0fit.model, cfit.model, holdout_fraction), h0, h0fit)]
         try:
-            again = kw if base else {**kw, "grid": same_structure(h0fit)}
+            again = kw if base else {**kw, "grid": [h0fit.candidate]}
             h1, h1fit = hysteresis_section(sweeps, creep=cfit.model, **again)
-            if again is not kw:  # the structure, and why, are the first search's
+            if not base:  # the structure, and why, are the first search's
                 kept = {k: h0["fit"][k] for k in STRUCTURE_KEYS if k in h0["fit"]}
                 kept["reason"] = (
                     f"{h0['fit']['reason']}; fitted again in this structure with the hold's creep removed "
@@ -680,14 +680,8 @@ def hysteresis_and_creep(
 
 
 #: The hysteresis fit figures that say which structure and family the search chose and why: a
-#: loop fitted again in that structure keeps them.
-STRUCTURE_KEYS = ("chosen", "family", "family_reason", "reason", "candidates")
-
-
-def same_structure(fit: H.HysteresisFit) -> list[H.Candidate] | None:
-    """The structure ``fit`` chose, as the one candidate of a grid (None: the search's own grid,
-    where the fit does not say which it chose)."""
-    return [fit.candidate] if fit.candidate is not None else None
+#: loop fitted again in that structure keeps them (its reason says it was fitted again).
+STRUCTURE_KEYS = ("chosen", "family", "family_reason", "candidates")
 
 
 #: ``fit --base`` keeps the thesis's structure, even where another family wins the search, while
