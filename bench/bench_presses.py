@@ -17,7 +17,15 @@ floor is above its target cannot meet the target on that press, whatever the com
 (the max-based rows read the noise's peaks: the overshoot of a 30 N step, the staircase's
 error relative to 30 N).
 
+With ``--repeats R`` (R > 1) the drives are played R times (``compare --repeats``): the rows are
+then the mean over the repeats, and a second table gives the rows of the outputs averaged over
+the repeats sample by sample (the same drive and reference each time, the press's noise new each
+time: its part falls by sqrt(R), what the compensation leaves does not), beside the floor of R
+noise stretches averaged alike. Where a row's one-repeat floor is above its target, that table
+says how much of the row is the compensation's; the target stays the one-repeat row's.
+
 Run: .venv/bin/python bench/bench_presses.py [--against COMMIT] [--rig second,third] [--seeds 3] [--workers 2]
+         [--repeats 1]
 """
 
 from __future__ import annotations
@@ -57,7 +65,7 @@ DRIVER = r"""
 import json, shutil, sys
 from pathlib import Path
 import numpy as np
-tests, rig, seed, work = sys.argv[1], sys.argv[2], int(sys.argv[3]), Path(sys.argv[4])
+tests, rig, seed, work, repeats = sys.argv[1], sys.argv[2], int(sys.argv[3]), Path(sys.argv[4]), int(sys.argv[5])
 sys.path.insert(0, tests)
 import independent_press as ip
 import third_press as tp
@@ -70,7 +78,7 @@ res = F.fit_bundle([work / "char"], press.limits)
 B.write_document(res.doc, work / "bundle.json")
 shutil.copy(work / "bundle.json", work / "same.json")
 c = compare.compare([work / "bundle.json", work / "same.json"], work / "cmp", backend=press, rig_path=None,
-                    repeats=1, labels=["a", "b"])
+                    repeats=repeats, labels=["a", "b"])
 t = c.table
 rows = {r: float(g["mean"].iloc[0]) for r, g in t[t["bundle"] == "a"].groupby("row")}
 rest = [p for p in sorted((work / "char").glob("*.parquet")) if p.stem.startswith("rest")]
@@ -85,9 +93,9 @@ print(json.dumps({"code": piezopress.__file__, "rows": rows, "holdout": fit["hol
 """
 
 
-def one(tree: Path | None, rig: str, seed: int, work: Path) -> dict:
+def one(tree: Path | None, rig: str, seed: int, work: Path, repeats: int = 1) -> dict:
     work.mkdir(parents=True)
-    args = [str(ROOT / "tests"), rig, str(seed), str(work)]
+    args = [str(ROOT / "tests"), rig, str(seed), str(work), str(repeats)]
     # run from the job's folder: from the checkout, "" on sys.path would import today's code for both
     out = subprocess.run(
         [sys.executable, "-c", DRIVER, *args], env=_env(tree), cwd=work, capture_output=True, text=True
@@ -97,32 +105,65 @@ def one(tree: Path | None, rig: str, seed: int, work: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def floor_rows(work: Path, seed: int) -> dict[str, float]:
-    """The rows of ``work``'s compensated runs (one press, one seed) with every output replaced
-    by its reference plus the press's noise: stretches of the rest run of ``work``'s
-    characterization, its slow drift (a quadratic) removed, taken at random places."""
+def _rest_noise(work: Path) -> np.ndarray:
+    """The press's noise: the rest run of ``work``'s characterization, its slow drift (a quadratic) removed."""
     from piezopress import runformat
-    from piezopress.pipelines import gain
-    from piezopress.pipelines.files import run_files
 
     rest = [p for p in sorted((work / "char").glob("*.parquet")) if p.stem.startswith("rest")]
     y = runformat.read_run(rest[0]).output
     k = np.arange(y.size)
-    noise = y - np.polyval(np.polyfit(k, y, 2), k)
-    rng = np.random.default_rng(seed)
-    out = work / "floor"
+    return y - np.polyval(np.polyfit(k, y, 2), k)
+
+
+def _rows_of(work: Path, out: Path, output_of) -> dict[str, float]:
+    """The rows of ``work``'s compensated runs (one press, one seed) with every output replaced
+    by ``output_of(run, path relative to the repeat's folder)``, written under ``out``."""
+    from piezopress import runformat
+    from piezopress.pipelines import gain
+    from piezopress.pipelines.files import run_files
+
     dirs = []
     for sub in sorted((work / "cmp" / "rep1" / "a").iterdir()):
         (out / sub.name).mkdir(parents=True)
         dirs.append(out / sub.name)
         for f in run_files(sub):
             run = runformat.read_run(f)
-            n = len(run.data)
-            start = int(rng.integers(0, noise.size - n)) if noise.size > n else 0
             data = run.data.copy()
-            data[run.output_column] = data["reference_n"].to_numpy() + np.resize(noise[start : start + n], n)
+            data[run.output_column] = output_of(run, f.relative_to(work / "cmp" / "rep1"))
             runformat.write_run(dataclasses.replace(run, data=data), out / sub.name / f.name)
     return gain.row_values(dirs)
+
+
+def floor_rows(work: Path, seed: int, average: int = 1) -> dict[str, float]:
+    """The rows of ``work``'s compensated runs (one press, one seed) with every output replaced
+    by its reference plus the press's noise: stretches of the rest run of ``work``'s
+    characterization, its slow drift (a quadratic) removed, taken at random places; with
+    ``average``, that many stretches averaged (the noise of outputs averaged over as many repeats)."""
+    noise = _rest_noise(work)
+    rng = np.random.default_rng(seed)
+
+    def output_of(run, _rel) -> np.ndarray:
+        n = len(run.data)
+        parts = []
+        for _ in range(average):  # a run longer than the rest run takes it again, from a random place
+            start = int(rng.integers(0, noise.size - n)) if noise.size > n else int(rng.integers(0, noise.size))
+            parts.append(np.resize(np.roll(noise, -start), n))
+        return run.data["reference_n"].to_numpy() + np.mean(parts, axis=0)
+
+    return _rows_of(work, work / f"floor-{average}", output_of)
+
+
+def averaged_rows(work: Path, repeats: int) -> dict[str, float]:
+    """The rows of ``work``'s compensated outputs averaged over its ``repeats`` repeats, sample by sample."""
+    from piezopress import runformat
+
+    def output_of(run, rel) -> np.ndarray:
+        ys = [runformat.read_run(work / "cmp" / f"rep{k}" / rel).output for k in range(1, repeats + 1)]
+        if any(y.size != run.output.size for y in ys):
+            raise SystemExit(f"{rel}: the repeats differ in length; they cannot be averaged")
+        return np.mean(ys, axis=0)
+
+    return _rows_of(work, work / "averaged", output_of)
 
 
 def _cell(values: list[float]) -> str:
@@ -135,7 +176,12 @@ def main() -> None:
     p.add_argument("--rig", default="second,third")
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument(
+        "--repeats", type=int, default=1, help="plays of the drives per case (> 1: the averaged outputs' rows too)"
+    )
     a = p.parse_args()
+    if not 1 <= a.repeats <= 10:
+        raise SystemExit(f"--repeats {a.repeats}; expected 1 to 10")
     rigs = [r for r in a.rig.split(",") if r]
     if not rigs or any(r not in ("second", "third") for r in rigs):
         raise SystemExit(f"--rig {a.rig!r}; expected second, third or both, comma-separated")
@@ -147,15 +193,22 @@ def main() -> None:
             raise SystemExit(f"cannot take {a.against} from git; run inside the checkout or pass --against")
         jobs = [(label, t, r, s) for r in rigs for s in range(a.seeds) for label, t in (("ref", tree), ("now", None))]
         with ThreadPoolExecutor(max_workers=a.workers) as pool:
-            futures = {j: pool.submit(one, j[1], j[2], j[3], work / f"{j[0]}-{j[2]}{j[3]}") for j in jobs}
+            futures = {j: pool.submit(one, j[1], j[2], j[3], work / f"{j[0]}-{j[2]}{j[3]}", a.repeats) for j in jobs}
             results = {(label, r, s): f.result() for (label, _, r, s), f in futures.items()}
         wrong = [k for k, v in results.items() if (k[0] == "ref") != v["code"].startswith(str(tree))]
         if wrong:
             raise SystemExit(f"{wrong[0]} ran the wrong code ({results[wrong[0]]['code']}): no comparison")
         # the presses' noise is the same for both codes: one floor per press and seed
         floors = {(r, s): floor_rows(work / f"now-{r}{s}", s) for r in rigs for s in range(a.seeds)}
+        averaged = {}
+        if a.repeats > 1:
+            for r in rigs:
+                for s in range(a.seeds):
+                    averaged["floor", r, s] = floor_rows(work / f"now-{r}{s}", s, a.repeats)
+                    for label in ("ref", "now"):
+                        averaged[label, r, s] = averaged_rows(work / f"{label}-{r}{s}", a.repeats)
     print(
-        f"Issue 19 on the presses written apart: {a.against} beside now, {a.seeds} seed(s), "
+        f"Issue 19 on the presses written apart: {a.against} beside now, {a.seeds} seed(s), {a.repeats} repeat(s), "
         f"{time.perf_counter() - t0:.0f} s on {a.workers} worker(s)\n"
     )
     for r in rigs:
@@ -180,6 +233,20 @@ def main() -> None:
                     target += " (the floor is above it)"
                 print(f"  {row:28s} {_cell(rv):>20s} {_cell(nv):>20s} {_cell(fv) if fv else '':>20s}  {target}")
         print()
+        if a.repeats > 1:
+            print(
+                f"{r} press, the outputs averaged over the {a.repeats} repeats sample by sample (the noise's part "
+                f"down by sqrt({a.repeats}); what the compensation leaves; the targets are the one-repeat rows')"
+            )
+            print(f"  {'':28s} {a.against:>20s} {'now':>20s} {'floor (noise)':>20s}")
+            for row in ROWS:
+                cells = [
+                    [abs(averaged[label, r, s][row]) for s in range(a.seeds) if row in averaged[label, r, s]]
+                    for label in ("ref", "now", "floor")
+                ]
+                if cells[0] and cells[1]:
+                    print(f"  {row:28s} " + " ".join(f"{_cell(c) if c else '':>20s}" for c in cells))
+            print()
 
 
 if __name__ == "__main__":
