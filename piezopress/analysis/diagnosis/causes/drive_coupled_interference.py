@@ -288,10 +288,6 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     # whether the artefact is visible is simulated only where a held-out sweep is predicted worse
     visible = _visible_on_sweeps(ctx, held, at(delay), ext) if worse_on else {}
     worse = {n: g for n, g in worse_on.items() if g < -SWEEP_WORSE_PCT or visible.get(n, False)}
-    # and in the steps most of all, whose current is the largest: a term that a held-out step
-    # reads worse took up a misfit of the sweeps (:data:`STEP_WORSE_PCT`)
-    steps = {r.name for r, _ in held if r.kind == "step"}
-    worse.update({n: g for n, g in found.gain_by_run.items() if n in steps and g < -STEP_WORSE_PCT})
     shift = _shifted_sweeps(fit, held, base) if not worse and found.gain_pct > 0 else None
     if shift is not None and shift[0] != 0.0 and found.extended_rms > (1.0 - SHIFT_GATE_PCT / 100.0) * shift[1]:
         s, with_shift, sweeps_shifted, sweeps_as_is = shift
@@ -321,6 +317,11 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
             if lag
             else "",
         )
+    # and in the steps most of all, whose current is the largest: a term that a held-out step
+    # reads worse took up a misfit of the sweeps (:data:`STEP_WORSE_PCT`; after the shift, which
+    # says more where one time shift of the sweeps explains what it took up)
+    steps = {r.name for r, _ in held if r.kind == "step"}
+    worse.update({n: g for n, g in found.gain_by_run.items() if n in steps and g < -STEP_WORSE_PCT})
     if worse:
         found = replace(
             found,
