@@ -186,7 +186,7 @@ def run_as_batch(
                         float("nan"),
                     )
                 results[i] = (effect, named, float(gain))
-                _record(record, jobs[i], results[i], minimal)
+                _record(record, jobs[i], results[i], minimal, _base_creep(Path(row["out"]) / "base.json"))
                 print(f"  {k}/{n} {row['press']}: {', '.join(named)}", file=sys.stderr)
 
             BT.run_batch(presses, "diagnose", Path(work) / "out", scheduler=cluster.scheduler_address, on_done=done)
@@ -196,7 +196,17 @@ def run_as_batch(
     return [results[i] for i in range(len(jobs))]
 
 
-def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False) -> None:
+def _base_creep(path: Path) -> str | None:
+    """The creep form ``fit --base`` kept (the thesis's poles, or the spectrum where they disagree
+    with the sweeps or cannot be fitted): recorded beside each diagnosis, since it decides what a
+    slow residual is measured against."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))["creep"]["model"]["form"]
+    except (OSError, KeyError, TypeError, ValueError):
+        return None
+
+
+def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False, base_creep: str | None = None) -> None:
     if path is None:
         return
     with open(path, "a", encoding="utf-8") as fh:
@@ -209,13 +219,14 @@ def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False) -> N
                     "named": list(r[1]),
                     "gain_pct": None if not np.isfinite(r[2]) else r[2],
                     **({"minimal": True} if minimal else {}),
+                    **({"base_creep": base_creep} if base_creep else {}),
                 }
             )
             + "\n"
         )
 
 
-def one(args: tuple[str, str, int, bool]) -> tuple[str, str, float]:
+def one(args: tuple[str, str, int, bool]) -> tuple[str, tuple[str, ...], float, str | None]:
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
@@ -226,12 +237,13 @@ def one(args: tuple[str, str, int, bool]) -> tuple[str, str, float]:
         try:
             runs = _characterized(tmp / "char", rig, effect, seed, minimal)
             B.write_document(F.fit_bundle([runs], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
+            base_creep = _base_creep(tmp / "base.json")
             result, _ = D.diagnose([runs], tmp / "base.json", tmp / "diag")
         except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
-            return effect, (f"error: {type(exc).__name__}",), float("nan")
+            return effect, (f"error: {type(exc).__name__}",), float("nan"), None
     named = tuple(f.cause for f in result.findings) or ("none",)
     gain = next((f.gain_pct for f in result.findings if f.cause == effect), float("nan"))
-    return effect, named, gain
+    return effect, named, gain, base_creep
 
 
 def main() -> None:
@@ -331,8 +343,8 @@ def main() -> None:
         results = []
         with ProcessPoolExecutor(a.workers) as pool:
             for job, r in zip(jobs, pool.map(one, [(*j, a.minimal) for j in jobs])):
-                results.append(r)
-                _record(a.record, job, r, a.minimal)
+                results.append(r[:3])
+                _record(a.record, job, r[:3], a.minimal, r[3])
     else:
         results = run_as_batch(jobs, a.workers, a.record, a.minimal)
     wall = time.perf_counter() - start
