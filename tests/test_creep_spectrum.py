@@ -84,29 +84,6 @@ def test_fit_keeps_creep_when_no_form_agrees_with_the_sweeps(tmp_path, monkeypat
     assert min(c["model"]["gains"]) >= 0
 
 
-def test_the_base_keeps_the_thesis_poles_only_while_they_agree_with_the_sweeps(tmp_path, monkeypatch):
-    """``fit --base`` keeps the thesis's creep form as it keeps the thesis's loop: while it fits.
-    On the virtual rig (the thesis's own form) the poles agree with the sweeps and are kept; where
-    they disagree (here every form is made to) the base's creep is the spectrum from the hold
-    alone, and the reason says so. Before, the base kept disagreeing poles: on the third test
-    press their saturation left the press's own minutes of creep to be named a log creep."""
-    from piezopress.analysis import identification
-    from piezopress.pipelines import fit as F
-
-    runs = tmp_path / "runs"
-    runs.mkdir()
-    for n in ("triangle-0.1hz", "creep-150v"):
-        shutil.copy(CHAR / f"{n}.parquet", runs / f"{n}.parquet")
-    kept = F.fit_all([runs], base=True, shaper=False).sections["creep"]
-    assert kept["model"]["form"] == "poles" and kept["fit"]["sweep_check"]["enforced"]
-    assert not kept["fit"]["sweep_check"]["fallback"]
-    monkeypatch.setattr(identification, "CREEP_SWEEP_TOLERANCE", -0.99)  # the poles "disagree" with the sweeps
-    c = F.fit_all([runs], base=True, shaper=False).sections["creep"]
-    assert c["model"]["form"] == "spectrum" and c["fit"]["sweep_check"]["fallback"]
-    assert "disagreed with the quasi-static sweeps" in c["fit"]["reason"]
-    assert min(c["model"]["gains"]) >= 0
-
-
 def test_two_poles_cancelling_each_other_are_no_creep():
     """Elements beyond the instantaneous response (two poles cancelling into a fit of a step's
     edge: a gain of 4.3e6 on the third test press before the edge was aligned) are not kept,

@@ -179,36 +179,12 @@ def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
     creep = doc["creep"]
     assert max(abs(g) for g in creep["model"]["gains"]) <= 1.0
     if creep["model"]["form"] != "poles":  # kept in the simplest stable form: said why
-        assert creep["model"]["form"] == "spectrum", creep["fit"]["reason"]
-        why = ("plausible elements", "disagreed with the quasi-static sweeps")
-        assert any(w in creep["fit"]["reason"] for w in why), creep["fit"]["reason"]
+        assert creep["model"]["form"] == "spectrum" and "plausible elements" in creep["fit"]["reason"]
     # the base's pair (the forward model diagnose judges) predicts the sweeps no worse than the
     # loop alone (the loop first fitted holds the sweeps' own creep: with the hold's creep after
     # it, that creep counted twice, 2.8x worse)
     check = creep["fit"]["sweep_check"]
     assert check["with_creep_rms"] <= 1.1 * check["hysteresis_alone_rms"], check
-
-
-@pytest.mark.slow
-def test_poles_that_disagree_with_the_sweeps_leave_the_base_and_the_slew_is_named_alone(tmp_path):
-    """Seed 5 of bench_diagnose's slew row: the thesis's poles, fitted on the slewed step as it is,
-    took its edge (0.27 and 0.10 s beside 29 s) and predicted the sweeps' held-out ends 1.8x worse
-    than the loop alone; kept as the base anyway, they saturated within the hold and the press's own
-    minutes of creep was named a log creep beside the slew (and a second mode). The base keeps the
-    thesis's form only while it agrees with the sweeps: here the spectrum, and the slew alone."""
-    from piezopress.pipelines import bundle as B
-    from piezopress.pipelines import characterize as char
-    from piezopress.pipelines import diagnose as D
-    from piezopress.pipelines import fit as F
-
-    press = tp.hidden_press("amplifier_slew_limit", np.random.default_rng([5, 97]))
-    char.characterize(tmp_path / "char", backend=press)
-    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
-    creep = B.read_document(tmp_path / "base.json")["creep"]
-    assert creep["model"]["form"] == "spectrum", creep["fit"]["reason"]
-    assert "disagreed with the quasi-static sweeps" in creep["fit"]["reason"]
-    res, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
-    assert [f.cause for f in res.findings] == ["amplifier_slew_limit"], res.summary
 
 
 @pytest.mark.slow

@@ -520,15 +520,8 @@ def hysteresis_and_creep(
     cannot reshape it), after the loop fitted again with it removed where that pair predicts the
     sweeps' held-out ends better than the first loop (which holds the sweeps' own creep: with the
     creep after it, that creep counts twice), and the reason says so. With ``passes=1`` the hysteresis
-    model keeps the sweeps' creep: there the check is recorded, not enforced.
-
-    ``base`` has one form, the thesis's, and the check holds for it too, as the thesis's loop
-    structure is kept only while it fits (:func:`base_structure`): poles that disagree with the
-    sweeps give way to the :data:`CREEP_FALLBACK_FORM` from the hold alone. Poles fitted on a 120 s
-    hold saturate within it; on a press whose own creep goes on for minutes, poles that had
-    fitted the step's edge (third test press, slew hidden, seeds 5-7: time constants of 0.1-0.3 s
-    beside one of 28 s) predicted the sweeps' held-out ends 1.8x worse than the loop alone, and
-    the creep the press kept after the hold (0.6 % of the step per decade) was named a log creep.
+    model keeps the sweeps' creep, and ``base`` has one form by definition: there the check is
+    recorded, not enforced.
 
     ``base`` fits the thesis's structure instead of choosing one (:data:`THESIS_GRID`,
     :data:`THESIS_CREEP_FORMS`). Returns the last hysteresis and creep bodies and fits; the
@@ -629,8 +622,7 @@ def hysteresis_and_creep(
         )
     limit = (1.0 + CREEP_SWEEP_TOLERANCE) * min([alone] + [t[5] for t in tried])
     agree = {t[0] for t in tried if t[5] <= limit}
-    # the base too: the thesis's form while it agrees with the sweeps, as its loop (:func:`base_structure`)
-    enforced = passes >= 2
+    enforced = passes >= 2 and not base  # base: the thesis's form, whatever the check says
     pool = [t for t in tried if t[0] in agree or not enforced or fallback]  # a forced fallback is the one form
     sweeps_note = f"the sweeps' held-out RMS is {alone:.4g} from the hysteresis model alone"
     if not pool:
