@@ -204,14 +204,15 @@ def _base_creep(path: Path) -> str | None:
     its poles disagreed named the slew alone on seeds 0-7 (1 of seeds 4-7 with the poles kept) but
     the log creep on 3 of 8 (seeds 0-2 and 4-6 named with the poles kept, which disagreed on 0-2 and
     6 too): a spectrum draws a log creep. Not landed; this field shows which base a row ran on."""
-    try:
+    try:  # the fit's own record of its check (``creep.fit.sweep_check``, ``creep.fit.candidates``)
         creep = json.loads(path.read_text(encoding="utf-8"))["creep"]
-        form, reason = creep["model"]["form"], creep["fit"]["reason"]
+        form, fit = creep["model"]["form"], creep["fit"]
+        failed, candidates = fit["sweep_check"]["failed"], fit["candidates"]
     except (OSError, KeyError, TypeError, ValueError):
         return None
-    if "could not be fitted" in reason:
+    if failed:
         return f"{form} (the poles could not be fitted)"
-    if "disagreed with the quasi-static sweeps" in reason or "disagrees with the sweeps" in reason:
+    if any(c.get("form") == "poles" and c.get("agrees_with_sweeps") is False for c in candidates):
         return f"{form} (the poles disagree with the sweeps)"
     return form
 

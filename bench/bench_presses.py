@@ -158,7 +158,8 @@ def averaged_rows(work: Path, repeats: int) -> dict[str, float]:
     from piezopress import runformat
 
     def output_of(run, rel) -> np.ndarray:
-        ys = [runformat.read_run(work / "cmp" / f"rep{k}" / rel).output for k in range(1, repeats + 1)]
+        # ``run`` is repeat 1's (:func:`_rows_of` walks rep1): the others read alongside it
+        ys = [run.output] + [runformat.read_run(work / "cmp" / f"rep{k}" / rel).output for k in range(2, repeats + 1)]
         if any(y.size != run.output.size for y in ys):
             raise SystemExit(f"{rel}: the repeats differ in length; they cannot be averaged")
         return np.mean(ys, axis=0)

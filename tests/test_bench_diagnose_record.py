@@ -20,19 +20,23 @@ def _bench():
     return mod
 
 
-def _base(path: Path, form: str, reason: str) -> Path:
-    path.write_text(json.dumps({"creep": {"model": {"form": form}, "fit": {"reason": reason}}}), encoding="utf-8")
+def _base(path: Path, form: str, failed: list[str], candidates: list[dict]) -> Path:
+    """A bundle's creep section as ``fit --base`` records its check of the thesis's poles."""
+    fit = {"reason": "...", "sweep_check": {"failed": failed}, "candidates": candidates}
+    path.write_text(json.dumps({"creep": {"model": {"form": form}, "fit": fit}}), encoding="utf-8")
     return path
 
 
 def test_the_record_says_which_creep_the_base_kept_and_why(tmp_path):
     bd = _bench()
     label = bd._base_creep
-    assert label(_base(tmp_path / "a.json", "poles", "poles: lowest held-out RMS 0.2 on the hold")) == "poles"
-    disagree = "poles: ... 1.107 with this creep (disagrees with the sweeps; kept: the check is not enforced here)"
-    assert label(_base(tmp_path / "b.json", "poles", disagree)) == "poles (the poles disagree with the sweeps)"
-    unfit = "spectrum: ...; the form asked for could not be fitted (poles: fit_creep: no creep form gives ...)"
-    assert label(_base(tmp_path / "c.json", "spectrum", unfit)) == "spectrum (the poles could not be fitted)"
+    agree = [{"form": "poles", "agrees_with_sweeps": True}]
+    assert label(_base(tmp_path / "a.json", "poles", [], agree)) == "poles"
+    disagree = [{"form": "poles", "agrees_with_sweeps": False}]
+    assert label(_base(tmp_path / "b.json", "poles", [], disagree)) == "poles (the poles disagree with the sweeps)"
+    unfit = ["poles: fit_creep: no creep form gives a stable compensator with plausible elements"]
+    spectrum = [{"form": "spectrum", "agrees_with_sweeps": True}]
+    assert label(_base(tmp_path / "c.json", "spectrum", unfit, spectrum)) == "spectrum (the poles could not be fitted)"
     assert label(tmp_path / "missing.json") is None
     (tmp_path / "bundle.json").write_text("{}", encoding="utf-8")  # no creep section: nothing to say
     assert label(tmp_path / "bundle.json") is None
