@@ -695,6 +695,12 @@ def _step_back(d: np.ndarray, start: int, direction: float, size: float) -> int:
     return int(start + back[0]) if back.size else d.size
 
 
+#: Times a window's or a hold's edge may miss by and still count, in samples: times stamped far
+#: from 0 (a file from another program, 1000 s into a session) carry rounding of about 1e-13 s,
+#: which otherwise moves an edge that falls on a sample by one sample.
+_ROUNDING_SAMPLES = 0.01
+
+
 def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_hold_s: float) -> _Step:
     n = y.size
     w = max(3, int(n * CONTRAST_FRACTION))
@@ -703,7 +709,11 @@ def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_
         _same_length(fn, y=y, drive=u)
         tol = 1e-9 * max(1.0, float(np.max(np.abs(u))))
         dt = float(np.median(np.diff(t)))
-        holds = [p for p in _plateaus(u, tol, 3) if t[p.stop - 1] - t[p.start] + dt >= min_hold_s]
+        # a hold lasts its samples' span plus one period, to within rounding (a 10 ms hold
+        # stamped at t = 1000 s read 9.99999999 ms, was dropped, and the step back was measured
+        # instead: overshoot 1.2 % -> 9.3 %)
+        span = (1.0 + _ROUNDING_SAMPLES) * dt  # the last sample's period, and the rounding
+        holds = [p for p in _plateaus(u, tol, 3) if t[p.stop - 1] - t[p.start] + span >= min_hold_s]
     if step_time_s is not None:
         ts = float(step_time_s)
         if not math.isfinite(ts) or not t[0] < ts <= t[-1]:
@@ -894,14 +904,15 @@ def creep(
             f"{fn}: the hold lasts {hold_s:.4g} s after the step at t={s.t_step:.6g} s; expected at least {need:.4g} s "
             f"(steady_state_after_s={after:g} plus half of ss_window_s={ss_w:g} plus final_window_s={fin_w:g})"
         )
-    in_ss = np.abs(th - after) <= ss_w / 2
+    eps = _ROUNDING_SAMPLES * float(np.median(np.diff(t)))  # window edges on a sample, stamped far from 0
+    in_ss = np.abs(th - after) <= ss_w / 2 + eps
     if not in_ss.any():
         raise MetricError(
             f"{fn}: ss_window_s={ss_w:g} holds no sample around {after:g} s after the step; expected a window longer "
             "than the sampling interval"
         )
     f_ss = float(np.mean(yh[in_ss]))
-    f_f = float(np.mean(yh[th >= hold_s - fin_w]))
+    f_f = float(np.mean(yh[th >= hold_s - fin_w - eps]))
     size = f_ss - f0
     _check_step(fn, size, max(noise, _resolution(y) / math.sqrt(12.0)), float(np.max(np.abs(y))))
     return CreepResult(
@@ -1039,7 +1050,8 @@ def overshoot(
         raise MetricError(
             f"{fn}: ss_window_s={ss_w:g} is longer than the hold ({hold_s:.4g} s); expected a window within the hold"
         )
-    f_ss = float(np.mean(yh[th >= hold_s - ss_w]))
+    eps = _ROUNDING_SAMPLES * float(np.median(np.diff(t)))
+    f_ss = float(np.mean(yh[th >= hold_s - ss_w - eps]))
     size = f_ss - f0
     resolution = _resolution(y[s.k_base_start : s.k_hold_end])
     floor = max(noise, resolution / math.sqrt(12.0))

@@ -22,7 +22,13 @@ from piezopress.analysis.signatures import line_of
 
 @dataclass(frozen=True)
 class RunData:
-    """One measured run as the diagnosis sees it."""
+    """One measured run as the diagnosis sees it.
+
+    ``t_s`` counts seconds from the run's first sample: a run whose times start elsewhere (a
+    file from another program stamped with its clock, 1000 s into a session say) is moved to
+    start at 0, for every judgement keys on the time since the run began (the held-out end of a
+    hold, a drift's ramp, a creep's decades). Unmoved, such a run was diagnosed otherwise than
+    the same run from 0: on the sample runs, a log creep and a coupling went unnamed."""
 
     name: str
     kind: str
@@ -35,6 +41,11 @@ class RunData:
     key: str = ""  # what identifies the run (its file's sha256, say): names may repeat, keys may not
     judged_from: int = 0  # rows before it (a rest of unknown state the fit skipped) are not judged as misfit
     held_out: tuple[int, int] | None = None  # the rows the fit held out (its held-out error's rows)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_s, dtype=float)
+        if t.size and t[0] != 0.0:
+            object.__setattr__(self, "t_s", t - t[0])
 
     @property
     def ident(self) -> str:
