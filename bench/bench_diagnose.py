@@ -15,7 +15,9 @@ damping) drawn per seed, and the drift hidden in a plan without the rest run.
 
 ``--minimal`` cuts every run's metadata to the run format's four required fields (no manifest, as
 runs from another program arrive) before ``fit --base`` and ``diagnose``: the matrices must stay
-within 5 points of the full metadata's (issue 20).
+within 5 points of the full metadata's (issue 20). ``--stamped`` cuts them so too and stamps every
+run's times on one session clock from 3600 s (each run starting 5 s after the one before it ended,
+as a DAQ program stamps them): the runs must read as the same runs from 0.
 
 ``--gain`` measures instead the gain on the press of every cause whose extension enters the
 compensator (``pipelines/gain.py``): the table per cause, base bundle against extended on every
@@ -32,7 +34,7 @@ characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` 
 cluster; ``--no-batch`` (or Dask missing) runs each case start to end in a process pool.
 
 Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2] [--no-batch]
-         [--record results.jsonl] [--minimal]
+         [--record results.jsonl] [--minimal | --stamped]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
@@ -123,10 +125,15 @@ def _backend(rig: str, effect: str, seed: int):
     )
 
 
-def _characterized(out: Path, rig: str, effect: str, seed: int, minimal: bool) -> Path:
+#: Where ``--stamped`` starts the session clock its runs' times are stamped on (s).
+SESSION_CLOCK_S = 3600.0
+
+
+def _characterized(out: Path, rig: str, effect: str, seed: int, minimal: bool | str) -> Path:
     """The case characterized into ``out``; with ``minimal`` the directory returned holds the same
     runs with their metadata cut to the run format's four required fields and no manifest
-    (``tests/foreign.py``, as runs from another program arrive)."""
+    (``tests/foreign.py``, as runs from another program arrive); ``"stamped"``: and their times on
+    one session clock from :data:`SESSION_CLOCK_S`."""
     from piezopress.pipelines import characterize as char
 
     backend, plan = _backend(rig, effect, seed)
@@ -136,7 +143,8 @@ def _characterized(out: Path, rig: str, effect: str, seed: int, minimal: bool) -
     sys.path.insert(0, str(ROOT / "tests"))
     from foreign import foreign_dir
 
-    return foreign_dir(out, out.with_name(out.name + "-minimal"))
+    clock = SESSION_CLOCK_S if minimal == "stamped" else None
+    return foreign_dir(out, out.with_name(out.name + "-minimal"), session_clock_s=clock)
 
 
 def characterize_case(args: tuple[str, str, int, str, bool]) -> str:
@@ -230,6 +238,7 @@ def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False, base
                     "named": list(r[1]),
                     "gain_pct": None if not np.isfinite(r[2]) else r[2],
                     **({"minimal": True} if minimal else {}),
+                    **({"stamped": True} if minimal == "stamped" else {}),
                     **({"base_creep": base_creep} if base_creep else {}),
                 }
             )
@@ -290,6 +299,11 @@ def main() -> None:
         action="store_true",
         help="every run's metadata cut to the run format's four required fields, no manifest (runs from elsewhere)",
     )
+    ap.add_argument(
+        "--stamped",
+        action="store_true",
+        help="as --minimal, and every run's times stamped on one session clock from 3600 s (a DAQ program's)",
+    )
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument(
         "--record", type=Path, default=None, help="append every diagnosis to this JSON-lines file as it ends"
@@ -326,6 +340,8 @@ def main() -> None:
         "--gain-out", type=Path, default=None, help="with --gain: write the table here (compensated_gain.csv)"
     )
     a = ap.parse_args()
+    if a.stamped:
+        a.minimal = "stamped"
     if a.fitted and not (a.gain and a.rig != "ours"):
         raise SystemExit("--fitted measures the gain on a press written apart: add --gain --rig second or third")
     if a.gain:
@@ -360,6 +376,7 @@ def main() -> None:
         results = run_as_batch(jobs, a.workers, a.record, a.minimal)
     wall = time.perf_counter() - start
     over = f"{a.seeds} seeds per row" + (", metadata cut to the four required fields" if a.minimal else "")
+    over += ", times on a session clock from 3600 s" if a.minimal == "stamped" else ""
     print_matrix(a.rig, hidden, results, over, (wall, len(jobs), a.workers))
 
 
@@ -372,7 +389,7 @@ def _read_results(path: Path) -> list[tuple]:
             float("nan") if r["gain_pct"] is None else r["gain_pct"],
             r["rig"],
             r["seed"],
-            bool(r.get("minimal")),
+            "stamped" if r.get("stamped") else bool(r.get("minimal")),
         )
         for r in rows
     ]

@@ -42,15 +42,28 @@ def foreign_run(
     return runformat.make_run(cols, meta)
 
 
-def foreign_dir(src: str | Path, dst: str | Path, **options) -> Path:
+#: The pause between two runs on the session clock of :func:`foreign_dir` (s).
+SESSION_PAUSE_S = 5.0
+
+
+def foreign_dir(src: str | Path, dst: str | Path, *, session_clock_s: float | None = None, **options) -> Path:
     """Every run of the directory ``src`` (its manifest's complete runs, else every
     ``*.parquet``) written to the new directory ``dst`` as :func:`foreign_run` makes it;
-    no manifest is written (other programs write none)."""
+    no manifest is written (other programs write none). With ``session_clock_s`` every run's
+    times are stamped on one session clock starting there, in the source's order, each run
+    :data:`SESSION_PAUSE_S` after the one before it ended (as a DAQ program stamps its files)."""
     from piezopress.pipelines.files import run_files
 
     dst = Path(dst)
     dst.mkdir(parents=True, exist_ok=False)
+    clock = session_clock_s
     for f in run_files(src):
-        run = runformat.read_run(f)
-        runformat.write_run(foreign_run(run, **options), dst / Path(f).name)
+        run = foreign_run(runformat.read_run(f), **options)
+        if clock is not None:
+            t = run.t_s
+            data = run.data.copy()
+            data["t_s"] = t - t[0] + clock
+            run = runformat.Run(data, run.meta)
+            clock += float(t[-1] - t[0]) + 1.0 / run.sample_rate_hz + SESSION_PAUSE_S
+        runformat.write_run(run, dst / Path(f).name)
     return dst
