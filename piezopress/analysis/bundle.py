@@ -134,7 +134,7 @@ class _Checker:
 
 
 def _unit(c: _Checker, value: Any, where: str) -> str:
-    if value not in units.LABELS:
+    if not isinstance(value, str) or value not in units.LABELS:  # (a list is no key of a mapping: checked first)
         c.fail(where, value, f"an output unit code, one of {', '.join(units.LABELS)}")
     return str(value)
 
@@ -192,7 +192,7 @@ def check_hysteresis(c: _Checker, sec: Mapping[str, Any]) -> PIModel:
             "an invertible model: the weight at threshold 0 and every slope outward from it > 0",
         )
     family = m.get("family", "modified_pi")
-    if family not in FAMILY_TITLES:
+    if not isinstance(family, str) or family not in FAMILY_TITLES:  # (``[]`` raised TypeError: unhashable)
         c.fail(f"{w}.family", family, f"a model family, one of {', '.join(FAMILY_TITLES)}")
     plane = check_plane(c, m, w, ou) if family == FAMILY_PLANE else None
     duhem = check_duhem(c, m, w, ou) if family == FAMILY_DUHEM else None
