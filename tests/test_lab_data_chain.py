@@ -209,8 +209,10 @@ def test_inspect_a_bundle_shows_its_rest_reach_and_error():
 def test_the_report_says_the_rest_and_the_reach(tmp_path):
     res = invoke("report", "--bundle", BUNDLE, "--out", tmp_path / "rep")
     assert res.exit_code == 0, res.output
+    rest = json.loads(BUNDLE.read_text())["hysteresis"]["model"]["y0_n"]
+    assert 49.0 < rest < 51.0  # the sample rig's preload, about 50 N
     assert (
-        "Rest and reach: the model's rest output is 49.98 N; references are read above it."
+        f"Rest and reach: the model's rest output is {rest:.4g} N; references are read above it."
         in (tmp_path / "rep" / "report.md").read_text()
     )
 
