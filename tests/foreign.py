@@ -23,10 +23,12 @@ def foreign_run(
     drop_monitor: bool = False,
     glitch_every: int | None = None,
     seed: int = 0,
+    t0_s: float | None = None,
 ) -> runformat.Run:
     """``run`` with its metadata cut to the required fields (``custom``: every kind ``custom``),
     optionally without its ``monitor_v`` column and with one glitched output sample in
-    ``glitch_every`` (read as 0 or as the ADC's top code, alternately, at seeded places)."""
+    ``glitch_every`` (read as 0 or as the ADC's top code, alternately, at seeded places);
+    with ``t0_s``, its times moved to start there (a file stamped with another clock)."""
     meta = {k: run.meta[k] for k in runformat.REQUIRED_METADATA}
     if custom:
         meta["kind"] = "custom"
@@ -39,6 +41,8 @@ def foreign_run(
         top = float(np.max(y)) + 0.5 * float(np.ptp(y)) + 1.0
         y[where] = np.where(np.arange(n) % 2 == 0, 0.0, top)
         cols[run.output_column] = y
+    if t0_s is not None:
+        cols["t_s"] = cols["t_s"] - cols["t_s"][0] + t0_s
     return runformat.make_run(cols, meta)
 
 
@@ -58,12 +62,9 @@ def foreign_dir(src: str | Path, dst: str | Path, *, session_clock_s: float | No
     dst.mkdir(parents=True, exist_ok=False)
     clock = session_clock_s
     for f in run_files(src):
-        run = foreign_run(runformat.read_run(f), **options)
+        run = foreign_run(runformat.read_run(f), t0_s=clock, **options)
         if clock is not None:
             t = run.t_s
-            data = run.data.copy()
-            data["t_s"] = t - t[0] + clock
-            run = runformat.Run(data, run.meta)
             clock += float(t[-1] - t[0]) + 1.0 / run.sample_rate_hz + SESSION_PAUSE_S
         runformat.write_run(run, dst / Path(f).name)
     return dst

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from foreign import foreign_run
 
 from piezopress import runformat
 from piezopress.analysis import metrics
@@ -16,13 +17,6 @@ from piezopress.analysis import metrics
 ROOT = Path(__file__).resolve().parents[1]
 CHAR = ROOT / "sample_runs" / "characterization"
 STEPS = ("step-20v", "step-50v", "step-100v", "step-150v")
-
-
-def _shifted(run: runformat.Run, offset_s: float) -> runformat.Run:
-    """``run`` with its times moved by ``offset_s`` and its metadata cut to the required fields."""
-    data = run.data.copy()
-    data["t_s"] = data["t_s"] + offset_s
-    return runformat.Run(data, {k: run.meta[k] for k in runformat.REQUIRED_METADATA})
 
 
 @pytest.mark.parametrize("offset_s", [1000.0, 3 * 86400.0 + 0.37])
@@ -54,7 +48,7 @@ def test_diagnosis_does_not_depend_on_where_the_clock_starts(sample_base_bundle,
         runs = tmp_path / f"from-{offset:g}s"
         runs.mkdir()
         for p in sorted(CHAR.glob("*.parquet")):
-            runformat.write_run(_shifted(runformat.read_run(p), offset), runs / p.name)
+            runformat.write_run(foreign_run(runformat.read_run(p), t0_s=offset), runs / p.name)
         result, _ = D.diagnose([runs], sample_base_bundle, tmp_path / f"diag-{offset:g}", causes=["logarithmic_creep"])
         found.append({f.cause: f.gain_pct for f in result.findings})
         saved = json.loads((tmp_path / f"diag-{offset:g}" / "diagnosis.json").read_text())

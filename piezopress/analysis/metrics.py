@@ -701,6 +701,11 @@ def _step_back(d: np.ndarray, start: int, direction: float, size: float) -> int:
 _ROUNDING_SAMPLES = 0.01
 
 
+def _rounding_s(t: np.ndarray) -> float:
+    """What a time edge may miss by and still count: :data:`_ROUNDING_SAMPLES` of a sample."""
+    return _ROUNDING_SAMPLES * float(np.median(np.diff(t)))
+
+
 def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_hold_s: float) -> _Step:
     n = y.size
     w = max(3, int(n * CONTRAST_FRACTION))
@@ -712,7 +717,7 @@ def _locate_step(fn: str, t: np.ndarray, y: np.ndarray, drive, step_time_s, min_
         # a hold lasts its samples' span plus one period, to within rounding (a 10 ms hold
         # stamped at t = 1000 s read 9.99999999 ms, was dropped, and the step back was measured
         # instead: overshoot 1.2 % -> 9.3 %)
-        span = (1.0 + _ROUNDING_SAMPLES) * dt  # the last sample's period, and the rounding
+        span = dt + _rounding_s(t)  # the last sample's period, and the rounding
         holds = [p for p in _plateaus(u, tol, 3) if t[p.stop - 1] - t[p.start] + span >= min_hold_s]
     if step_time_s is not None:
         ts = float(step_time_s)
@@ -904,7 +909,7 @@ def creep(
             f"{fn}: the hold lasts {hold_s:.4g} s after the step at t={s.t_step:.6g} s; expected at least {need:.4g} s "
             f"(steady_state_after_s={after:g} plus half of ss_window_s={ss_w:g} plus final_window_s={fin_w:g})"
         )
-    eps = _ROUNDING_SAMPLES * float(np.median(np.diff(t)))  # window edges on a sample, stamped far from 0
+    eps = _rounding_s(t)  # window edges on a sample, stamped far from 0
     in_ss = np.abs(th - after) <= ss_w / 2 + eps
     if not in_ss.any():
         raise MetricError(
@@ -1050,7 +1055,7 @@ def overshoot(
         raise MetricError(
             f"{fn}: ss_window_s={ss_w:g} is longer than the hold ({hold_s:.4g} s); expected a window within the hold"
         )
-    eps = _ROUNDING_SAMPLES * float(np.median(np.diff(t)))
+    eps = _rounding_s(t)
     f_ss = float(np.mean(yh[th >= hold_s - ss_w - eps]))
     size = f_ss - f0
     resolution = _resolution(y[s.k_base_start : s.k_hold_end])
