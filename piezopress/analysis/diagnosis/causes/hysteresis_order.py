@@ -35,13 +35,14 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
                 y = m.y0 + ctx.model.creep.compensate(y - m.y0, r.fs_hz)[0]
             outs.append((r.name, r.x, y))
         data = H.prepare(outs, holdout_fraction=0.4, x0=m.x0, y0=m.y0)
-        n_dz = max(0, len([d for d in m.d if d > 0]))
         try:
-            levels = m.plane.levels if m.plane is not None else 0
-            elements = m.duhem.n_cells if m.duhem is not None else 0
-            rest = H.DUHEM_RESTS[0] if m.duhem is None or not any(m.duhem.rest) else "descended"
-            base = H.Candidate(max(2, len(m.r)), 1.0, n_dz, levels, elements, rest)
-            base_fit = H.fit_hysteresis(data, [base], refit_all=False)
+            # the baseline is the base's own operators (the thresholds its fit kept) with their
+            # weights fitted again on the same data: a candidate of as many evenly spaced plays as
+            # the base kept is another, coarser grid (the thesis's 12 plays pruned to 7 are spaced
+            # as 12, not as 7), and its misfit was counted as the gain of more operators (second
+            # test press, slew + drift: 24 % against 7 % beside the base's own plays, named on
+            # every seed; clean: 11 % against 5 %)
+            base_fit = H.refit(data, m)
             # more operators, not another family: a Bouc-Wen loop that Duhem elements draw and the
             # thesis's plays do not is the press's family, not an order the base misses (with the
             # elements in this search, it was named on every clean seed of the second test press)
@@ -55,7 +56,7 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     # the refitted models measure what the base model measures (a displacement model must not
     # be taken for a force and clipped at 0 N)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
-    base_model = replace(base_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
+    base_model = replace(base_fit, input_unit=m.input_unit, output_unit=m.output_unit)
     cells = (
         f" and a Preisach plane of {rich.plane.n_cells} cells"
         if rich.plane is not None
