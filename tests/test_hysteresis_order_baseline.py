@@ -19,8 +19,9 @@ TRUE = PIModel(
 )
 
 
-def _sweeps(noise: float, seed: int = 0) -> list[dg.RunData]:
-    rng = np.random.default_rng(seed)
+def _sweeps() -> list[dg.RunData]:
+    """Three slow triangles (full, growing, random amplitudes) drawn by :data:`TRUE`, 0.15 N of noise."""
+    rng = np.random.default_rng(0)
     fs = 100.0
     t = np.arange(int(30 * fs)) / fs
     tri = 1 - np.abs(((t * 0.1) % 1.0) * 2 - 1)
@@ -31,9 +32,18 @@ def _sweeps(noise: float, seed: int = 0) -> list[dg.RunData]:
     }
     out = []
     for name, x in drives.items():
-        y = TRUE.forward(x)[0] + rng.normal(0.0, noise, t.size)
+        y = TRUE.forward(x)[0] + rng.normal(0.0, 0.15, t.size)
         out.append(dg.RunData(name, "triangle", t, x, y, fs))
     return out
+
+
+def _order(runs: list[dg.RunData]) -> dg.Finding:
+    """The cause judged with :data:`TRUE` as the base model, every run fitted."""
+    ctx = dg.Context(runs, dg.Model(TRUE), frozenset(r.name for r in runs), {r.name: dg.noise_floor(r.y) for r in runs})
+    HO._ORDER_MEMO.clear()
+    found = HO.cause_hysteresis_order(ctx)
+    assert found is not None
+    return found
 
 
 def test_the_base_s_own_operators_are_the_baseline_not_a_coarser_grid():
@@ -41,11 +51,7 @@ def test_the_base_s_own_operators_are_the_baseline_not_a_coarser_grid():
     more operators predict nothing better. Judged against as many evenly spaced plays as the
     base kept (its grid coarsened), they did: on the second test press with a slew limit and a
     drift, 24 % held out (named on every seed, beside both causes) against 7 % now."""
-    runs = _sweeps(noise=0.15)
-    ctx = dg.Context(runs, dg.Model(TRUE), frozenset(r.name for r in runs), {r.name: dg.noise_floor(r.y) for r in runs})
-    HO._ORDER_MEMO.clear()
-    found = HO.cause_hysteresis_order(ctx)
-    assert found is not None
+    found = _order(_sweeps())
     assert found.gain_pct < 5.0, found.gain_pct
     assert not found.accepted
 
@@ -54,11 +60,9 @@ def test_a_loop_the_base_s_operators_cannot_draw_is_still_named():
     """The same base on sweeps with a saturating top (the reading flattens by 6 % of the stroke
     at full drive): more dead zones draw it and the base's own operators, refitted, do not."""
     runs = []
-    for r in _sweeps(noise=0.15):
+    for r in _sweeps():
         top = float(np.max(TRUE.forward(r.x)[0]) - TRUE.y0)
         y = r.y - 0.06 * top * (r.x / 150.0) ** 4
         runs.append(dg.RunData(r.name, r.kind, r.t_s, r.x, y, r.fs_hz))
-    ctx = dg.Context(runs, dg.Model(TRUE), frozenset(r.name for r in runs), {r.name: dg.noise_floor(r.y) for r in runs})
-    HO._ORDER_MEMO.clear()
-    found = HO.cause_hysteresis_order(ctx)
+    found = _order(runs)
     assert found.accepted and found.gain_pct > 40.0, found.gain_pct

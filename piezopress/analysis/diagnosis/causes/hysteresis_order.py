@@ -26,7 +26,7 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     key = (tuple(id(r) for r in sweeps), m, ctx.model.creep, ctx.model.drift_per_s, ctx.model.drift_warmup)
     hit = _ORDER_MEMO.get(key)
     if hit is not None and all(a is b for a, b in zip(hit[0], sweeps)):
-        data, base_fit, rich_fit = hit[1]  # the same fits as in the search's earlier rounds
+        data, own, rich_fit = hit[1]  # the same fits as in the search's earlier rounds
     else:
         outs = []
         for r in sweeps:
@@ -42,7 +42,7 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
             # as 12, not as 7), and its misfit was counted as the gain of more operators (second
             # test press, slew + drift: 24 % against 7 % beside the base's own plays, named on
             # every seed; clean: 11 % against 5 %)
-            base_fit = H.refit(data, m)
+            own = H.refit(data, m)
             # more operators, not another family: a Bouc-Wen loop that Duhem elements draw and the
             # thesis's plays do not is the press's family, not an order the base misses (with the
             # elements in this search, it was named on every clean seed of the second test press)
@@ -50,13 +50,13 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         except H.HysteresisFitError:
             return None
         _ORDER_MEMO.clear()
-        _ORDER_MEMO[key] = (list(sweeps), (data, base_fit, rich_fit))
+        _ORDER_MEMO[key] = (list(sweeps), (data, own, rich_fit))
     fit = [(r, data.train[i]) for i, r in enumerate(sweeps)]
     held = [(r, data.holdout[i]) for i, r in enumerate(sweeps)]
     # the refitted models measure what the base model measures (a displacement model must not
     # be taken for a force and clipped at 0 N)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
-    base_model = replace(base_fit, input_unit=m.input_unit, output_unit=m.output_unit)
+    base_model = replace(own, input_unit=m.input_unit, output_unit=m.output_unit)
     cells = (
         f" and a Preisach plane of {rich.plane.n_cells} cells"
         if rich.plane is not None
