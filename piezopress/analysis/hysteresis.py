@@ -1327,6 +1327,9 @@ class HysteresisFit:
     family_reason: str = ""
     #: the structure chosen (before pruning)
     candidate: Candidate | None = None
+    #: the held-out RMS of the best modified PI candidate (in the default search, among those of at
+    #: least :data:`MIN_PI_PLAYS` plays), whichever family won; NaN where none was fitted
+    pi_holdout_rms: float = float("nan")
 
     @property
     def holdout_rms_pct(self) -> float:
@@ -1513,9 +1516,10 @@ def fit_hysteresis(
         cache = {}
         model = refit(full, model, cache=cache)
         ho = rms_error(model, full, columns_for(full, np.array(model.r), model.extra, cache), "holdout")
-    return _finish(
+    done = _finish(
         full, model, ho, cand, best, len(fits), rows, cache, out_range, tolerance, prune_below, refit_all, family[1]
     )
+    return replace(done, pi_holdout_rms=family[2])
 
 
 #: Levels of the Preisach planes tried beside the chosen plays (cells: N (N + 1) / 2). A
@@ -1559,11 +1563,12 @@ FAMILY_MARGIN = 0.30
 MIN_PI_PLAYS = 12
 
 
-def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
-    """``(choice, why)``: ``choose``'s ``(best, fit)`` in the family chosen, and a sentence on which
-    family won and why. The modified PI family (among its candidates with at least ``min_plays``
-    plays, if any) unless another family predicts the held-out rows :data:`FAMILY_MARGIN` better;
-    of those that do, the best."""
+def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str, float]:
+    """``(choice, why, best_pi)``: ``choose``'s ``(best, fit)`` in the family chosen, a sentence on
+    which family won and why, and the best modified PI model's held-out RMS (NaN: none fitted).
+    The modified PI family (among its candidates with at least ``min_plays`` plays, if any) unless
+    another family predicts the held-out rows :data:`FAMILY_MARGIN` better; of those that do, the
+    best."""
     pools: dict[str, list] = {}
     for f in fits:
         pools.setdefault(f[2].family, []).append(f)
@@ -1571,7 +1576,7 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
     title = FAMILY_TITLES[FAMILY_PI]
     if not pi:
         best_family = min(pools, key=lambda k: min(f[0] for f in pools[k]))
-        return choose(pools[best_family]), f"{FAMILY_TITLES[best_family]} (the only family tried)"
+        return choose(pools[best_family]), f"{FAMILY_TITLES[best_family]} (the only family tried)", float("nan")
     fine = [f for f in pi if f[2].n_play >= min_plays]
     best_pi, pi_choice = choose(fine or pi)
     note = ""
@@ -1584,7 +1589,7 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
                 "are mostly the largest loops, and fewer plays draw the smaller ones coarsely)"
             )
     if not pools:
-        return (best_pi, pi_choice), f"{title} (no other family tried){note}"
+        return (best_pi, pi_choice), f"{title} (no other family tried){note}", best_pi
     best = {k: min(f[0] for f in v) for k, v in pools.items()}
     gain = {k: (1.0 - b / best_pi if best_pi > 0 else 0.0) for k, b in best.items()}
     others = "; ".join(
@@ -1598,15 +1603,17 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str]:
             for k in sorted(best, key=best.get)
             if k != won
         )
-        return choose(pools[won]), (
+        why = (
             f"{FAMILY_TITLES[won]}: held-out RMS {best[won]:.4g} against {best_pi:.4g} for the "
             f"best modified PI model ({100 * gain[won]:.0f} % lower; needs {100 * FAMILY_MARGIN:g} %)"
             + (f"; tried also: {rest}" if rest else "")
         )
-    return (best_pi, pi_choice), (
+        return choose(pools[won]), why, best_pi
+    why = (
         f"{title}: held-out RMS {best_pi:.4g}; no other family predicts the held-out rows "
         f"{100 * FAMILY_MARGIN:g} % better, as a richer family must ({others}){note}"
     )
+    return (best_pi, pi_choice), why, best_pi
 
 
 def _score(data: HysteresisData, grid: Sequence[Candidate], cache: dict, rows: list, fits: list) -> None:

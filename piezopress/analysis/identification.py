@@ -690,7 +690,8 @@ STRUCTURE_KEYS = ("chosen", "family", "family_reason", "candidates")
 #: sees what more operators would draw, and its findings are about the press. Beyond it they
 #: would be about the base. Measured (clean seed 3): the second test press's Bouc-Wen loop
 #: leaves 6.3x (the searched Duhem elements 1.5x), the third press's Preisach loop 95x (its
-#: plane 9.5x).
+#: plane 9.5x). The search's best modified PI model is held to the same bound: within it, more
+#: play operators draw the loop, and the base keeps the thesis's structure (:func:`base_structure`).
 BASE_THESIS_NOISE = 20.0
 
 
@@ -706,7 +707,8 @@ def base_structure(
     Preisach plane or Duhem elements (they predict the sweeps' held-out ends
     :data:`~piezopress.analysis.hysteresis.FAMILY_MARGIN` better than the best modified PI
     model) and the thesis's structure leaves more than :data:`BASE_THESIS_NOISE` times the
-    sweeps' noise floor, play operators cannot draw the loop, and a base that misfits the press's own loop
+    sweeps' noise floor, and so does the search's best modified PI model (dense plays and dead
+    zones: the play family itself), play operators cannot draw the loop, and a base that misfits the press's own loop
     would make every diagnosis about the base (on the third test press the thesis's structure
     left 87-225 times the noise floor on the sweeps, and ``hysteresis_order`` was named on every
     clean seed): the base is searched as ``fit``'s is (again in each pass of the alternation with the
@@ -727,10 +729,21 @@ def base_structure(
     noise = float(np.median([noise_floor_without_lines(r.output, r.sample_rate_hz) for r in sweeps]))
     if thesis.holdout_rms <= BASE_THESIS_NOISE * noise:
         return THESIS_GRID, None, ""
+    # more play operators draw the loop (the search's best modified PI model within the bound):
+    # it is of the play family, of a higher order than the thesis's, which is what
+    # ``hysteresis_order`` finds; a searched base would hold it already. On the second test press
+    # an S-shaped static map (its ``hysteresis_order``) took the thesis's structure past the bound
+    # on 11 of 20 seeds (22x on seed 2, the best modified PI model 4.6x), and the base was searched
+    # (Duhem elements) there, where the cause could not be tested; the third press's Preisach loop
+    # leaves 54-57x with the best modified PI model
+    if fit.pi_holdout_rms <= BASE_THESIS_NOISE * noise:
+        return THESIS_GRID, None, ""
     note = (
         f"the structure searched as fit's is ({fit.candidate.label} on the sweeps as measured) instead of the thesis's "
         "(12 plays, 1 dead zone): the loop is "
-        f"of another family than play operators ({fit.family_reason})"
+        f"of another family than play operators ({fit.family_reason}; on the held-out ends the thesis's structure "
+        f"leaves {thesis.holdout_rms / noise:.0f} and the best modified PI model {fit.pi_holdout_rms / noise:.0f} "
+        f"times the sweeps' noise floor, more than {BASE_THESIS_NOISE:g})"
     )
     return None, (h, fit), note
 
