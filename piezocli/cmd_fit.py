@@ -303,6 +303,9 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     hfit = res.fits["hysteresis"]
     say(f"hysteresis: {hfit.reason}")
     say(f"hysteresis: {_fit_error(hfit, res.unit)}")
+    searched = res.sections["hysteresis"].get("fit", {}).get("base_structure")
+    if searched:  # --base, and the thesis's plays could not draw the loop: say why it is not theirs
+        say(f"hysteresis: not the thesis's structure: {searched}")
     if "creep" in res.sections:
         say(f"creep:      {res.fits['creep'].reason} (RMS in {u})")
     if "shaper" in res.sections:

@@ -351,3 +351,33 @@ def test_the_compensator_and_diagnose_draw_the_same_rate_dependent_loop(family, 
     # and the rate moves the output (a comparison of two outputs the rate never reached proves nothing)
     assert np.max(np.abs(want - m.forward(x)[0])) > 0.05
     np.testing.assert_allclose(m.y0 + diag.static_at_rate(x, None), m.forward(x)[0], atol=1e-9)
+
+
+def test_fit_base_says_why_its_structure_is_not_the_thesis(tmp_path):
+    """``piezopress fit --base`` on a loop neither the thesis's plays nor more of them draw (the
+    Bouc-Wen sweeps at 0.005 N of noise) prints why the base was searched, with the figures it was
+    decided on; on the same loop at 0.3 N (the thesis's plays within their bound) it prints nothing of it."""
+    from click.testing import CliRunner
+
+    from piezopress import runformat as rf
+    from piezopress.piezocli.main import cli
+
+    for noise, searched in ((0.005, True), (0.3, False)):
+        runs = tmp_path / f"runs-{noise}"
+        runs.mkdir()
+        for r in _sweep_runs(noise):
+            rf.write_run(r, runs / f"{r.name}.parquet")
+        res = CliRunner().invoke(cli, ["fit", str(runs), "--base", "--out", str(tmp_path / f"base-{noise}.json")])
+        assert res.exit_code == 0, res.output
+        said = [line for line in res.output.splitlines() if "not the thesis's structure" in line]
+        if searched:
+            assert len(said) == 1 and "another family than play operators" in said[0], res.output
+            assert "times the sweeps' noise floor, more than 20" in said[0], said
+        else:
+            assert said == [], said
+
+
+def test_a_family_worse_than_the_plays_is_said_to_be_higher():
+    """The family reason gives each family's held-out RMS beside the best modified PI model's: a
+    worse one read "-2 % lower"."""
+    assert H._than_pi(0.63) == "63 % lower" and H._than_pi(-0.02) == "2 % higher"

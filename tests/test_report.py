@@ -347,3 +347,20 @@ def test_markdown_and_html_render_the_same_blocks():
     csv_text = rep.metrics_csv(rep.metrics_table(None, None))
     rows = list(csv.reader(io.StringIO(csv_text)))
     assert len(rows) == 17 and all(r[4] == "" for r in rows[1:])  # the 6.13 rows, empty without inputs
+
+
+def test_the_report_says_why_a_base_is_not_the_thesis_structure(tmp_path):
+    """``fit --base`` records in ``hysteresis.fit.base_structure`` why it searched the structure
+    (the loop is of another family, with the figures it was decided on); the report says it, and
+    says nothing of it for a base in the thesis's structure (the sample bundle's)."""
+    import json
+    from pathlib import Path
+
+    from piezopress.pipelines.report_doc import render_markdown
+    from piezopress.pipelines.report_model import _model_quality
+
+    doc = json.loads((Path(__file__).resolve().parents[1] / "sample_runs" / "bundle.json").read_text())
+    assert "Not the thesis's structure" not in render_markdown(_model_quality(doc, tmp_path / "b.json", []))
+    why = "the structure searched as fit's is (n=8 gamma=1 m=16 plane=12 ...): the loop is of another family"
+    doc["hysteresis"]["fit"]["base_structure"] = why
+    assert f"Not the thesis's structure: {why}." in render_markdown(_model_quality(doc, tmp_path / "b.json", []))

@@ -1328,7 +1328,8 @@ class HysteresisFit:
     #: the structure chosen (before pruning)
     candidate: Candidate | None = None
     #: the held-out RMS of the best modified PI candidate (in the default search, among those of at
-    #: least :data:`MIN_PI_PLAYS` plays), whichever family won; NaN where none was fitted
+    #: least :data:`MIN_PI_PLAYS` plays), whichever family won, on the rows the candidates were
+    #: scored on (a decimated copy above :data:`SELECT_MAX_SAMPLES`); NaN where none was fitted
     pi_holdout_rms: float = float("nan")
 
     @property
@@ -1563,6 +1564,11 @@ FAMILY_MARGIN = 0.30
 MIN_PI_PLAYS = 12
 
 
+def _than_pi(gain: float) -> str:
+    """A family's held-out RMS beside the best modified PI model's, in words ("12 % lower", "2 % higher")."""
+    return f"{abs(100 * gain):.0f} % {'lower' if gain >= 0 else 'higher'}"
+
+
 def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str, float]:
     """``(choice, why, best_pi)``: ``choose``'s ``(best, fit)`` in the family chosen, a sentence on
     which family won and why, and the best modified PI model's held-out RMS (NaN: none fitted).
@@ -1592,16 +1598,12 @@ def _family_reason(fits, choose, min_plays: int = 0) -> tuple[Any, str, float]:
         return (best_pi, pi_choice), f"{title} (no other family tried){note}", best_pi
     best = {k: min(f[0] for f in v) for k, v in pools.items()}
     gain = {k: (1.0 - b / best_pi if best_pi > 0 else 0.0) for k, b in best.items()}
-    others = "; ".join(
-        f"{FAMILY_TITLES[k]}: {best[k]:.4g} ({100 * gain[k]:.0f} % lower)" for k in sorted(best, key=best.get)
-    )
+    others = "; ".join(f"{FAMILY_TITLES[k]}: {best[k]:.4g} ({_than_pi(gain[k])})" for k in sorted(best, key=best.get))
     winners = [k for k in best if gain[k] >= FAMILY_MARGIN]
     if winners:
         won = min(winners, key=best.get)
         rest = "; ".join(
-            f"{FAMILY_TITLES[k]}: {best[k]:.4g} ({100 * gain[k]:.0f} % lower)"
-            for k in sorted(best, key=best.get)
-            if k != won
+            f"{FAMILY_TITLES[k]}: {best[k]:.4g} ({_than_pi(gain[k])})" for k in sorted(best, key=best.get) if k != won
         )
         why = (
             f"{FAMILY_TITLES[won]}: held-out RMS {best[won]:.4g} against {best_pi:.4g} for the "
