@@ -255,8 +255,8 @@ def test_the_base_keeps_the_thesis_structure_while_play_operators_draw_the_loop_
     case. The base keeps the thesis's 12 plays where they predict the held-out ends within
     BASE_THESIS_NOISE times the noise floor (diagnose then still sees what more operators would
     draw), and also where they do not but the best modified PI model of the search does: more
-    play operators draw the loop (an S-shaped static map, 46 floors for the thesis's structure,
-    9 for more operators: what ``hysteresis_order`` finds, and with a searched base the cause
+    play operators draw the loop (an S-shaped static map, 45 floors for the thesis's structure,
+    8 for more operators: what ``hysteresis_order`` finds, and with a searched base the cause
     could not be tested). Only where the play family itself leaves far more does the base take the
     searched structure (every finding would be about the base)."""
     from piezopress.analysis import identification as I
