@@ -53,10 +53,9 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         _ORDER_MEMO[key] = (list(sweeps), (data, own, rich_fit))
     fit = [(r, data.train[i]) for i, r in enumerate(sweeps)]
     held = [(r, data.holdout[i]) for i, r in enumerate(sweeps)]
-    # the refitted models measure what the base model measures (a displacement model must not
-    # be taken for a force and clipped at 0 N)
+    # the richer model measures what the base model measures (a displacement model must not be
+    # taken for a force and clipped at 0 N; ``own``, refitted from the base, keeps its units)
     rich = replace(rich_fit.model, input_unit=m.input_unit, output_unit=m.output_unit)
-    base_model = replace(own, input_unit=m.input_unit, output_unit=m.output_unit)
     cells = (
         f" and a Preisach plane of {rich.plane.n_cells} cells"
         if rich.plane is not None
@@ -77,7 +76,7 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
         held,
         replace(ctx.model, hysteresis=rich),
         {"n_play": rich.n_play, "n_dead_zone": rich.n_dead_zone},
-        replace(ctx.model, hysteresis=base_model),
+        replace(ctx.model, hysteresis=own),  # refit keeps the base's units
     )
 
 
