@@ -328,3 +328,43 @@ def test_a_drifting_sensitivity_is_named_alone_and_keeps_the_fast_sweeps(tmp_pat
     after = {s.run: s.rms for s in result.after}
     for run in ("triangle-5hz", "triangle-10hz"):
         assert after[run] <= 1.2 * before[run], (run, before[run], after[run])
+
+
+@pytest.mark.slow
+def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp_path):
+    """The third press's thermal wander of the offset (17 and 41 min sines), the draw of
+    ``bench_diagnose --rig third``, seed 0, characterized with the default plan and a 120 s rest
+    before the first drive. Its rate changes sign between the two rests: one rate for every run
+    named nothing (before the wander form; 0 of 3 such draws); the wander on the session's clock,
+    pinned by the two rests, is named alone, and its rate is of the press's sign at both rests."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    default = (HERE.parent / "protocols" / "characterize.toml").read_text(encoding="utf-8")
+    rest = '[[protocol]]\nname = "rest-before-120s"\nkind = "custom"\npoints = [[0.0, 0.0], [120.0, 0.0]]\n'
+    rest += "sample_rate_hz = 100.0\n\n"
+    i = default.index("[[protocol]]")
+    plan = tmp_path / "rest-first.toml"
+    plan.write_text(default[:i] + rest + default[i:], encoding="utf-8")
+    press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([0, 97]))
+    char.characterize(tmp_path / "char", backend=press, plan_path=plan)
+    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
+    result, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
+    named = [(f.cause, f.evidence) for f in result.findings]
+    assert [f.cause for f in result.findings] == ["sensor_offset_drift"], named
+    found = result.findings[0]
+    assert "the test's clock" in found.evidence and found.gain_pct >= 30.0
+    runs = {r.name: r for r in D.diagnosis_runs(B.collect_runs([tmp_path / "char"]))}
+    starts = dict(found.model.drift_clock[1])  # the runs' starts on the clock their metadata record
+    a, (p0, p1) = press.thermal_drift_n, press._phase
+
+    def wander(c):  # the press's own, on its clock (its first run at 0)
+        return a * (np.sin(2 * np.pi * c / 1020.0 + p0) + 0.6 * np.sin(2 * np.pi * c / 2460.0 + p1))
+
+    for name in ("rest-before-120s", "rest-120s"):  # over each rest, the wander's move and the finding's
+        run = runs[name]
+        c0 = starts[run.ident]
+        moved = wander(c0 + run.t_s[-1]) - wander(c0)
+        assert abs(moved) > 0.3 and np.sign(found.model.clock_drift(run)[-1]) == np.sign(moved), (name, c0, moved)

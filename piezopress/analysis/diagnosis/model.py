@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -126,6 +127,27 @@ HUM_SAME_LINE_HZ = 0.5
 MEMO_SIZE = 64
 
 
+def run_starts(runs: list[RunData]) -> dict[str, float]:
+    """Each run's start on the test's clock (seconds from the first run's start), from the start
+    time its metadata records (``started_utc``); a run starts no earlier than the run before it
+    ended (a simulated press is played faster than real time). Runs without one are left out."""
+    timed = []
+    for r in runs:
+        try:
+            ts = datetime.fromisoformat(str(r.meta.get("started_utc")).replace("Z", "+00:00")).timestamp()
+        except ValueError:
+            continue
+        timed.append((ts, r))
+    timed.sort(key=lambda p: p[0])
+    clock: dict[str, float] = {}
+    end = None
+    for ts, r in timed:
+        t = ts - timed[0][0] if end is None else max(ts - timed[0][0], end)
+        clock[r.ident] = t
+        end = t + r.duration_s
+    return clock
+
+
 def memo(store: dict[tuple, tuple[Any, Any]], key: tuple, owner: Any, compute: Callable[[], Any]) -> Any:
     """``compute()``, kept in ``store`` under ``key`` while ``owner`` (whose ``id`` the key
     holds) is the same object; an array kept is made read-only (a tuple's parts are the
@@ -185,6 +207,10 @@ class Model:
     drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second ...
     # ... and a warm-up: (rate at the run's start, output unit per second; time constant over which it settles, s)
     drift_warmup: tuple[float, float] | None = None
+    # ... or a wander on the test's clock (where the runs record their start times): the offset a
+    # quadratic in the clock, ``a1 c + a2 c^2`` (a1 per second, a2 per second squared), and each
+    # run's start on that clock by its identity (:func:`run_starts`); read from each run's start
+    drift_clock: tuple[tuple[float, float], tuple[tuple[str, float], ...]] | None = None
     # sensitivity_drift: the reading's gain drifts on the test's clock: (rate per second, the clock
     # at which the base model's gain holds, per run by its identity: its start on the clock, and
     # whether the drift goes on inside it: not inside the hold the base model's creep was fitted
@@ -335,7 +361,7 @@ class Model:
         y = signals.delayed(y, run.fs_hz, self.reading_delay_s(run.fs_hz))
         if self.gain_drift:
             y = y * self.reading_gain(run)
-        y = y + self.drift(run) if self.drift_per_s or self.drift_warmup else y
+        y = y + self.drift(run) if self.drift_per_s or self.drift_warmup or self.drift_clock else y
         for ident, hz, a, b in self.hum:
             if ident == run.ident:
                 y = y + line_of(run.t_s, hz, a, b)
@@ -385,7 +411,19 @@ class Model:
         if self.drift_warmup:
             rate, tau = self.drift_warmup
             out = out - rate * tau * np.expm1(-run.t_s / tau)
-        return out
+        return out + self.clock_drift(run)
+
+    def clock_drift(self, run: RunData) -> np.ndarray | float:
+        """The wander on the test's clock over ``run``, from its start (0 without one, or for a
+        run whose start the wander does not know)."""
+        if not self.drift_clock:
+            return 0.0
+        (a1, a2), starts = self.drift_clock
+        c0 = next((c for ident, c in starts if ident == run.ident), None)
+        if c0 is None:
+            return 0.0
+        t = run.t_s
+        return a1 * t + a2 * t * (2.0 * c0 + t)
 
     def predict(self, run: RunData) -> np.ndarray:
         return self.reading(run, self.force(run, self.static(run)))

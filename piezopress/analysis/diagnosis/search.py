@@ -21,6 +21,7 @@ from piezopress.analysis.diagnosis.judging import (
 from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import POOR_FIT_RATIO, Testability, testability
 from piezopress.analysis.diagnosis.residuals import ResidualStats, judged, noise_floor, residual_stats, rms
+from piezopress.analysis.diagnosis.slow import TELL_DRIFT_FROM_CREEP, wander_untold
 
 # --------------------------------------------------------------------------- the diagnosis
 
@@ -366,6 +367,8 @@ def diagnose(
             head += f"; {f.cause} could also be " + " or ".join(
                 f"{c} (held-out gain {g:.0f} % before {f.cause} was taken)" for c, g in f.could_also_be.items()
             )
+            if wander_untold(ctx, {f.cause, *f.could_also_be}):
+                head += f"; {TELL_DRIFT_FROM_CREEP}"
     weak = [f for f in findings if f.strength == "weak"]
     if weak:  # how sure: a finding backed by one held-out run, or not by a third of them, is said to be
         head += "; weak evidence for " + ", ".join(f"{f.cause} ({f.strength_text().split(': ', 1)[1]})" for f in weak)

@@ -23,7 +23,14 @@ def cause_hysteresis_order(ctx: Context) -> Finding | None:
     if not sweeps:
         return None
     m = ctx.model.hysteresis
-    key = (tuple(id(r) for r in sweeps), m, ctx.model.creep, ctx.model.drift_per_s, ctx.model.drift_warmup)
+    key = (
+        tuple(id(r) for r in sweeps),
+        m,
+        ctx.model.creep,
+        ctx.model.drift_per_s,
+        ctx.model.drift_warmup,
+        ctx.model.drift_clock,
+    )
     hit = _ORDER_MEMO.get(key)
     if hit is not None and all(a is b for a, b in zip(hit[0], sweeps)):
         data, own, rich_fit = hit[1]  # the same fits as in the search's earlier rounds

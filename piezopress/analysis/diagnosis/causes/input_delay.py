@@ -46,7 +46,7 @@ def _delay_on_sweeps(ctx: Context) -> Finding | None:
     m = ctx.model.hysteresis
     outs = []
     for r in runs:  # the output as the hysteresis sees it: accepted drift and the creep removed, as the fit does
-        y = r.y - ctx.model.drift_per_s * r.t_s
+        y = r.y - ctx.model.drift_per_s * r.t_s - ctx.model.clock_drift(r)
         if ctx.model.creep is not None:
             y = m.y0 + ctx.model.creep.compensate(y - m.y0, r.fs_hz)[0]
         outs.append(y)

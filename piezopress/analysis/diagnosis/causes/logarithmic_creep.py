@@ -101,7 +101,9 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # the force as the accepted reading terms (drift) leave it
     # (and a drifting gain of the reading: the force the hold applied)
     drift = ctx.model.drift_per_s
-    y_full = run.y / ctx.model.reading_gain(run) - drift * run.t_s - ctx.model.hysteresis.y0
+    y_full = (
+        run.y / ctx.model.reading_gain(run) - drift * run.t_s - ctx.model.clock_drift(run) - ctx.model.hysteresis.y0
+    )
     # past the step's edge, as fit fits a held step: on the step as it is, the output's lag at the
     # edge went into elements of 0.05-0.5 s (3 % of the step on the virtual rig), which read the
     # 5-100 Hz sweeps 23-45 % worse, and a coupling was named beside the creep to take that up
@@ -115,7 +117,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # keeps (:func:`~piezopress.analysis.diagnosis.causes.sensitivity_drift._with_drift` leaves it
     # in the hold its base creep was fitted on): over a hold its level hardly moves, the gain's
     # ramp is a drift of the reading there, which a log tail beside saturating poles would take up
-    ramp = bool(drift or ctx.model.drift_warmup) or ctx.model.gain_held_over(run)
+    ramp = bool(drift or ctx.model.drift_warmup or ctx.model.drift_clock) or ctx.model.gain_held_over(run)
     most = float(np.ptp(u))  # a stroke kept at rest is less than the hold's
     drift_ctx = ctx
     if not ramp:  # (the rest runs' rise that the base creep of a stroke kept at rest explains is no drift)

@@ -11,7 +11,6 @@ the same response, whatever the time between; a drifting gain scales it.
 from __future__ import annotations
 
 from dataclasses import replace
-from datetime import datetime
 
 import numpy as np
 
@@ -19,7 +18,7 @@ from piezopress import units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis.diagnosis.cause import Cause
 from piezopress.analysis.diagnosis.judging import Context, Finding, _level_free
-from piezopress.analysis.diagnosis.model import Model, RunData
+from piezopress.analysis.diagnosis.model import Model, RunData, run_starts
 from piezopress.analysis.diagnosis.needs import Need, RunSpec, same_drive
 from piezopress.analysis.diagnosis.residuals import rms
 from piezopress.errors import CompensatorUnstableError
@@ -31,27 +30,6 @@ REPEAT_FROM = 0.3
 REPEAT_MIN_S = 10.0
 #: A repeat is compared averaged over this many blocks per drive period.
 BLOCKS_PER_PERIOD = 20
-
-
-def run_starts(runs: list[RunData]) -> dict[str, float]:
-    """Each run's start on the test's clock (seconds from the first run's start), from the start
-    time its metadata records (``started_utc``); a run starts no earlier than the run before it
-    ended (a simulated press is played faster than real time). Runs without one are left out."""
-    timed = []
-    for r in runs:
-        try:
-            ts = datetime.fromisoformat(str(r.meta.get("started_utc")).replace("Z", "+00:00")).timestamp()
-        except ValueError:
-            continue
-        timed.append((ts, r))
-    timed.sort(key=lambda p: p[0])
-    clock: dict[str, float] = {}
-    end = None
-    for ts, r in timed:
-        t = ts - timed[0][0] if end is None else max(ts - timed[0][0], end)
-        clock[r.ident] = t
-        end = t + r.duration_s
-    return clock
 
 
 def repeats(runs: list[RunData], clock: dict[str, float]) -> list[list[RunData]]:

@@ -12,6 +12,7 @@ from piezopress import units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis.diagnosis.cause import Cause
 from piezopress.analysis.diagnosis.judging import Context, Finding
+from piezopress.analysis.diagnosis.model import run_starts
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.slow import DRIFT_MAX_OF_RANGE, _drift_fit
 
@@ -23,8 +24,14 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     creep hold, slow sweeps: the base model may have been fitted on them, for only their
     trend is used), fitted on each run's first 60 % with an offset per run, judged on the
     rest, against the same without the drift but with a slow creep element whose size is
-    fitted too (a creep the base model got wrong grows with the drive; a drift does not)."""
-    d = _drift_fit(ctx)
+    fitted too (a creep the base model got wrong grows with the drive; a drift does not).
+
+    Where the runs record their start times, the drift may also be a wander on the test's clock
+    (its rate changing over the session, :func:`~piezopress.analysis.diagnosis.slow._drift_fit`):
+    measured on the third test press's thermal wander (17 and 41 min sines), the default plan with
+    a rest run before the first drive as well as the one after the last, seeds 0-7: with one rate
+    for every run nothing was named on any seed, with the wander it is named alone on 7 of 8."""
+    d = _drift_fit(ctx, clock=run_starts(ctx.runs) or None)
     if d is None:
         return None
     span = max(float(np.ptp(r.y)) for r in d.runs)
@@ -36,20 +43,32 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         "kv", creep.static_gain, tuple(creep.taus_s) + (d.creep_tau_s,), tuple(creep.gains) + (d.creep_gain,)
     )
     steady = math.isinf(d.drift_tau_s)
-    ext = replace(
-        ctx.model,
-        drift_per_s=d.drift_per_s if steady else 0.0,
-        drift_warmup=None if steady else (d.drift_per_s, d.drift_tau_s),
-        creep=creep,
-    )
+    if d.clock is not None:  # a wander on the test's clock
+        ext = replace(ctx.model, drift_clock=d.clock, creep=creep)
+    else:
+        ext = replace(
+            ctx.model,
+            drift_per_s=d.drift_per_s if steady else 0.0,
+            drift_warmup=None if steady else (d.drift_per_s, d.drift_tau_s),
+            creep=creep,
+        )
     u = ctx.model.unit
     names = sorted(r.name for r in d.runs)
     rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
-    if not steady:
+    if d.clock is not None:
+        (a1, a2), starts = d.clock
+        first, last = min(c for _, c in starts), max(c for _, c in starts)
+        rate = (
+            f"with the test's clock (a wander: {(a1 + 2 * a2 * first) * 60:.3g} {units.label(u)} per minute at the "
+            f"first run's start, {(a1 + 2 * a2 * last) * 60:.3g} at the last run's, {last - first:.0f} s later, "
+            "on the runs' recorded start times)"
+        )
+    elif not steady:
         rate += f" at the start of a run, settling over {d.drift_tau_s:.3g} s (a warm-up)"
+    trend = "follows one wander" if d.clock is not None else "trends at one rate"
     ev = (
         f"the reading drifts {rate} whatever the drive does: the residual averaged over "
-        f"each drive cycle trends at one rate in {', '.join(names)} (fitted on their first 60 % with an offset each "
+        f"each drive cycle {trend} in {', '.join(names)} (fitted on their first 60 % with an offset each "
         "and a slow "
         f"creep element, judged on the rest against the creep element alone)"
     )
@@ -64,6 +83,11 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
             "drift_settling_s": d.drift_tau_s,
             "creep_tau_s": d.creep_tau_s,
             "creep_gain": d.creep_gain,
+            **(
+                {f"wander_{units.key(u)}_per_s": d.clock[0][0], f"wander_{units.key(u)}_per_s2": d.clock[0][1]}
+                if d.clock is not None
+                else {}
+            ),
         },
         names,
         names,
