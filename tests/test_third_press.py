@@ -335,7 +335,7 @@ def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp
     """The third press's thermal wander of the offset (17 and 41 min sines), the draw of
     ``bench_diagnose --rig third``, seed 0, characterized with the default plan and a 120 s rest
     before the first drive. Its rate changes sign between the two rests: one rate for every run
-    named nothing (before the wander form; 0 of 3 such draws); the wander on the session's clock,
+    named nothing (before the wander form: 0 of 8 draws, seeds 0-7); the wander on the session's clock,
     pinned by the two rests, is named alone, and its rate is of the press's sign at both rests."""
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import characterize as char
