@@ -538,12 +538,18 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
     if plan:
         lines.append("")
         if plan.get("file"):
+            does = ([f"makes testable: {', '.join(plan['serves'])}"] if plan.get("serves") else []) + [
+                f"tells {t}" for t in plan.get("tells_apart", [])
+            ]
             lines.append(
                 f"Next experiment: {plan['file']} ({len(plan['protocols'])} protocols, {plan['duration_s']:.0f} s) "
-                f"makes testable: {', '.join(plan['serves'])}"
+                + "; ".join(does)
             )
             for g in plan.get("groups", []):
-                lines.append(f"    {', '.join(g['protocols'])}: serves {', '.join(g['serves'])}")
+                what = ([f"serves {', '.join(g['serves'])}"] if g.get("serves") else []) + [
+                    f"tells {t}" for t in g.get("tells", [])
+                ]
+                lines.append(f"    {', '.join(g['protocols'])}: {'; '.join(what)}")
             lines.append(
                 "    run it with `piezopress characterize --plan` (the file says how), then diagnose both directories"
             )

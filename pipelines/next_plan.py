@@ -13,6 +13,13 @@ checked with the project's plan loader before it is written.
 Whether a group serves a cause is decided by the cause's own needs
 (:func:`piezopress.analysis.diagnosis.testability`), on the runs the plan would record
 (each protocol's drive as a run) beside the runs already there.
+
+A finding the runs cannot tell from another cause is an experiment to run too: where a log
+creep could also be a drift of the reading (:func:`~piezopress.analysis.diagnosis.slow.wander_untold`:
+no two rests far apart on a recorded clock), the plan adds a rest, the drive held, and a rest
+again, the rests :data:`~piezopress.analysis.diagnosis.slow.CLOCK_REST_APART_S` apart or more
+(a drift moves both rests, a creep recovers only after the drive), whether or not any cause
+was left untested.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from piezopress.acquisition.plan import DriveLimits, Plan, parse_plan
 from piezopress.acquisition.rig_config import load_rig, parse_rig
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis import profile
+from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, wander_untold
 from piezopress.errors import PiezopressError
 from piezopress.resources import shipped
 
@@ -43,6 +51,10 @@ STEP_RATE_HZ = 20_000.0
 #: Rest and creep holds (s): the default plan's (long enough for drift and for log-time creep).
 REST_S = 120.0
 CREEP_HOLD_S = 120.0
+#: The held drive between the two rests of the experiment that tells a drift from a creep (s):
+#: long enough for the second rest to start :data:`CLOCK_REST_APART_S` after the first, with a
+#: minute to spare (the creep protocol's second before the step included).
+TELL_HOLD_S = max(CREEP_HOLD_S, CLOCK_REST_APART_S - REST_S) + 60.0
 
 
 @dataclass(frozen=True)
@@ -87,6 +99,7 @@ class Group:
     protocols: list[dict[str, Any]] = field(default_factory=list)
     serves: list[str] = field(default_factory=list)
     enables_model: tuple[str, ...] = ()  # parts of the base model a refit with these runs gives ("mode", "creep")
+    tells: list[str] = field(default_factory=list)  # findings it tells from their rival ("a from b")
 
     @property
     def samples(self) -> int:
@@ -96,6 +109,10 @@ class Group:
 #: The time at rest between a repeat's two triangles (s): a gain drift of 1 % per hour moves the
 #: second by 0.17 % of its swing, 0.5 N of a 300 N loop.
 REPEAT_GAP_S = 600.0
+
+
+#: The group that tells a drift of the reading from a creep (added only for a finding that could be either).
+TELL_GROUP = "rest-hold-rest"
 
 
 def _samples(p: dict[str, Any]) -> int:
@@ -230,6 +247,29 @@ def _groups(lo: float, hi: float, rest: float, fs_max: float) -> list[Group]:
                 ],
             )
         )
+    if hi > rest and fs_max >= 100.0:
+        rest_run = {"kind": "custom", "points": [[0.0, rest], [REST_S, rest]], "sample_rate_hz": min(100.0, fs_max)}
+        out.append(
+            Group(
+                TELL_GROUP,
+                f"{REST_S:g} s at rest, {hi:g} V held {TELL_HOLD_S:g} s, {REST_S:g} s at rest again, run in this order "
+                "(a drift of the reading moves both rests, creep recovers only in the second)",
+                [
+                    {"name": "rest-before-drive", **rest_run},
+                    {
+                        "name": f"hold-{hi:g}v",
+                        "kind": "creep",
+                        "base_v": rest,
+                        "level_v": hi,
+                        "pre_s": 1.0,
+                        "hold_s": TELL_HOLD_S,
+                        "post_s": 0.0,
+                        "sample_rate_hz": min(1000.0, fs_max),
+                    },
+                    {"name": "rest-after-drive", **rest_run},
+                ],
+            )
+        )
     return sorted(out, key=lambda g: g.samples)
 
 
@@ -264,17 +304,28 @@ class NextPlan:
     unservable: list[str]
     refit_for: list[str]  # causes that need the base model refitted with the new runs (a mode, a creep model)
     rig: RigInfo
+    tells_apart: list[str] = field(default_factory=list)  # "a from b": findings the plan tells from their rival
 
 
-def choose(ctx: dg.Context, not_tested: Sequence[str], rig: RigInfo, drive: tuple[float, float]) -> NextPlan:
-    """The smallest cover (greedy, cheapest group first) of the untested causes."""
+def choose(
+    ctx: dg.Context,
+    not_tested: Sequence[str],
+    rig: RigInfo,
+    drive: tuple[float, float],
+    untold: Sequence[str] = (),
+) -> NextPlan:
+    """The smallest cover (greedy, cheapest group first) of the untested causes; with ``untold``
+    (findings that could be another cause, "a from b": :func:`untold_findings`), the group that
+    tells a drift from a creep as well."""
     lo, hi = max(drive[0], rig.limits.drive_min_v), min(drive[1], rig.limits.drive_max_v)
     if not hi > lo:
         lo, hi = rig.limits.drive_min_v, rig.limits.drive_max_v
     rest = 0.0 if lo <= 0.0 <= hi else lo
     lib = _groups(lo, hi, rest, rig.limits.max_sample_rate_hz)
+    tell = next((g for g in lib if g.id == TELL_GROUP), None)
+    lib = [g for g in lib if g.id != TELL_GROUP]  # never to cover an untested cause: the creep group is cheaper
     taken = {r.name for r in ctx.runs}
-    for g in lib:  # a protocol never takes the name of a run already there
+    for g in lib + ([tell] if tell else []):  # a protocol never takes the name of a run already there
         for p in g.protocols:
             while p["name"] in taken:
                 p["name"] += "-next"
@@ -337,7 +388,23 @@ def choose(ctx: dg.Context, not_tested: Sequence[str], rig: RigInfo, drive: tupl
     for g in chosen:
         if not g.serves:  # taken for a cause another group now serves as well: still say what it adds
             g.serves = [c for c in serves if testable(c, [g])[0]]
-    return NextPlan(chosen, serves, unservable, refit_for, rig)
+    tells_apart = list(untold) if tell is not None else []
+    if tells_apart:
+        tell.tells = tells_apart
+        chosen.append(tell)
+    return NextPlan(chosen, serves, unservable, refit_for, rig, tells_apart)
+
+
+def untold_findings(ctx: dg.Context, result: dg.Diagnosis) -> list[str]:
+    """Findings the runs cannot tell from what they could also be ("logarithmic_creep from
+    sensor_offset_drift"): a drift of the reading and a creep, with no two rests far apart on a
+    recorded clock (:func:`~piezopress.analysis.diagnosis.slow.wander_untold`)."""
+    out = []
+    for f in result.findings:
+        rivals = [c for c in f.could_also_be if wander_untold(ctx, {f.cause, c})]
+        if rivals:
+            out.append(f"{f.cause} from {' or '.join(rivals)}")
+    return out
 
 
 def plan_text(
@@ -355,10 +422,17 @@ def plan_text(
     dirs = " ".join(run_paths) or "runs/"
     lines = [
         "# Next experiment, written by `piezopress diagnose`: the smallest set of protocols found that makes testable",
-        "# the causes these runs could not test.",
+        "# the causes these runs could not test"
+        + (", and runs that tell apart what these runs cannot." if plan.tells_apart else "."),
         f"# Runs diagnosed: {dirs}",
         "#",
     ]
+    for pair in plan.tells_apart:
+        lines += [
+            f"#   {pair}: these runs cannot tell them apart (no rest before the first drive and after",
+            f"#     the last, {CLOCK_REST_APART_S:g} s apart or more, with their start times recorded); "
+            "the runs below can",
+        ]
     for cid in plan.serves:
         t = checks[cid]
         lines += [f"#   {cid}: needs {t.needs}", f"#     have: {t.have}"]
@@ -406,18 +480,26 @@ def plan_text(
         "",
         "[plan]",
         'name = "next-experiment"',
-        f'description = "Makes testable: {", ".join(plan.serves)}"',
+        f'description = "{_description(plan)}"',
         f"preload_n = {preload_n:g}",
         "",
     ]
     for g in plan.groups:
-        lines.append(f"# --- serves {', '.join(g.serves)}: {g.what}")
+        does = [f"serves {', '.join(g.serves)}"] if g.serves else []
+        does += [f"tells {t}" for t in g.tells]
+        lines.append(f"# --- {'; '.join(does)}: {g.what}")
         for p in g.protocols:
             lines.append("[[protocol]]")
             for k, v in p.items():
                 lines.append(f"{k} = {_toml(v)}")
             lines.append("")
     return "\n".join(lines)
+
+
+def _description(plan: NextPlan) -> str:
+    parts = [f"Makes testable: {', '.join(plan.serves)}"] if plan.serves else []
+    parts += [f"tells {t}" for t in plan.tells_apart]
+    return "; ".join(parts)
 
 
 def _toml(v: Any) -> str:
@@ -448,9 +530,11 @@ def write_plan(out_dir: Path, text: str, limits: DriveLimits) -> tuple[Path, Pla
 def next_plan(
     runs: Sequence[runformat.Run], ctx: dg.Context, result: dg.Diagnosis, out_dir: Path, run_paths: Sequence[str]
 ) -> dict[str, Any] | None:
-    """Write ``next-plan.toml`` for the causes ``result`` could not test; its description for
-    ``diagnosis.json`` (None when every cause was tested: no plan is needed)."""
-    if not result.not_tested:
+    """Write ``next-plan.toml`` for the causes ``result`` could not test and the findings it
+    could not tell from another cause; its description for ``diagnosis.json`` (None when every
+    cause was tested and told apart: no plan is needed)."""
+    untold = untold_findings(ctx, result)
+    if not result.not_tested and not untold:
         return None
     rig = rig_of_runs(runs)
     xs = [r.x for r in ctx.runs if r.x.size]
@@ -460,9 +544,10 @@ def next_plan(
         else (rig.limits.drive_min_v, rig.limits.drive_max_v)
     )
     checks = {t.cause: t for t in result.not_tested}
-    plan = choose(ctx, list(checks), rig, drive)
+    plan = choose(ctx, list(checks), rig, drive, untold)
     info: dict[str, Any] = {
         "serves": plan.serves,
+        "tells_apart": plan.tells_apart,
         "unservable": plan.unservable,
         "refit_for": plan.refit_for,
         "rig": {"name": rig.name, "file": rig.rig_file, "from_runs": rig.from_runs},
@@ -480,7 +565,8 @@ def next_plan(
         protocols=[p.name for p in checked.protocols],
         duration_s=checked.duration_s,
         groups=[
-            {"protocols": [p["name"] for p in g.protocols], "serves": g.serves, "what": g.what} for g in plan.groups
+            {"protocols": [p["name"] for p in g.protocols], "serves": g.serves, "tells": g.tells, "what": g.what}
+            for g in plan.groups
         ],
     )
     return info

@@ -356,7 +356,12 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
         blocks.append(
             Para(
                 f"Next experiment: {Path(plan['file']).name} ({len(plan.get('protocols', []))} protocols, "
-                f"{plan.get('duration_s', math.nan):.0f} s) makes testable {', '.join(plan.get('serves', []))}."
+                f"{plan.get('duration_s', math.nan):.0f} s) "
+                + "; ".join(
+                    ([f"makes testable {', '.join(plan['serves'])}"] if plan.get("serves") else [])
+                    + [f"tells {t}" for t in plan.get("tells_apart", [])]
+                )
+                + "."
             )
         )
     if d.get("signatures"):

@@ -657,13 +657,9 @@ def test_no_wander_is_named_where_the_offset_holds_still_though_start_times_are_
         assert found is None or not found.accepted, (seed, found.gain_pct)
 
 
-def test_a_creep_that_could_be_a_drift_says_what_would_tell_them_apart(monkeypatch):
-    """Issue 20, how sure: where a log creep is named and an offset drift explained the same
-    residual, and the runs have no rest at each end of the session (one rest, at the end), the
-    summary says what experiment tells them apart; with both rests (the wander then tried) it
-    does not."""
-    from piezopress.analysis.diagnosis import search
-    from piezopress.analysis.diagnosis.slow import TELL_DRIFT_FROM_CREEP
+def _rival_causes() -> dict[str, dg.Cause]:
+    """Stub causes with the catalogue's ids: a log creep (80 % held-out gain) and an offset drift
+    that explains the same residual (34 %) until the log creep is taken (then 1 %)."""
 
     def fake(cause: str, first: float, after: float):
         def fit(ctx):
@@ -674,10 +670,21 @@ def test_a_creep_that_could_be_a_drift_says_what_would_tell_them_apart(monkeypat
 
         return fit
 
-    causes = {
+    return {
         "logarithmic_creep": dg.Cause("logarithmic_creep", "p", "e", fake("logarithmic_creep", 80.0, 80.0)),
         "sensor_offset_drift": dg.Cause("sensor_offset_drift", "p", "e", fake("sensor_offset_drift", 34.0, 1.0)),
     }
+
+
+def test_a_creep_that_could_be_a_drift_says_what_would_tell_them_apart(monkeypatch):
+    """Issue 20, how sure: where a log creep is named and an offset drift explained the same
+    residual, and the runs have no rest at each end of the session (one rest, at the end), the
+    summary says what experiment tells them apart; with both rests (the wander then tried) it
+    does not."""
+    from piezopress.analysis.diagnosis import search
+    from piezopress.analysis.diagnosis.slow import TELL_DRIFT_FROM_CREEP
+
+    causes = _rival_causes()
     monkeypatch.setattr(search, "CAUSES", causes)
     ctx, _ = _wander_runs(timed=True, amplitude_n=3.0)
     one_rest = [r for r in ctx.runs if r.name != "rest-before"]
@@ -687,3 +694,93 @@ def test_a_creep_that_could_be_a_drift_says_what_would_tell_them_apart(monkeypat
     assert "logarithmic_creep could also be sensor_offset_drift" in both and TELL_DRIFT_FROM_CREEP not in both
     untimed, _ = _wander_runs(timed=False, amplitude_n=3.0)
     assert TELL_DRIFT_FROM_CREEP in search.diagnose(ctx.model, untimed.runs, causes=list(causes)).summary
+
+
+def test_a_creep_that_could_be_a_drift_puts_the_experiment_that_tells_them_apart_in_the_next_plan(
+    monkeypatch, tmp_path
+):
+    """Issue 20: "where the runs cannot tell ..., put the experiment that would tell them apart
+    in next-plan.toml". A log creep that could also be an offset drift, on runs with one rest:
+    the next plan is written though every cause was tested, and holds a rest, the drive held and
+    a rest again, in that order, the rests far enough apart on the clock they will be recorded on
+    for the wander of the offset to be tried on them. With both rests already there, no plan."""
+    from piezopress.analysis.diagnosis import search
+    from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, _rests_apart
+
+    causes = _rival_causes()
+    monkeypatch.setattr(search, "CAUSES", causes)
+    ctx, _ = _wander_runs(timed=True, amplitude_n=3.0)
+    one_rest = dg.Context([r for r in ctx.runs if r.name != "rest-before"], ctx.model, frozenset(), ctx.floor)
+    result = search.diagnose(ctx.model, one_rest.runs, causes=list(causes))
+    assert not result.not_tested and result.findings[0].could_also_be
+    info = NP.next_plan([], one_rest, result, tmp_path, ["runs/"])
+    assert info is not None and info["tells_apart"] == ["logarithmic_creep from sensor_offset_drift"]
+    assert info["serves"] == [] and [g["tells"] for g in info["groups"]] == [info["tells_apart"]]
+    text = (tmp_path / "next-plan.toml").read_text()
+    assert "logarithmic_creep from sensor_offset_drift: these runs cannot tell them apart" in text
+    assert "# --- tells logarithmic_creep from sensor_offset_drift: " in text
+    assert 'description = "tells logarithmic_creep from sensor_offset_drift"' in text
+    plan = load_plan(tmp_path / "next-plan.toml", load_rig(NP.DEFAULT_RIG).limits)
+    kinds = [(p.run_kind, float(np.ptp(p.waveform()[1]))) for p in plan.protocols]
+    assert [k for k, _ in kinds] == ["custom", "creep", "custom"] and kinds[1][1] > 0 == kinds[0][1] == kinds[2][1]
+    # played in order, each run starting when the one before ends: the rests are the wander's
+    from datetime import UTC, datetime, timedelta
+
+    t0, at, planned = datetime(2026, 11, 29, 8, 0, tzinfo=UTC), 0.0, []
+    for p in plan.protocols:
+        t, x = p.waveform()
+        meta = {"started_utc": (t0 + timedelta(seconds=at)).isoformat()}
+        planned.append(dg.RunData(p.name, p.run_kind, t, x, np.zeros_like(x), p.sample_rate_hz, meta=meta))
+        at += float(t[-1])
+    starts = dg.run_starts(planned)
+    assert starts[planned[2].ident] - starts[planned[0].ident] >= CLOCK_REST_APART_S
+    assert _rests_apart(planned, starts)
+    result_both = search.diagnose(ctx.model, ctx.runs, causes=list(causes))
+    assert result_both.findings[0].could_also_be  # still a rival, but these runs can tell them apart
+    assert NP.next_plan([], ctx, result_both, tmp_path / "both", ["runs/"]) is None
+
+
+@pytest.mark.parametrize("first_timed", [True, False])
+def test_a_wander_is_fitted_only_between_two_rests_near_each_other_and_one_rate_elsewhere(first_timed):
+    """The next plan's runs (a rest before the drive and one after), recorded two hours after the
+    first ones (one rest, at the end): the wander is a quadratic on the clock between the two new
+    rests only (not across the gap, where the press cooled or warmed, nor over more than
+    :data:`CLOCK_WINDOW_MAX_S`, where a quadratic cannot draw a thermal wander); the first runs
+    get one rate. Named, with each new rest moved as the wander moved it. The same where the
+    first runs record no start time (runs from elsewhere, the next plan's from ``characterize``)."""
+    from datetime import datetime, timedelta
+
+    from piezopress.analysis.diagnosis.causes.sensor_offset_drift import cause_sensor_offset_drift
+    from piezopress.analysis.diagnosis.slow import CLOCK_WINDOW_MAX_S, wander_windows
+
+    first, _ = _wander_runs(timed=True, amplitude_n=3.0, seed=4)
+    later, _ = _wander_runs(timed=True, amplitude_n=3.0, seed=5)
+    gap = timedelta(hours=2)
+    runs = [r for r in first.runs if r.name != "rest-before"]  # the default plan's one rest, at the end
+    runs += [
+        dataclasses.replace(
+            r,
+            name=f"{r.name}-2",
+            meta={"started_utc": (datetime.fromisoformat(r.meta["started_utc"]) + gap).isoformat()},
+        )
+        for r in later.runs
+    ]
+    if not first_timed:
+        runs[:4] = [dataclasses.replace(r, meta={}) for r in runs[:4]]
+    clock = dg.run_starts(runs)
+    assert wander_windows(runs, clock) == [(clock[runs[4].ident], clock[runs[-1].ident])]
+    if first_timed:
+        assert clock[runs[4].ident] - clock[runs[3].ident] > CLOCK_WINDOW_MAX_S  # the old rest pins nothing
+    else:
+        assert len(clock) == 5
+    ctx = dg.Context(runs, first.model, frozenset(), {r.name: dg.noise_floor(r.y) for r in runs})
+    found = cause_sensor_offset_drift(ctx)
+    assert found is not None and found.accepted and found.gain_pct >= 35.0, found and found.gain_pct
+    assert found.parameters["wander_windows"] == 1.0 and "the test's clock" in found.evidence
+    per_run = {e[0]: e[1:] for e in found.model.drift_clock}
+    assert {per_run[r.ident][2] for r in runs[:4]} == {0.0}  # one rate for the first runs (no quadratic)
+    assert len({per_run[r.ident][1] for r in runs[:4]}) == 1 and per_run[runs[0].ident][1] != 0.0
+    assert np.allclose(found.model.clock_drift(runs[0]), per_run[runs[0].ident][1] * runs[0].t_s)
+    assert all(per_run[r.ident][2] != 0.0 for r in runs[4:]) and per_run[runs[4].ident][0] == 0.0
+    rest_before, rest = runs[4], runs[-1]  # the new rests move as the wander between them does
+    assert found.model.clock_drift(rest_before)[300] > 0 > found.model.clock_drift(rest)[300]

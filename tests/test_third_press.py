@@ -357,7 +357,7 @@ def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp
     found = result.findings[0]
     assert "the test's clock" in found.evidence and found.gain_pct >= 30.0
     runs = {r.name: r for r in D.diagnosis_runs(B.collect_runs([tmp_path / "char"]))}
-    starts = dict(found.model.drift_clock[1])  # the runs' starts on the clock their metadata record
+    starts = {e[0]: e[1] for e in found.model.drift_clock}  # the runs' starts on the clock their metadata record
     a, (p0, p1) = press.thermal_drift_n, press._phase
 
     def wander(c):  # the press's own, on its clock (its first run at 0)
@@ -368,3 +368,33 @@ def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp
         c0 = starts[run.ident]
         moved = wander(c0 + run.t_s[-1]) - wander(c0)
         assert abs(moved) > 0.3 and np.sign(found.model.clock_drift(run)[-1]) == np.sign(moved), (name, c0, moved)
+
+
+@pytest.mark.slow
+def test_a_wander_taken_for_a_log_creep_is_told_apart_by_the_next_plan(tmp_path):
+    """The loop a technician runs (issue 20: where the runs cannot tell two causes apart, the
+    experiment that would goes into next-plan.toml). The third press's thermal wander (the draw
+    of ``bench_diagnose --rig third``, seed 0), the default plan's one rest: a log creep is named
+    that the offset drift could also be. The next plan holds a rest, the drive held and a rest
+    again; played on the same press two hours later and diagnosed with the first runs, the drift
+    is named alone and the log creep is not."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([0, 97]))
+    char.characterize(tmp_path / "char", backend=press)
+    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
+    first, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
+    assert [(f.cause, list(f.could_also_be)) for f in first.findings] == [
+        ("logarithmic_creep", ["sensor_offset_drift"])
+    ], first.summary
+    plan = D.next_plan_info(tmp_path / "diag")
+    assert plan["tells_apart"] == ["logarithmic_creep from sensor_offset_drift"]
+    press.clock_s += 2 * 3600.0  # the next plan is run later; the press's clock (and its wander) goes on
+    char.characterize(tmp_path / "more", backend=press, plan_path=plan["file"])
+    both, _ = D.diagnose([tmp_path / "char", tmp_path / "more"], tmp_path / "base.json", tmp_path / "diag-2")
+    assert [f.cause for f in both.findings] == ["sensor_offset_drift"], both.summary
+    assert "the test's clock" in both.findings[0].evidence and both.findings[0].gain_pct >= 30.0
+    assert not (D.next_plan_info(tmp_path / "diag-2") or {}).get("tells_apart")

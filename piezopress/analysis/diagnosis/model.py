@@ -207,10 +207,12 @@ class Model:
     drift_per_s: float = 0.0  # sensor_offset_drift, output unit per second ...
     # ... and a warm-up: (rate at the run's start, output unit per second; time constant over which it settles, s)
     drift_warmup: tuple[float, float] | None = None
-    # ... or a wander on the test's clock (where the runs record their start times): the offset a
-    # quadratic in the clock, ``a1 c + a2 c^2`` (a1 per second, a2 per second squared), and each
-    # run's start on that clock by its identity (:func:`run_starts`); read from each run's start
-    drift_clock: tuple[tuple[float, float], tuple[tuple[str, float], ...]] | None = None
+    # ... or a wander on the test's clock (where the runs record their start times): in each window
+    # of the clock two rests pin (:func:`~piezopress.analysis.diagnosis.slow.wander_windows`) the
+    # offset a quadratic in the window's clock, ``a1 c + a2 c^2`` (a1 per second, a2 per second
+    # squared); per run by its identity: (identity, its start on its window's clock, a1, a2), read
+    # from the run's start. A run in no window has one rate: (identity, 0, rate, 0)
+    drift_clock: tuple[tuple[str, float, float, float], ...] | None = None
     # sensitivity_drift: the reading's gain drifts on the test's clock: (rate per second, the clock
     # at which the base model's gain holds, per run by its identity: its start on the clock, and
     # whether the drift goes on inside it: not inside the hold the base model's creep was fitted
@@ -418,10 +420,10 @@ class Model:
         run whose start the wander does not know)."""
         if not self.drift_clock:
             return 0.0
-        (a1, a2), starts = self.drift_clock
-        c0 = next((c for ident, c in starts if ident == run.ident), None)
-        if c0 is None:
+        at = next((e[1:] for e in self.drift_clock if e[0] == run.ident), None)
+        if at is None:
             return 0.0
+        c0, a1, a2 = at
         t = run.t_s
         return a1 * t + a2 * t * (2.0 * c0 + t)
 

@@ -58,6 +58,12 @@ CLOCK_UNIT_S = 1000.0
 #: plan's one rest, seed 3: the wander's rate read -3.2 N/min at the first run where the press
 #: wandered +1 N/min, and the held-out ends 5 % worse than none, where one rate read them 61 % better).
 CLOCK_REST_APART_S = 300.0
+#: Two rests further apart than this on the clock (s) pin no wander between them: a quadratic draws
+#: a thermal wander of periods of 17 min and more over up to a quarter of an hour (the third test
+#: press, seed 0, the default plan and the next plan's runs played back to back: one quadratic over
+#: the whole 17 min gained 7 % on the held-out ends, nothing named; over the 9 min between the last
+#: rest of the first runs and the last of the next, 38 %, the drift named alone).
+CLOCK_WINDOW_MAX_S = 900.0
 #: Share of each run the forms are fitted on when the wander form competes with the others (the
 #: next share, up to the held-out end, chooses): held-out rows never choose the form.
 CLOCK_CHOICE_SPLIT = 0.4
@@ -80,7 +86,10 @@ class _DriftFit:
     with_tail: float | None = None
     tail_per_decade: float | None = None
     # the wander on the test's clock where it won (:attr:`Model.drift_clock`'s form), else None
-    clock: tuple[tuple[float, float], tuple[tuple[str, float], ...]] | None = None
+    clock: tuple[tuple[str, float, float, float], ...] | None = None
+    # the windows the wander was fitted in (:func:`wander_windows`): (first rest's start, last
+    # rest's start, both on the window's clock; a1, a2), in the clock's order
+    windows: tuple[tuple[float, float, float, float], ...] = ()
 
     @property
     def gain_pct(self) -> float:
@@ -129,11 +138,26 @@ def _run_offsets(sizes: list[int]) -> np.ndarray:
     return linalg.block_diag(*(np.ones((n, 1)) for n in sizes))
 
 
+def wander_windows(rests: list[RunData], clock: dict[str, float] | None) -> list[tuple[float, float]]:
+    """The windows of the test's clock a wander of the offset is fitted in: (first rest's start,
+    last rest's start) on ``clock``, two runs of ``rests`` at rest (a drive that does not move)
+    :data:`CLOCK_REST_APART_S` to :data:`CLOCK_WINDOW_MAX_S` apart; from the earliest rest on,
+    each window as long as it may be, the next from the first rest after it."""
+    cs = sorted(clock[r.ident] for r in rests if clock and r.ident in clock and np.ptp(r.x) == 0)
+    out, i = [], 0
+    while i < len(cs):
+        ends = [j for j in range(i + 1, len(cs)) if CLOCK_REST_APART_S <= cs[j] - cs[i] <= CLOCK_WINDOW_MAX_S]
+        if ends:
+            out.append((cs[i], cs[ends[-1]]))
+            i = ends[-1] + 1
+        else:
+            i += 1
+    return out
+
+
 def _rests_apart(runs: list[RunData], clock: dict[str, float] | None) -> bool:
-    """Whether two of ``runs`` at rest (a drive that does not move) start
-    :data:`CLOCK_REST_APART_S` apart or more on ``clock``."""
-    rests = sorted(clock[r.ident] for r in runs if clock and r.ident in clock and np.ptp(r.x) == 0)
-    return len(rests) >= 2 and rests[-1] - rests[0] >= CLOCK_REST_APART_S
+    """Whether two of ``runs`` at rest pin a window of the wander (:func:`wander_windows`)."""
+    return bool(wander_windows(runs, clock))
 
 
 #: What tells a drift of the reading from creep, said where one slow cause could be the other and
@@ -163,11 +187,13 @@ def _drift_fit(
     with its own drive, so across runs at other drive levels the two are told apart where one
     held step alone cannot tell them.
 
-    With ``clock`` (each run's start on the test's clock, :func:`~piezopress.analysis.diagnosis.model.run_starts`;
-    every long run must have one) and two rest runs :data:`CLOCK_REST_APART_S` apart or more (a rest
-    before the first drive and one after the last, say), a wander competes too: the offset a
-    quadratic in the clock, so its rate changes over the session (a thermal wander of minutes, rising
-    in one run and falling in a later one, where one rate for every run fits neither). It has a parameter more than the
+    With ``clock`` (each run's start on the test's clock, :func:`~piezopress.analysis.diagnosis.model.run_starts`)
+    and two rest runs on it :data:`CLOCK_REST_APART_S` to :data:`CLOCK_WINDOW_MAX_S` apart (a rest
+    before the first drive and one after the last, say: :func:`wander_windows`), a wander competes
+    too: in each such window of the clock the offset a quadratic in the window's clock, so its rate
+    changes over the window (a thermal wander of minutes, rising in one run and falling in a later
+    one, where one rate for every run fits neither); the runs in no window (or without a start
+    time: runs from elsewhere beside the next plan's) share one rate. It has a parameter more than the
     other forms, so it is chosen on rows the fit does not see: every form fitted on each run's
     first :data:`CLOCK_CHOICE_SPLIT`, the one that predicts the rows from there to 60 % best is
     fitted on the first 60 % and judged on the rest, as the others are."""
@@ -191,15 +217,26 @@ def _drift_fit(
         return None
     tail = np.concatenate([c[-1] for _, _, _, c, _ in rows]) if tail_taus is not None else None
 
-    timed = clock is not None and all(r.ident in clock for r, *_ in rows) and _rests_apart([r for r, *_ in rows], clock)
-    C = np.concatenate([clock[r.ident] + t for r, t, *_ in rows]) / CLOCK_UNIT_S if timed else None
+    windows = wander_windows([r for r, *_ in rows], clock)
+    if windows:  # a quadratic on its own clock in each window two rests pin; one rate for the runs in none
+
+        def window_of(ident: str) -> tuple[int, float]:
+            c = clock[ident]
+            return next(((i, c - lo) for i, (lo, hi) in enumerate(windows) if lo <= c <= hi), (-1, 0.0))
+
+        at = {ident: window_of(ident) for ident in clock}  # a run without a start time is in none
+        W_ = np.concatenate([np.full(t.size, at.get(r.ident, (-1, 0.0))[0]) for r, t, *_ in rows])
+        C_ = np.concatenate([at.get(r.ident, (-1, 0.0))[1] + t for r, t, *_ in rows]) / CLOCK_UNIT_S
+        wander_cols = [np.where(W_ == i, C_**k, 0.0) for i in range(len(windows)) for k in (1, 2)]
+        others = W_ < 0
+        wander_cols += [np.where(others, T, 0.0)] if others.any() else []
 
     def solve(warmups, with_tail=False, fitted=fit_m, judged=~fit_m):
         best = None
         for j, tau in enumerate(DRIFT_CREEP_TAUS_S):
             S = np.concatenate([c[j] for _, _, _, c, _ in rows])
             for w in warmups:  # None: no drift; inf: a steady one; "clock": a wander; else it settles over w
-                D = [] if w is None else [C, C**2] if w == "clock" else [T if np.isinf(w) else -w * np.expm1(-T / w)]
+                D = [] if w is None else wander_cols if w == "clock" else [T if np.isinf(w) else -w * np.expm1(-T / w)]
                 A = np.column_stack([onehot, S] + D + ([tail] if with_tail else []))
                 coef, *_ = np.linalg.lstsq(A[fitted], R[fitted], rcond=None)
                 e = rms(R[fitted] - A[fitted] @ coef)
@@ -210,24 +247,40 @@ def _drift_fit(
     warmups = [math.inf, 1000.0, DRIFT_WARMUP_TAU_S]
     _, _, _, b, _ = solve([None])
     _, tau1, coef1, e, w = solve(warmups)
-    wander = None
-    if timed:
+    wander, spans = None, []
+    if windows:
         first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
-        if first.sum() >= n_runs + 4 and (fit_m & ~first).sum() >= 3:
+        if first.sum() >= n_runs + 2 + len(wander_cols) and (fit_m & ~first).sum() >= 3:
             choose = {"fitted": first, "judged": fit_m & ~first}
             if solve(["clock"], **choose)[3] < solve([w], **choose)[3]:
                 _, tau1, coef1, e, w = solve(["clock"])
-                a1, a2 = (float(x) for x in coef1[-2:])
-                starts = tuple(sorted((ident, float(c)) for ident, c in clock.items()))  # every timed run
-                wander = ((a1 / CLOCK_UNIT_S, a2 / CLOCK_UNIT_S**2), starts)
+                k = n_runs + 1
+                per = [
+                    (float(coef1[k + 2 * i]) / CLOCK_UNIT_S, float(coef1[k + 2 * i + 1]) / CLOCK_UNIT_S**2)
+                    for i in range(len(windows))
+                ]
+                steady = float(coef1[k + 2 * len(windows)]) if others.any() else 0.0
+                wander = tuple(  # every run, a short one too, those without a start time last
+                    (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0)
+                    for ident, (i, c) in sorted(
+                        ((r.ident, at.get(r.ident, (-1, 0.0))) for r in ctx.runs),
+                        key=lambda p: (clock.get(p[0], math.inf), p[0]),
+                    )
+                )
+                spans = [(0.0, hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
     with_tail = per_decade = None
     if tail is not None:
         _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)
         per_decade = float(coef2[-1])
     if wander is not None:  # the fastest the wander moves over the long runs, and no settling
-        (a1, a2), _ = wander
-        at = [c for r, *_ in rows for c in (clock[r.ident], clock[r.ident] + r.t_s[-1])]
-        rate = max((a1 + 2.0 * a2 * c for c in at), key=abs)
+        rates = [
+            a1 + 2.0 * a2 * c
+            for r, *_ in rows
+            for ident, c0, a1, a2 in wander
+            if ident == r.ident
+            for c in (c0, c0 + r.t_s[-1])
+        ]
+        rate = max(rates, key=abs)
     return _DriftFit(
         [r for r, _, _, _, _ in rows],
         b,
@@ -240,6 +293,7 @@ def _drift_fit(
         with_tail,
         per_decade,
         wander,
+        tuple(spans),
     )
 
 

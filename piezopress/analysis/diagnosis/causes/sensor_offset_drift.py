@@ -56,13 +56,18 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     names = sorted(r.name for r in d.runs)
     rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
     if d.clock is not None:
-        (a1, a2), starts = d.clock
-        first, last = min(c for _, c in starts), max(c for _, c in starts)
-        rate = (
-            f"with the test's clock (a wander: {(a1 + 2 * a2 * first) * 60:.3g} {units.label(u)} per minute at the "
-            f"first run's start, {(a1 + 2 * a2 * last) * 60:.3g} at the last run's, {last - first:.0f} s later, "
-            "on the runs' recorded start times)"
+        lab = units.label(u)
+        each = [
+            f"{(a1 + 2 * a2 * first) * 60:.3g} {lab} per minute at the first rest's start, "
+            f"{(a1 + 2 * a2 * last) * 60:.3g} at the last one's, {last - first:.0f} s later"
+            for first, last, a1, a2 in d.windows
+        ]
+        within = (
+            f" in each of the {len(each)} windows of the clock two rests pin: " + "; ".join(each)
+            if len(each) > 1
+            else f": {each[0]}"
         )
+        rate = f"with the test's clock (a wander{within}, on the runs' recorded start times)"
     elif not steady:
         rate += f" at the start of a run, settling over {d.drift_tau_s:.3g} s (a warm-up)"
     trend = "follows one wander" if d.clock is not None else "trends at one rate"
@@ -84,7 +89,11 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
             "creep_tau_s": d.creep_tau_s,
             "creep_gain": d.creep_gain,
             **(
-                {f"wander_{units.key(u)}_per_s": d.clock[0][0], f"wander_{units.key(u)}_per_s2": d.clock[0][1]}
+                {
+                    f"wander_{units.key(u)}_per_s": d.windows[0][2],
+                    f"wander_{units.key(u)}_per_s2": d.windows[0][3],
+                    "wander_windows": float(len(d.windows)),
+                }
                 if d.clock is not None
                 else {}
             ),
@@ -101,7 +110,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
 CAUSE = Cause(
     "sensor_offset_drift",
     "the load-cell offset drifts slowly (temperature, supply), independent of the drive",
-    "a drift term of the reading (steady, or settling: a warm-up)",
+    "a drift term of the reading (steady, settling: a warm-up, or a wander on the test's clock between two rests)",
     cause_sensor_offset_drift,
     needs=(Need((RunSpec("rest"),), 1), Need((RunSpec("any", min_duration_s=25.0),), 1)),
 )
