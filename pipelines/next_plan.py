@@ -247,30 +247,34 @@ def _groups(lo: float, hi: float, rest: float, fs_max: float) -> list[Group]:
                 ],
             )
         )
-    if hi > rest and fs_max >= 100.0:
-        rest_run = {"kind": "custom", "points": [[0.0, rest], [REST_S, rest]], "sample_rate_hz": min(100.0, fs_max)}
-        out.append(
-            Group(
-                TELL_GROUP,
-                f"{REST_S:g} s at rest, {hi:g} V held {TELL_HOLD_S:g} s, {REST_S:g} s at rest again, run in this order "
-                "(a drift of the reading moves both rests, creep recovers only in the second)",
-                [
-                    {"name": "rest-before-drive", **rest_run},
-                    {
-                        "name": f"hold-{hi:g}v",
-                        "kind": "creep",
-                        "base_v": rest,
-                        "level_v": hi,
-                        "pre_s": 1.0,
-                        "hold_s": TELL_HOLD_S,
-                        "post_s": 0.0,
-                        "sample_rate_hz": min(1000.0, fs_max),
-                    },
-                    {"name": "rest-after-drive", **rest_run},
-                ],
-            )
-        )
     return sorted(out, key=lambda g: g.samples)
+
+
+def _tell_group(hi: float, rest: float, fs_max: float) -> Group | None:
+    """The runs that tell a drift of the reading from a creep (:data:`TELL_GROUP`; never used to
+    cover an untested cause: the creep group is cheaper); None where the rig cannot play them."""
+    if not (hi > rest and fs_max >= 100.0):
+        return None
+    rest_run = {"kind": "custom", "points": [[0.0, rest], [REST_S, rest]], "sample_rate_hz": min(100.0, fs_max)}
+    return Group(
+        TELL_GROUP,
+        f"{REST_S:g} s at rest, {hi:g} V held {TELL_HOLD_S:g} s, {REST_S:g} s at rest again, run in this order "
+        "(a drift of the reading moves both rests, creep recovers only in the second)",
+        [
+            {"name": "rest-before-drive", **rest_run},
+            {
+                "name": f"hold-{hi:g}v",
+                "kind": "creep",
+                "base_v": rest,
+                "level_v": hi,
+                "pre_s": 1.0,
+                "hold_s": TELL_HOLD_S,
+                "post_s": 0.0,
+                "sample_rate_hz": min(1000.0, fs_max),
+            },
+            {"name": "rest-after-drive", **rest_run},
+        ],
+    )
 
 
 def _as_runs(protocols: Sequence[dict[str, Any]], limits: DriveLimits) -> list[dg.RunData]:
@@ -322,8 +326,7 @@ def choose(
         lo, hi = rig.limits.drive_min_v, rig.limits.drive_max_v
     rest = 0.0 if lo <= 0.0 <= hi else lo
     lib = _groups(lo, hi, rest, rig.limits.max_sample_rate_hz)
-    tell = next((g for g in lib if g.id == TELL_GROUP), None)
-    lib = [g for g in lib if g.id != TELL_GROUP]  # never to cover an untested cause: the creep group is cheaper
+    tell = _tell_group(hi, rest, rig.limits.max_sample_rate_hz) if untold else None
     taken = {r.name for r in ctx.runs}
     for g in lib + ([tell] if tell else []):  # a protocol never takes the name of a run already there
         for p in g.protocols:
@@ -389,7 +392,7 @@ def choose(
         if not g.serves:  # taken for a cause another group now serves as well: still say what it adds
             g.serves = [c for c in serves if testable(c, [g])[0]]
     tells_apart = list(untold) if tell is not None else []
-    if tells_apart:
+    if tell is not None:
         tell.tells = tells_apart
         chosen.append(tell)
     return NextPlan(chosen, serves, unservable, refit_for, rig, tells_apart)

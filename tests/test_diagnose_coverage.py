@@ -705,7 +705,7 @@ def test_a_creep_that_could_be_a_drift_puts_the_experiment_that_tells_them_apart
     a rest again, in that order, the rests far enough apart on the clock they will be recorded on
     for the wander of the offset to be tried on them. With both rests already there, no plan."""
     from piezopress.analysis.diagnosis import search
-    from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, _rests_apart
+    from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, wander_windows
 
     causes = _rival_causes()
     monkeypatch.setattr(search, "CAUSES", causes)
@@ -734,7 +734,7 @@ def test_a_creep_that_could_be_a_drift_puts_the_experiment_that_tells_them_apart
         at += float(t[-1])
     starts = dg.run_starts(planned)
     assert starts[planned[2].ident] - starts[planned[0].ident] >= CLOCK_REST_APART_S
-    assert _rests_apart(planned, starts)
+    assert wander_windows(planned, starts)
     result_both = search.diagnose(ctx.model, ctx.runs, causes=list(causes))
     assert result_both.findings[0].could_also_be  # still a rival, but these runs can tell them apart
     assert NP.next_plan([], ctx, result_both, tmp_path / "both", ["runs/"]) is None

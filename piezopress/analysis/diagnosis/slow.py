@@ -87,9 +87,9 @@ class _DriftFit:
     tail_per_decade: float | None = None
     # the wander on the test's clock where it won (:attr:`Model.drift_clock`'s form), else None
     clock: tuple[tuple[str, float, float, float], ...] | None = None
-    # the windows the wander was fitted in (:func:`wander_windows`): (first rest's start, last
-    # rest's start, both on the window's clock; a1, a2), in the clock's order
-    windows: tuple[tuple[float, float, float, float], ...] = ()
+    # the windows the wander was fitted in (:func:`wander_windows`): (the last rest's start on the
+    # window's clock, whose 0 is the first rest's start; a1, a2), in the clock's order
+    windows: tuple[tuple[float, float, float], ...] = ()
 
     @property
     def gain_pct(self) -> float:
@@ -155,11 +155,6 @@ def wander_windows(rests: list[RunData], clock: dict[str, float] | None) -> list
     return out
 
 
-def _rests_apart(runs: list[RunData], clock: dict[str, float] | None) -> bool:
-    """Whether two of ``runs`` at rest pin a window of the wander (:func:`wander_windows`)."""
-    return bool(wander_windows(runs, clock))
-
-
 #: What tells a drift of the reading from creep, said where one slow cause could be the other and
 #: the runs cannot tell them apart (:func:`wander_untold`).
 TELL_DRIFT_FROM_CREEP = (
@@ -173,9 +168,9 @@ SLOW_RIVALS = frozenset({"logarithmic_creep", "sensor_offset_drift"})
 def wander_untold(ctx: Context, causes: set[str]) -> bool:
     """Whether ``causes`` (a finding and what it could also be) are a drift of the reading and a
     creep that the runs cannot tell apart: no two rests far apart on the recorded clock
-    (:func:`_rests_apart`: the wander form of :func:`_drift_fit` is not tried)."""
+    (no :func:`wander_windows`: the wander form of :func:`_drift_fit` is not tried)."""
     long = [r for r, _ in _long_runs(ctx)]
-    return SLOW_RIVALS <= causes and not _rests_apart(long, run_starts(ctx.runs))
+    return SLOW_RIVALS <= causes and not wander_windows(long, run_starts(ctx.runs))
 
 
 def _drift_fit(
@@ -221,12 +216,13 @@ def _drift_fit(
     if windows:  # a quadratic on its own clock in each window two rests pin; one rate for the runs in none
 
         def window_of(ident: str) -> tuple[int, float]:
-            c = clock[ident]
+            """(window index, start on its clock); (-1, 0) in none, or without a start time."""
+            c = clock.get(ident, math.nan)
             return next(((i, c - lo) for i, (lo, hi) in enumerate(windows) if lo <= c <= hi), (-1, 0.0))
 
-        at = {ident: window_of(ident) for ident in clock}  # a run without a start time is in none
-        W_ = np.concatenate([np.full(t.size, at.get(r.ident, (-1, 0.0))[0]) for r, t, *_ in rows])
-        C_ = np.concatenate([at.get(r.ident, (-1, 0.0))[1] + t for r, t, *_ in rows]) / CLOCK_UNIT_S
+        at = {r.ident: window_of(r.ident) for r in ctx.runs}
+        W_ = np.concatenate([np.full(t.size, at[r.ident][0]) for r, t, *_ in rows])
+        C_ = np.concatenate([at[r.ident][1] + t for r, t, *_ in rows]) / CLOCK_UNIT_S
         wander_cols = [np.where(W_ == i, C_**k, 0.0) for i in range(len(windows)) for k in (1, 2)]
         others = W_ < 0
         wander_cols += [np.where(others, T, 0.0)] if others.any() else []
@@ -262,24 +258,16 @@ def _drift_fit(
                 steady = float(coef1[k + 2 * len(windows)]) if others.any() else 0.0
                 wander = tuple(  # every run, a short one too, those without a start time last
                     (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0)
-                    for ident, (i, c) in sorted(
-                        ((r.ident, at.get(r.ident, (-1, 0.0))) for r in ctx.runs),
-                        key=lambda p: (clock.get(p[0], math.inf), p[0]),
-                    )
+                    for ident, (i, c) in sorted(at.items(), key=lambda p: (clock.get(p[0], math.inf), p[0]))
                 )
-                spans = [(0.0, hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
+                spans = [(hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
     with_tail = per_decade = None
     if tail is not None:
         _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)
         per_decade = float(coef2[-1])
     if wander is not None:  # the fastest the wander moves over the long runs, and no settling
-        rates = [
-            a1 + 2.0 * a2 * c
-            for r, *_ in rows
-            for ident, c0, a1, a2 in wander
-            if ident == r.ident
-            for c in (c0, c0 + r.t_s[-1])
-        ]
+        per_run = {ident: (c0, a1, a2) for ident, c0, a1, a2 in wander}
+        rates = [a1 + 2.0 * a2 * c for r, *_ in rows for c0, a1, a2 in [per_run[r.ident]] for c in (c0, c0 + r.t_s[-1])]
         rate = max(rates, key=abs)
     return _DriftFit(
         [r for r, _, _, _, _ in rows],

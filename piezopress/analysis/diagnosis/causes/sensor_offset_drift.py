@@ -58,9 +58,9 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     if d.clock is not None:
         lab = units.label(u)
         each = [
-            f"{(a1 + 2 * a2 * first) * 60:.3g} {lab} per minute at the first rest's start, "
-            f"{(a1 + 2 * a2 * last) * 60:.3g} at the last one's, {last - first:.0f} s later"
-            for first, last, a1, a2 in d.windows
+            f"{a1 * 60:.3g} {lab} per minute at the first rest's start, "
+            f"{(a1 + 2 * a2 * last) * 60:.3g} at the last one's, {last:.0f} s later"
+            for last, a1, a2 in d.windows
         ]
         within = (
             f" in each of the {len(each)} windows of the clock two rests pin: " + "; ".join(each)
@@ -90,8 +90,8 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
             "creep_gain": d.creep_gain,
             **(
                 {
-                    f"wander_{units.key(u)}_per_s": d.windows[0][2],
-                    f"wander_{units.key(u)}_per_s2": d.windows[0][3],
+                    f"wander_{units.key(u)}_per_s": d.windows[0][1],
+                    f"wander_{units.key(u)}_per_s2": d.windows[0][2],
                     "wander_windows": float(len(d.windows)),
                 }
                 if d.clock is not None
