@@ -17,7 +17,16 @@ damping) drawn per seed, and the drift hidden in a plan without the rest run.
 runs from another program arrive) before ``fit --base`` and ``diagnose``: the matrices must stay
 within 5 points of the full metadata's (issue 20). ``--stamped`` cuts them so too and stamps every
 run's times on one session clock from 3600 s (each run starting 5 s after the one before it ended,
-as a DAQ program stamps them): the runs must read as the same runs from 0.
+as a DAQ program stamps them): the runs must read as the same runs from 0, and their stamps as the
+session's clock (``run_starts``: where no run records a start time).
+
+``--plan FILE`` characterizes with FILE where a case would use the default plan (to judge a
+change of the plan on the same draws before making it the default): with
+``tests/plans/characterize-rest-first.toml`` (the default plan with a 120 s rest before the first
+drive, so that two rests pin a wander of the offset on the runs' start times), the third press's
+wander, seeds 0-7, was named alone on 7 of 8 (5 with the default plan), but with the metadata cut
+to the required fields (no start times) on 0 of seeds 0-3 (3 with the default plan): one rate for
+every run cannot draw the rests' opposite trends, so the default plan keeps its one rest.
 
 ``--gain`` measures instead the gain on the press of every cause whose extension enters the
 compensator (``pipelines/gain.py``): the table per cause, base bundle against extended on every
@@ -34,7 +43,7 @@ characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` 
 cluster; ``--no-batch`` (or Dask missing) runs each case start to end in a process pool.
 
 Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2] [--no-batch]
-         [--record results.jsonl] [--minimal | --stamped]
+         [--record results.jsonl] [--minimal | --stamped] [--plan PLAN.toml]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
@@ -46,6 +55,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import os
 import sys
 import tempfile
 import time
@@ -125,6 +135,9 @@ def _backend(rig: str, effect: str, seed: int):
     )
 
 
+#: ``--plan``, as the cases' processes (Dask workers, pool processes) inherit it.
+PLAN_ENV = "PIEZOPRESS_BENCH_PLAN"
+
 #: Where ``--stamped`` starts the session clock its runs' times are stamped on (s).
 SESSION_CLOCK_S = 3600.0
 
@@ -137,6 +150,7 @@ def _characterized(out: Path, rig: str, effect: str, seed: int, minimal: bool | 
     from piezopress.pipelines import characterize as char
 
     backend, plan = _backend(rig, effect, seed)
+    plan = plan or os.environ.get(PLAN_ENV) or None  # --plan: in place of the default plan
     char.characterize(out, backend=backend, **({"plan_path": plan} if plan else {}))
     if not minimal:
         return out
@@ -240,6 +254,7 @@ def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False, base
                     **({"minimal": True} if minimal else {}),
                     **({"stamped": True} if minimal == "stamped" else {}),
                     **({"base_creep": base_creep} if base_creep else {}),
+                    **({"plan": Path(os.environ[PLAN_ENV]).name} if os.environ.get(PLAN_ENV) else {}),
                 }
             )
             + "\n"
@@ -295,6 +310,14 @@ def main() -> None:
         "--pairs", action="store_true", help="the pairs: slew + drift, delay + interference, rate + log creep"
     )
     ap.add_argument(
+        "--plan",
+        type=Path,
+        default=None,
+        help="characterize with this plan where a case would use the default plan (a case with a plan of its "
+        "own keeps it: the drifting sensitivity's repeat, the second press's drift without a rest), e.g. "
+        "tests/plans/characterize-rest-first.toml",
+    )
+    ap.add_argument(
         "--minimal",
         action="store_true",
         help="every run's metadata cut to the run format's four required fields, no manifest (runs from elsewhere)",
@@ -344,6 +367,12 @@ def main() -> None:
         a.minimal = "stamped"
     if a.fitted and not (a.gain and a.rig != "ours"):
         raise SystemExit("--fitted measures the gain on a press written apart: add --gain --rig second or third")
+    if a.plan is not None:
+        if not a.plan.is_file():
+            raise SystemExit(f"--plan {a.plan}: no such file (expected a plan TOML, e.g. tests/plans/*.toml)")
+        if a.gain:
+            raise SystemExit("--plan changes the matrices' characterization; --gain plays its own plans")
+        os.environ[PLAN_ENV] = str(a.plan.resolve())
     if a.gain:
         return gain_main(a)
     if a.rig == "third":
@@ -377,6 +406,7 @@ def main() -> None:
     wall = time.perf_counter() - start
     over = f"{a.seeds} seeds per row" + (", metadata cut to the four required fields" if a.minimal else "")
     over += ", times on a session clock from 3600 s" if a.minimal == "stamped" else ""
+    over += f", the plan {a.plan.name} in place of the default" if a.plan is not None else ""
     print_matrix(a.rig, hidden, results, over, (wall, len(jobs), a.workers))
 
 

@@ -631,6 +631,28 @@ def test_a_wander_of_the_offset_on_the_session_clock_is_named_from_the_runs_star
     assert one_rate is None or one_rate.gain_pct <= found.gain_pct - 10.0, (one_rate.gain_pct, found.gain_pct)
 
 
+def test_runs_stamped_on_one_session_clock_are_read_on_that_clock_without_start_times():
+    """Runs from a DAQ program that records no start time but stamps every file's samples on one
+    session clock (the first run from 3600 s, each 5 s after the one before it ended): their
+    starts are read from the stamps, as from start times, and the wander is named as with them.
+    Files that each start anywhere (every one from 1000 s: they would overlap) are no clock."""
+    from piezopress.analysis.diagnosis.causes.sensor_offset_drift import cause_sensor_offset_drift
+
+    timed, _ = _wander_runs(timed=True, amplitude_n=3.0)
+    untimed, _ = _wander_runs(timed=False, amplitude_n=3.0)
+
+    def restamped(first: float, step: float) -> dg.Context:
+        runs = [dataclasses.replace(r, t_s=r.t_s + first + step * i, meta={}) for i, r in enumerate(untimed.runs)]
+        assert all(r.t_s[0] == 0.0 and r.clock_start_s == first + step * i for i, r in enumerate(runs))
+        return dg.Context(runs, untimed.model, frozenset(), untimed.floor)
+
+    stamped = restamped(3600.0, 125.0)
+    assert dg.run_starts(stamped.runs) == pytest.approx(dg.run_starts(timed.runs), abs=1e-6)
+    on_clock, with_times = cause_sensor_offset_drift(stamped), cause_sensor_offset_drift(timed)
+    assert on_clock.model.drift_clock is not None and on_clock.gain_pct == pytest.approx(with_times.gain_pct, abs=0.5)
+    assert dg.run_starts(restamped(1000.0, 0.0).runs) == {} == dg.run_starts(untimed.runs)
+
+
 def test_the_wander_is_not_tried_without_a_rest_at_each_end_of_the_session():
     """With the first rest left out (one rest, at the end: the default plan's), the quadratic
     would be shaped between the runs by the sweeps' misfit: the wander is not tried, and the

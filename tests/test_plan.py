@@ -31,6 +31,29 @@ def test_default_plan_covers_thesis_tests():
     assert all(p.preload_n == 50.0 for p in plan.protocols)
 
 
+def test_the_rest_first_plan_is_the_default_plan_with_a_rest_that_pins_a_wander():
+    """``tests/plans/characterize-rest-first.toml`` (``bench_diagnose --plan``, the third press's
+    wander test) is the default plan with a 120 s rest before the first drive, the two rests' starts
+    far enough apart (and no further) for diagnose to fit a wander of the offset between them,
+    whether the rig plays the runs back to back or pauses between them as the virtual rig does."""
+    import tomllib
+
+    from piezopress.acquisition.virtual_rig import PAUSE_S
+    from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, CLOCK_WINDOW_MAX_S
+
+    path = ROOT / "tests" / "plans" / "characterize-rest-first.toml"
+    default = tomllib.loads((ROOT / "protocols" / "characterize.toml").read_text(encoding="utf-8"))
+    rest_first = tomllib.loads(path.read_text(encoding="utf-8"))
+    assert rest_first["plan"] == default["plan"] and rest_first["protocol"][1:] == default["protocol"]
+    plan = load_plan(path, LIMITS)
+    for rest in (plan.protocols[0], plan.protocols[-1]):
+        _, v = rest.waveform()
+        assert rest.kind == "custom" and not np.any(v) and rest.duration_s >= 120.0, rest.name
+    apart = sum(p.duration_s for p in plan.protocols[:-1])
+    pauses = PAUSE_S * (len(plan.protocols) - 1)
+    assert CLOCK_REST_APART_S <= apart and apart + pauses <= CLOCK_WINDOW_MAX_S, (apart, pauses)
+
+
 def test_triangle_waveform_reaches_peaks_and_is_deterministic():
     doc = {
         "plan": {"name": "x"},

@@ -342,12 +342,7 @@ def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    default = (HERE.parent / "protocols" / "characterize.toml").read_text(encoding="utf-8")
-    rest = '[[protocol]]\nname = "rest-before-120s"\nkind = "custom"\npoints = [[0.0, 0.0], [120.0, 0.0]]\n'
-    rest += "sample_rate_hz = 100.0\n\n"
-    i = default.index("[[protocol]]")
-    plan = tmp_path / "rest-first.toml"
-    plan.write_text(default[:i] + rest + default[i:], encoding="utf-8")
+    plan = HERE / "plans" / "characterize-rest-first.toml"  # the default plan with a rest first
     press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([0, 97]))
     char.characterize(tmp_path / "char", backend=press, plan_path=plan)
     B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")

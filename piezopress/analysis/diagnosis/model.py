@@ -4,6 +4,7 @@ the runs as it sees them."""
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from datetime import datetime
@@ -29,7 +30,9 @@ class RunData:
     file from another program stamped with its clock, 1000 s into a session say) is moved to
     start at 0, for every judgement keys on the time since the run began (the held-out end of a
     hold, a drift's ramp, a creep's decades). Unmoved, such a run was diagnosed otherwise than
-    the same run from 0: on the sample runs, a log creep and a coupling went unnamed."""
+    the same run from 0: on the sample runs, a log creep and a coupling went unnamed. Where its
+    first sample was stamped, ``clock_start_s`` keeps that time (:func:`run_starts` reads runs
+    stamped on one session clock as that clock)."""
 
     name: str
     kind: str
@@ -42,11 +45,14 @@ class RunData:
     key: str = ""  # what identifies the run (its file's sha256, say): names may repeat, keys may not
     judged_from: int = 0  # rows before it (a rest of unknown state the fit skipped) are not judged as misfit
     held_out: tuple[int, int] | None = None  # the rows the fit held out (its held-out error's rows)
+    clock_start_s: float | None = None  # the time the file stamped the first sample with, where not 0
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t_s, dtype=float)
         if t.size and t[0] != 0.0:
             object.__setattr__(self, "t_s", t - t[0])
+            if self.clock_start_s is None and math.isfinite(float(t[0])):
+                object.__setattr__(self, "clock_start_s", float(t[0]))
 
     @property
     def ident(self) -> str:
@@ -130,7 +136,12 @@ MEMO_SIZE = 64
 def run_starts(runs: list[RunData]) -> dict[str, float]:
     """Each run's start on the test's clock (seconds from the first run's start), from the start
     time its metadata records (``started_utc``); a run starts no earlier than the run before it
-    ended (a simulated press is played faster than real time). Runs without one are left out."""
+    ended (a simulated press is played faster than real time). Runs without one are left out.
+
+    Where no run records one, the runs' own time columns may be the clock: a DAQ program that
+    stamps every file's samples on one session clock (:attr:`RunData.clock_start_s`). They are
+    read so where two runs or more are stamped and, in the order of their stamps, each starts
+    no earlier than the one before it ended (one session, not files that each start anywhere)."""
     timed = []
     for r in runs:
         try:
@@ -138,6 +149,13 @@ def run_starts(runs: list[RunData]) -> dict[str, float]:
         except ValueError:
             continue
         timed.append((ts, r))
+    if not timed:
+        timed = [(r.clock_start_s, r) for r in runs if r.clock_start_s is not None]
+        timed.sort(key=lambda p: p[0])
+        ends = [ts + r.duration_s for ts, r in timed]
+        # a sample's time of slack: files stamped on one clock, written as each run ended
+        if len(timed) < 2 or any(timed[i + 1][0] < ends[i] - 1.0 / timed[i][1].fs_hz for i in range(len(timed) - 1)):
+            return {}
     timed.sort(key=lambda p: p[0])
     clock: dict[str, float] = {}
     end = None
