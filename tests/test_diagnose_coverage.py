@@ -635,7 +635,8 @@ def test_runs_stamped_on_one_session_clock_are_read_on_that_clock_without_start_
     """Runs from a DAQ program that records no start time but stamps every file's samples on one
     session clock (the first run from 3600 s, each 5 s after the one before it ended): their
     starts are read from the stamps, as from start times, and the wander is named as with them.
-    Files that each start anywhere (every one from 1000 s: they would overlap) are no clock."""
+    A clock from 0 (the first run's stamps from 0) is the same clock. Files that each start
+    anywhere (every one from 1000 s: they would overlap) are no clock."""
     from piezopress.analysis.diagnosis.causes.sensor_offset_drift import cause_sensor_offset_drift
 
     timed, _ = _wander_runs(timed=True, amplitude_n=3.0)
@@ -643,11 +644,12 @@ def test_runs_stamped_on_one_session_clock_are_read_on_that_clock_without_start_
 
     def restamped(first: float, step: float) -> dg.Context:
         runs = [dataclasses.replace(r, t_s=r.t_s + first + step * i, meta={}) for i, r in enumerate(untimed.runs)]
-        assert all(r.t_s[0] == 0.0 and r.clock_start_s == first + step * i for i, r in enumerate(runs))
+        assert all(r.t_s[0] == 0.0 and (r.clock_start_s or 0.0) == first + step * i for i, r in enumerate(runs))
         return dg.Context(runs, untimed.model, frozenset(), untimed.floor)
 
     stamped = restamped(3600.0, 125.0)
     assert dg.run_starts(stamped.runs) == pytest.approx(dg.run_starts(timed.runs), abs=1e-6)
+    assert dg.run_starts(restamped(0.0, 125.0).runs) == pytest.approx(dg.run_starts(timed.runs), abs=1e-6)
     on_clock, with_times = cause_sensor_offset_drift(stamped), cause_sensor_offset_drift(timed)
     assert on_clock.model.drift_clock is not None and on_clock.gain_pct == pytest.approx(with_times.gain_pct, abs=0.5)
     assert dg.run_starts(restamped(1000.0, 0.0).runs) == {} == dg.run_starts(untimed.runs)

@@ -140,8 +140,9 @@ def run_starts(runs: list[RunData]) -> dict[str, float]:
 
     Where no run records one, the runs' own time columns may be the clock: a DAQ program that
     stamps every file's samples on one session clock (:attr:`RunData.clock_start_s`). They are
-    read so where two runs or more are stamped and, in the order of their stamps, each starts
-    no earlier than the one before it ended (one session, not files that each start anywhere)."""
+    read so where a run is stamped elsewhere than 0 (a run whose stamps start at 0 is at 0 on that
+    clock) and, in the order of their stamps, each starts no earlier than the one before it ended
+    (one session, not files that each start anywhere)."""
     timed = []
     for r in runs:
         try:
@@ -149,8 +150,8 @@ def run_starts(runs: list[RunData]) -> dict[str, float]:
         except ValueError:
             continue
         timed.append((ts, r))
-    if not timed:
-        timed = [(r.clock_start_s, r) for r in runs if r.clock_start_s is not None]
+    if not timed and any(r.clock_start_s is not None for r in runs):  # (a run stamped from 0 is at 0 on it)
+        timed = [(r.clock_start_s or 0.0, r) for r in runs]
         timed.sort(key=lambda p: p[0])
         ends = [ts + r.duration_s for ts, r in timed]
         # a sample's time of slack: files stamped on one clock, written as each run ended
