@@ -150,14 +150,15 @@ def run_starts(runs: list[RunData]) -> dict[str, float]:
         except ValueError:
             continue
         timed.append((ts, r))
-    if not timed and any(r.clock_start_s is not None for r in runs):  # (a run stamped from 0 is at 0 on it)
+    stamped = not timed and any(r.clock_start_s is not None for r in runs)
+    if stamped:  # (a run stamped from 0 is at 0 on that clock)
         timed = [(r.clock_start_s or 0.0, r) for r in runs]
-        timed.sort(key=lambda p: p[0])
-        ends = [ts + r.duration_s for ts, r in timed]
-        # a sample's time of slack: files stamped on one clock, written as each run ended
-        if len(timed) < 2 or any(timed[i + 1][0] < ends[i] - 1.0 / timed[i][1].fs_hz for i in range(len(timed) - 1)):
-            return {}
     timed.sort(key=lambda p: p[0])
+    # stamps on one session clock: each run after the one before it ended, a sample's time of slack
+    if stamped and (
+        len(timed) < 2 or any(b[0] < a[0] + a[1].duration_s - 1.0 / a[1].fs_hz for a, b in zip(timed, timed[1:]))
+    ):
+        return {}
     clock: dict[str, float] = {}
     end = None
     for ts, r in timed:
