@@ -513,6 +513,8 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
                 f"    {t['cause']}: {t['result']}{gain}; on "
                 f"{', '.join(t['runs'][:6])}{', ...' if len(t['runs']) > 6 else ''}"
             )
+            if t.get("untried"):
+                lines.append(f"        not tried: {t['untried']}")
     if result.not_tested:
         lines.append("")
         lines.append(f"Not tested ({len(result.not_tested)}): the runs or the base model do not allow it")

@@ -388,6 +388,11 @@ def test_diagnosis_json_and_the_report_read_the_catalogue(tmp_path):
     for row in table.rows:
         assert row[col] == ("applied" if dg.CAUSES[row[0]].in_compensator else "recorded only")
     assert any(isinstance(b, R.FigureBlock) and b.name == "diagnosis_residual_traces" for b in blocks)
+    # the plan's one rest: the drift's wander form was not tried, and the report says so
+    (drift,) = [t for t in doc["tested"] if t["cause"] == "sensor_offset_drift"]
+    assert drift["result"].startswith("not found") and "a wander over the session" in drift["untried"]
+    said = [i for b in blocks if isinstance(b, R.Bullets) for i in b.items if i.startswith("Not tried: ")]
+    assert said == [f"Not tried: sensor_offset_drift as {drift['untried']}."]
 
 
 # --------------------------------------------------------------------------- the residual traces figure
@@ -657,8 +662,9 @@ def test_runs_stamped_on_one_session_clock_are_read_on_that_clock_without_start_
 
 def test_the_wander_is_not_tried_without_a_rest_at_each_end_of_the_session():
     """With the first rest left out (one rest, at the end: the default plan's), the quadratic
-    would be shaped between the runs by the sweeps' misfit: the wander is not tried, and the
-    drift found, if any, is one rate for every run."""
+    would be shaped between the runs by the sweeps' misfit: the wander is not tried, the drift
+    found is one rate for every run, and the finding says what was not tried and what would allow
+    it (``Finding.untried``; ``diagnose`` lists it under the cause where the cause is not named)."""
     from piezopress.analysis.diagnosis.causes.sensor_offset_drift import cause_sensor_offset_drift
     from piezopress.analysis.diagnosis.slow import _drift_fit
 
@@ -668,8 +674,23 @@ def test_the_wander_is_not_tried_without_a_rest_at_each_end_of_the_session():
     assert len(clock) == 4  # the start times are there ...
     assert _drift_fit(one_rest, clock=clock).clock is None  # ... but one rest cannot pin the wander
     found = cause_sensor_offset_drift(one_rest)
-    assert found is None or found.model.drift_clock is None
+    assert found is not None and found.model.drift_clock is None
+    # what was not tried is said, with what would allow it (a "not found" is about the forms tried)
+    assert "a wander over the session" in found.untried and "a rest before the first drive" in found.untried
     assert _drift_fit(ctx, clock=dg.run_starts(ctx.runs)).clock is not None  # with both rests it is tried
+    assert cause_sensor_offset_drift(ctx).untried == ""
+    untimed, _ = _wander_runs(timed=False, amplitude_n=3.0)  # both rests, but no clock to place them on
+    assert cause_sensor_offset_drift(untimed).untried == found.untried
+    still, _ = _wander_runs(timed=True, amplitude_n=0.0)  # nothing drifts: not found, and the form not tried said
+    runs = [r for r in still.runs if r.name != "rest-before"]
+    result = dg.diagnose(still.model, runs, causes=["sensor_offset_drift"])
+    (entry,) = result.tested
+    assert entry["result"].startswith("not found") and entry["untried"] == found.untried
+    from piezopress.pipelines.diagnose import format_summary
+
+    assert f"        not tried: {found.untried}" in format_summary(result).splitlines()
+    (entry,) = dg.diagnose(still.model, still.runs, causes=["sensor_offset_drift"]).tested
+    assert entry["result"].startswith("not found") and "untried" not in entry
 
 
 def test_no_wander_is_named_where_the_offset_holds_still_though_start_times_are_recorded():

@@ -325,3 +325,26 @@ def test_a_coupling_of_the_steps_current_alone_is_no_lag():
     f = ic.cause_drive_coupled_interference(ctx)
     assert f is not None and f.accepted, f.refused
     assert f.gain_pct > 30.0 and not f.signature
+
+
+def test_a_coupling_follows_the_voltage_at_the_stack_not_the_command():
+    # a coupled voltage is the amplifier's output: without a monitor the model draws it from the
+    # command through its own drive chain (on the third test press, a 2.5 kHz amplifier and no
+    # monitor, a coupling drawn from the command stepped at once, ahead of the reading's, and read
+    # a 100 V step 11-13 % worse than no coupling at all); with a monitor, from the monitor
+    x = np.concatenate([np.full(200, 10.0), np.full(800, 110.0)])
+    chain = replace(BASE, drive_lowpass=(2 * math.pi * 2500.0, 0.7), interference=(0.0, 0.0, 1e-3, -5e-4, 5e-3))
+    run = _run(x, np.zeros(x.size))
+    force = np.zeros(x.size)
+    artefact = chain.reading(run, force)
+    felt = chain.felt(run, x)
+    assert np.allclose(artefact, 5e-4 * signals.smoothed_rate(felt, FS, 5e-3), rtol=1e-9, atol=1e-12)
+    peak = float(np.max(np.abs(artefact)))
+    # the command steps at sample 200; the amplifier's output, and its current, only begin to rise
+    assert abs(artefact[200]) < 0.2 * peak and int(np.argmax(np.abs(artefact))) > 202
+    commanded = -5e-4 * signals.smoothed_rate(x, FS, 5e-3)  # what the command alone would draw
+    assert abs(commanded[200]) > 0.9 * float(np.max(np.abs(commanded)))
+    # a recorded monitor is the voltage at the stack: the chain is not applied to it again
+    monitor = 10.0 + 100.0 * (np.arange(x.size) >= 203)
+    with_monitor = replace(run, monitor=monitor)
+    assert np.allclose(chain.reading(with_monitor, force), 5e-4 * signals.smoothed_rate(monitor, FS, 5e-3))

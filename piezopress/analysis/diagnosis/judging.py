@@ -121,6 +121,9 @@ class Finding:
     #: structure the cause's fit measured that no catalogue cause explains, in its own terms (a lag
     #: of the model on the sweeps, say): the summary says it where the cause is not named
     signature: str = ""
+    #: a form of the cause the runs did not allow to be tried, and what would (said where the cause
+    #: is not named: "not found" is then about the forms tried)
+    untried: str = ""
 
     @property
     def unit(self) -> str:

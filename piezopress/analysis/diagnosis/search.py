@@ -339,6 +339,8 @@ def diagnose(
             entry.update(
                 gain_pct=f.gain_pct, parameters={k_: float(v) for k_, v in f.parameters.items()}, heldout=f.heldout
             )
+            if f.untried and cid not in found:  # "not found" is about the forms tried: say which was not
+                entry["untried"] = f.untried
         tested.append(entry)
     not_tested = [checks[cid] for cid in asked if not checks[cid].testable]
     names = [t["cause"] for t in tested]

@@ -165,12 +165,27 @@ TELL_DRIFT_FROM_CREEP = (
 SLOW_RIVALS = frozenset({"logarithmic_creep", "sensor_offset_drift"})
 
 
+def wander_untried(ctx: Context) -> bool:
+    """Whether the runs hold no two rests far apart on a recorded clock (no :func:`wander_windows`):
+    the wander form of :func:`_drift_fit` is not tried."""
+    long = [r for r, _ in _long_runs(ctx)]
+    return not wander_windows(long, run_starts(ctx.runs))
+
+
+#: What :func:`cause_sensor_offset_drift` could not try where :func:`wander_untried`.
+WANDER_UNTRIED = (
+    "a wander over the session (the offset's rate changing from run to run, as a thermal one does), "
+    f"which needs two rests {CLOCK_REST_APART_S:g} to {CLOCK_WINDOW_MAX_S:g} s apart on the runs' recorded "
+    "start times (a rest before the first drive as well as one after the last); with one rate for every run a "
+    "wander that turns within the session is missed"
+)
+
+
 def wander_untold(ctx: Context, causes: set[str]) -> bool:
     """Whether ``causes`` (a finding and what it could also be) are a drift of the reading and a
     creep that the runs cannot tell apart: no two rests far apart on the recorded clock
-    (no :func:`wander_windows`: the wander form of :func:`_drift_fit` is not tried)."""
-    long = [r for r, _ in _long_runs(ctx)]
-    return SLOW_RIVALS <= causes and not wander_windows(long, run_starts(ctx.runs))
+    (:func:`wander_untried`)."""
+    return SLOW_RIVALS <= causes and wander_untried(ctx)
 
 
 def _drift_fit(

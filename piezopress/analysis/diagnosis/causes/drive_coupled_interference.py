@@ -225,7 +225,7 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
         if d not in tried:
             m = at(d)
             res[d] = _err(fit, lambda r: m.reading(r, forces[id(r)]))
-            drives = {id(r): signals.delayed(r.drive, r.fs_hz, m.reading_delay_s(r.fs_hz)) for r, _ in fit}
+            drives = {id(r): signals.delayed(m.stack_drive(r), r.fs_hz, m.reading_delay_s(r.fs_hz)) for r, _ in fit}
             tried[d] = _regress(fit, res[d], drives, (math.inf, None), lead or 1.0)
         return tried[d][0]
 

@@ -14,7 +14,7 @@ from piezopress.analysis.diagnosis.cause import Cause
 from piezopress.analysis.diagnosis.judging import Context, Finding
 from piezopress.analysis.diagnosis.model import run_starts
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
-from piezopress.analysis.diagnosis.slow import DRIFT_MAX_OF_RANGE, _drift_fit
+from piezopress.analysis.diagnosis.slow import DRIFT_MAX_OF_RANGE, WANDER_UNTRIED, _drift_fit, wander_untried
 
 
 def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
@@ -103,6 +103,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         max(float(np.ptp(r.y)) for r in d.runs),
         d.floor,
         ext,
+        untried=WANDER_UNTRIED if wander_untried(ctx) else "",
     )
 
 
