@@ -122,10 +122,10 @@ MODEL_PARTS: dict[str, tuple[str, Callable[[Model], bool]]] = {
     ),
     "mode": ("a mode in the bundle (fitted with a low-amplitude step)", lambda m: bool(m.wn)),
     # a searched plane holds the order too: on the third test press with a second population of
-    # domains hidden (its hysteresis_order, seeds 0-3) the searched base took 16 levels (12 on the
-    # clean press) and drew its sweeps within 6.4-6.7 noise floors (clean 8.5), and planes of 16-28
-    # levels beside 12 predicted the sweeps' held-out ends 3-10 % better with the population and
-    # 5-6 % better without it: no finer plane tells it from the clean press, so it is not tested
+    # domains hidden (its hysteresis_order) the searched base took 16 levels on seeds 0 and 1 (12 on
+    # the clean press's seed 0) and drew its sweeps within 6.4-6.7 noise floors (clean 8.5); on seeds
+    # 0-3 planes of 16-28 levels beside 12 predicted the sweeps' held-out ends 3-10 % better with the
+    # population and 5-6 % better without it: no finer plane tells it from the clean press
     "operators": (
         "a loop of play operators in the bundle (a Preisach plane or Duhem elements are there because the "
         "structure search chose them: what more operators would draw, they hold)",
