@@ -330,8 +330,9 @@ def test_a_coupling_of_the_steps_current_alone_is_no_lag():
 def test_a_coupling_follows_the_voltage_at_the_stack_not_the_command():
     # a coupled voltage is the amplifier's output: without a monitor the model draws it from the
     # command through its own drive chain (on the third test press, a 2.5 kHz amplifier and no
-    # monitor, a coupling drawn from the command stepped at once, ahead of the reading's, and read
-    # a 100 V step 11-13 % worse than no coupling at all); with a monitor, from the monitor
+    # monitor, its own coupling drawn from the command stepped at once, ahead of the reading's, and
+    # read the held-out 100 V step 13 % worse than no coupling at all, 2 % from the chain); with a
+    # monitor, from the monitor
     x = np.concatenate([np.full(200, 10.0), np.full(800, 110.0)])
     chain = replace(BASE, drive_lowpass=(2 * math.pi * 2500.0, 0.7), interference=(0.0, 0.0, 1e-3, -5e-4, 5e-3))
     run = _run(x, np.zeros(x.size))
