@@ -349,3 +349,6 @@ def test_a_coupling_follows_the_voltage_at_the_stack_not_the_command():
     monitor = 10.0 + 100.0 * (np.arange(x.size) >= 203)
     with_monitor = replace(run, monitor=monitor)
     assert np.allclose(chain.reading(with_monitor, force), 5e-4 * signals.smoothed_rate(monitor, FS, 5e-3))
+    # a drive handed in must say what it was computed from: the artefact is memoised by it
+    with pytest.raises(ValueError, match="drive_key"):
+        dg.interference_reading(run, 0.0, 0.0, 1e-3, -5e-4, 5e-3, drive=felt)
