@@ -741,6 +741,31 @@ def test_a_creep_that_could_be_a_drift_says_what_would_tell_them_apart(monkeypat
     assert TELL_DRIFT_FROM_CREEP in search.diagnose(ctx.model, untimed.runs, causes=list(causes)).summary
 
 
+def test_a_cause_with_nothing_to_fit_once_another_was_taken_says_so_not_its_earlier_gain(monkeypatch):
+    """A cause that cleared the bar in the first round (34 %) beside the winner (80 %) and has
+    nothing to fit once the winner is in the model: ``tested`` says so with the earlier gain, not
+    "not found" beside the earlier round's 34 % as if it were its last result (the third test
+    press's rate dependence beside a log creep, seed 2)."""
+    from piezopress.analysis.diagnosis import search
+
+    causes = _rival_causes()
+    first = causes["sensor_offset_drift"].run
+
+    def gone_after(ctx):  # the first round's finding, then nothing
+        return None if ctx.model.delay_s > 0 else first(ctx)
+
+    causes["sensor_offset_drift"] = dataclasses.replace(causes["sensor_offset_drift"], run=gone_after)
+    monkeypatch.setattr(search, "CAUSES", causes)
+    ctx, _ = _wander_runs(timed=True, amplitude_n=0.0)
+    d = search.diagnose(ctx.model, ctx.runs, causes=list(causes))
+    assert [f.cause for f in d.findings] == ["logarithmic_creep"]
+    (entry,) = [t for t in d.tested if t["cause"] == "sensor_offset_drift"]
+    assert entry["result"] == (
+        "not found (nothing to fit once logarithmic_creep was in the model; before, held-out gain 34 %)"
+    )
+    assert "gain_pct" not in entry  # no earlier round's figure passed off as the last one
+
+
 def test_a_creep_that_could_be_a_drift_puts_the_experiment_that_tells_them_apart_in_the_next_plan(
     monkeypatch, tmp_path
 ):

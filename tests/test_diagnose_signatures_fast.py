@@ -352,3 +352,25 @@ def test_a_coupling_follows_the_voltage_at_the_stack_not_the_command():
     # a drive handed in must say what it was computed from: the artefact is memoised by it
     with pytest.raises(ValueError, match="drive_key"):
         dg.interference_reading(run, 0.0, 0.0, 1e-3, -5e-4, 5e-3, drive=felt)
+
+
+def test_a_widening_one_width_for_every_fast_rate_draws_is_refused_with_the_reason():
+    # the fast sweeps' loop is wider than the base's by one width at every rate (the first play's
+    # threshold 8 -> 11 V: what a creep element of a second does to every fast sweep alike); a
+    # rate law fits it, but so does one widening for every rate, and the cause says so instead of
+    # returning nothing (``tested`` then showed an earlier round's gain as its result)
+    from piezopress.analysis.diagnosis.causes import rate_dependent_hysteresis as rate_cause
+
+    wider = replace(MODE, hysteresis=PIModel((0.0, 11.0), (1.0, 0.5), (0.0,), (1.2,), y0=20.0))
+    rng = np.random.default_rng(0)
+    runs = []
+    for f, fs in ((5, 1e4), (10, 2e4), (50, 5e4), (100, 5e4)):
+        x = _sweep(f, fs)
+        t = np.arange(x.size) / fs
+        run = dg.RunData(f"triangle-{f:g}hz", "triangle", t, x, np.zeros_like(x), fs)
+        runs.append(replace(run, y=wider.predict(run) + rng.normal(0.0, 0.05, x.size)))
+    found = rate_cause.cause_rate_dependent_hysteresis(
+        dg.Context(runs, MODE, frozenset(), {r.name: 0.05 for r in runs})
+    )
+    assert found is not None and not found.accepted
+    assert found.refused.startswith("one widening for every fast rate predicts the fast sweeps' held-out ends")

@@ -228,6 +228,9 @@ def diagnose(
     findings: list[Finding] = []
     last_try: dict[str, Finding] = {}
     failed: dict[str, str] = {}  # causes whose fit raised: why (never a traceback; said under "tested")
+    # causes that had something to fit in an earlier round and nothing once later findings were
+    # in the model: that fit, and the findings then taken
+    earlier: dict[str, tuple[Finding, list[str]]] = {}
     asked = list(causes or CAUSES)
     checks = {cid: testability(CAUSES[cid], ctx) for cid in asked}
     todo = [cid for cid in asked if checks[cid].testable]
@@ -246,6 +249,8 @@ def diagnose(
                 failed.pop(cid, None)
             elif cid in failed:  # its fit raised this round: said, not an earlier round's result
                 last_try.pop(cid, None)
+            elif cid in last_try:  # nothing to fit this round: an earlier round's fit is no result now
+                earlier[cid] = (last_try.pop(cid), [f_.cause for f_ in findings])
             if on_progress:
                 on_progress(
                     CauseProgress(
@@ -333,6 +338,10 @@ def diagnose(
             if f is not None
             else f"not fitted ({failed[cid]})"
             if cid in failed
+            else f"not found (nothing to fit once {' and '.join(earlier[cid][1])} "
+            f"{'was' if len(earlier[cid][1]) == 1 else 'were'} in the model; before, held-out gain "
+            f"{earlier[cid][0].gain_pct:.0f} %)"
+            if cid in earlier and earlier[cid][1]
             else "not found (no sign of it to fit)",
         }
         if f is not None:
