@@ -151,3 +151,38 @@ def test_a_finding_names_the_cause_it_could_be_when_that_one_explained_the_same_
     assert a.could_also_be == {"b": 50.0} and c.could_also_be == {}
     assert "a could also be b (held-out gain 50 % before a was taken)" in res.summary
     assert a.as_dict()["could_also_be_gain_pct"] == {"b": 50.0}
+
+
+def test_a_cause_judged_on_other_runs_is_not_what_a_finding_could_also_be(monkeypatch):
+    """A rival must have explained what the finding explains: on the same held-out runs. A cause
+    judged on the fast sweeps that cleared the bar beside a log creep judged on the hold is no
+    rival of it, though it has nothing left once the creep is taken (the third test press, rate
+    dependence and log creep hidden together, seed 2)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from piezopress.analysis.diagnosis import search
+    from piezopress.analysis.hysteresis import PIModel
+
+    model = dg.Model(PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=50.0))
+    t = np.arange(0, 10, 1e-3)
+    x = 50 + 50 * np.sin(2 * np.pi * 0.5 * t)
+    runs = [dg.RunData(n, "sine", t, x, model.predict(dg.RunData(n, "sine", t, x, x, 1e3)), 1000.0) for n in ("h", "f")]
+
+    def fake(cause: str, first: float, after_a: float, judged: str):
+        def fit(ctx):
+            g = after_a if ctx.model.delay_s > 0 else first
+            ext = replace(ctx.model, delay_s=1e-3) if cause == "a" else ctx.model
+            return dg.Finding(cause, "t", 1.0, 1 - g / 100, g, {}, [judged], [judged], 10.0, 0.1, ext)
+
+        return fit
+
+    for judged_b, rival in (("f", {}), ("h", {"b": 50.0})):
+        causes = {
+            "a": dg.Cause("a", "p", "e", fake("a", 60.0, 60.0, "h")),
+            "b": dg.Cause("b", "p", "e", fake("b", 50.0, 5.0, judged_b)),
+        }
+        monkeypatch.setattr(search, "CAUSES", causes)
+        (a,) = search.diagnose(model, runs, causes=list(causes)).findings
+        assert a.could_also_be == rival, judged_b

@@ -269,7 +269,13 @@ def diagnose(
             ctx = Context(runs, pair[-1].model, ctx.fitted_runs, floor)
             continue
         best = max(ok, key=lambda f: (CAUSES[f.cause].precedence, f.gain_pct))
-        rivals.update({f.cause: (best.cause, f.gain_pct) for f in ok if f is not best})
+        # a rival explained what the winner did only where they were judged on the same runs: a log
+        # creep judged on the hold is no rival of a rate dependence judged on the fast sweeps (third
+        # test press, the two hidden together, seed 2: "logarithmic_creep could also be
+        # rate_dependent_hysteresis")
+        rivals.update(
+            {f.cause: (best.cause, f.gain_pct) for f in ok if f is not best and set(f.heldout) & set(best.heldout)}
+        )
         findings.append(best)
         todo.remove(best.cause)
         last_try.pop(best.cause, None)
