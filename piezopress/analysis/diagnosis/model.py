@@ -125,7 +125,7 @@ _CREEP_MEMO: dict[tuple, tuple[Any, Any]] = {}  # (static prediction, its creep 
 _PREFIX_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a run's first samples, by (id(run), samples)
 _RATE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive rate felt, by (id(run), chain, smoothing, saturation)
 _TRANSIENT_MEMO: dict[tuple, tuple[Any, Any]] = {}  # a held unit stroke's creep, by (id(run), creep)
-_STACK_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive at the stack, by (id(run), chain)
+_FELT_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the command felt through the drive chain, by (id(run), chain)
 _INTERFERENCE_MEMO: dict[tuple, tuple[Any, Any]] = {}  # the drive current's artefact, by (id(run), parameters)
 #: Two hum lines fitted in different runs within this many hertz are one line (each run refines
 #: its line's frequency within 0.1 Hz).
@@ -261,7 +261,7 @@ class Model:
             return self.static_at_rate(felt, self._rate(run, felt))
         # the search evaluates one static map on one run many times (only later stages change),
         # and many rate dependences on one drive felt (only the plays' widening changes)
-        chain = (self.hysteresis, self.slew_v_per_s, self.drive_tau_s, self.drive_lowpass, self.drive_delay_s)
+        chain = (self.hysteresis, *self._chain_key())
         rate_form = (
             self.rate_v_per_kv_s,
             self.rate_loss_per_kv_s,
@@ -273,7 +273,7 @@ class Model:
 
         def compute() -> np.ndarray:
             def felt_plays() -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-                felt = self.felt(run, run.x)
+                felt = self.felt_command(run)
                 return felt, self._plays(felt)
 
             felt, plays = memo(_PLAY_MEMO, (id(run), *chain), run, felt_plays)
@@ -283,6 +283,15 @@ class Model:
             return self.static_at_rate(felt, rate, plays=None if self.rate_v_per_kv_s else plays)
 
         return memo(_STATIC_MEMO, (id(run), *chain, *rate_form), run, compute)
+
+    def felt_command(self, run: RunData) -> np.ndarray:
+        """:meth:`felt` of the run's command, kept per run and drive chain (read-only): the static
+        map and the voltage at the stack (:meth:`stack_drive`) share it."""
+        return memo(_FELT_MEMO, (id(run), *self._chain_key()), run, lambda: self.felt(run, run.x))
+
+    def _chain_key(self) -> tuple:
+        """What :meth:`felt` depends on beside the run: the drive chain."""
+        return (self.slew_v_per_s, self.drive_tau_s, self.drive_lowpass, self.drive_delay_s)
 
     def felt(self, run: RunData, x: np.ndarray) -> np.ndarray:
         """The drive the stack feels for the command ``x``: through the amplifier's own lag and
@@ -381,7 +390,7 @@ class Model:
         y = f
         if self.interference:
             y = y - interference_reading(
-                run, *self.interference, drive=self.stack_drive(run), drive_key=self._stack_key()
+                run, *self.interference, drive=self.stack_drive(run), drive_key=self._chain_key()
             )
         y = signals.delayed(y, run.fs_hz, self.reading_delay_s(run.fs_hz))
         if self.gain_drift:
@@ -411,13 +420,7 @@ class Model:
         hidden coupling itself (a 30 Hz high-pass, seed 1) drawn from the command read the held-out
         100 V step 13 % worse than no coupling at all, its artefact ahead of the reading's; drawn
         from the chain, 2 % (seed 2: 8 %)."""
-        if run.monitor is not None:
-            return run.monitor
-        return memo(_STACK_MEMO, (id(run), *self._stack_key()), run, lambda: self.felt(run, run.x))
-
-    def _stack_key(self) -> tuple:
-        """What :meth:`stack_drive` depends on beside the run: the drive chain."""
-        return (self.slew_v_per_s, self.drive_tau_s, self.drive_lowpass, self.drive_delay_s)
+        return run.monitor if run.monitor is not None else self.felt_command(run)
 
     def reading_delay_s(self, fs_hz: float) -> float:
         """The reading's delay at the sample rate ``fs_hz``: an input delay in time, and one

@@ -229,8 +229,8 @@ def diagnose(
     last_try: dict[str, Finding] = {}
     failed: dict[str, str] = {}  # causes whose fit raised: why (never a traceback; said under "tested")
     # causes that had something to fit in an earlier round and nothing once later findings were
-    # in the model: that fit, and the findings then taken
-    earlier: dict[str, tuple[Finding, list[str]]] = {}
+    # in the model: what ``tested`` says of them
+    earlier: dict[str, str] = {}
     asked = list(causes or CAUSES)
     checks = {cid: testability(CAUSES[cid], ctx) for cid in asked}
     todo = [cid for cid in asked if checks[cid].testable]
@@ -250,7 +250,11 @@ def diagnose(
             elif cid in failed:  # its fit raised this round: said, not an earlier round's result
                 last_try.pop(cid, None)
             elif cid in last_try:  # nothing to fit this round: an earlier round's fit is no result now
-                earlier[cid] = (last_try.pop(cid), [f_.cause for f_ in findings])
+                taken = [f_.cause for f_ in findings]
+                earlier[cid] = (
+                    f"nothing to fit once {' and '.join(taken)} {'was' if len(taken) == 1 else 'were'} in the "
+                    f"model; before, held-out gain {last_try.pop(cid).gain_pct:.0f} %"
+                )
             if on_progress:
                 on_progress(
                     CauseProgress(
@@ -344,10 +348,8 @@ def diagnose(
             if f is not None
             else f"not fitted ({failed[cid]})"
             if cid in failed
-            else f"not found (nothing to fit once {' and '.join(earlier[cid][1])} "
-            f"{'was' if len(earlier[cid][1]) == 1 else 'were'} in the model; before, held-out gain "
-            f"{earlier[cid][0].gain_pct:.0f} %)"
-            if cid in earlier and earlier[cid][1]
+            else f"not found ({earlier[cid]})"
+            if cid in earlier
             else "not found (no sign of it to fit)",
         }
         if f is not None:
