@@ -333,6 +333,12 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
             }
             what = describe.get(chain.get("form"), f"of the form {chain.get('form')!r}")
             say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
+            own = fitted.doc.get("compensation", {}).get("chain_lead_samples")
+            if own:
+                say(
+                    f"            of its delay, {own:.2f} samples are the sampling's own (a converter's hold and "
+                    "filter): led in samples of each reference's rate, not in seconds"
+                )
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")
     lo, hi = res.drive_v

@@ -210,8 +210,14 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
                 f"{rate_text}, lead {_num(1e3 * float(comp.get('lead_s', math.nan)), 4)} ms"
                 + (
                     f" (of which {_num(1e3 * float(comp['chain_lead_s']), 4)} ms the drive chain identified with "
-                    "the mode: the reading's lag is led too)."
+                    "the mode: the reading's lag is led too)"
                     if comp.get("chain_lead_s")
+                    else ""
+                )
+                + (
+                    f", and {_num(float(comp['chain_lead_samples']), 2)} samples of the reference's rate: the "
+                    "chain's own sampling delay (a converter's hold and filter), which lags by samples, not seconds."
+                    if comp.get("chain_lead_samples")
                     else "."
                 )
             )

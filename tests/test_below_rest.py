@@ -211,6 +211,31 @@ def test_the_lead_includes_the_identified_chains_low_frequency_delay(chain, expe
     assert comp.get("chain_lead_s", 0.0) == pytest.approx(expected, rel=1e-12)
 
 
+def test_a_series_chains_own_delay_is_led_in_samples_of_the_references_rate():
+    # a low-pass (1 kHz, damping 0.7) and 3 samples of delay at the steps' 20 kHz: 2 of them the
+    # sampling's own, led in samples of the reference's rate; the rest, with the low-pass, in seconds
+    import json
+
+    chain = {"form": "lowpass_delay", "lowpass_hz": 1000.0, "lowpass_damping": 0.7, "delay_s": 1.5e-4}
+    gd = 2 * 0.7 / (2 * math.pi * 1000.0)
+    comp = identification.compensation_settings(_sections({**chain, "steps_sample_rate_hz": 20_000.0}))
+    assert comp["chain_lead_s"] == pytest.approx(gd + 0.5e-4, rel=1e-12)
+    assert comp["chain_lead_samples"] == pytest.approx(2.0, rel=1e-12)
+    doc = json.loads((ROOT / "sample_runs" / "bundle.json").read_text())
+    doc["compensation"].update(comp)
+    b = Bundle.from_dict(doc)
+    for fs in (500.0, 20_000.0, 50_000.0):
+        assert b.compensator().lead_at(fs) == pytest.approx(2 * 0.1 / 5000.0 + gd + 0.5e-4 + 2.0 / fs, rel=1e-12)
+        assert b.compensator(use_shaper=False).lead_at(fs) == pytest.approx(gd + 0.5e-4 + 2.0 / fs, rel=1e-12)
+    # without the steps' rate (a bundle written before it was recorded): all of it in seconds, as before
+    comp = identification.compensation_settings(_sections(chain))
+    assert comp["chain_lead_s"] == pytest.approx(gd + 1.5e-4, rel=1e-12) and "chain_lead_samples" not in comp
+    for bad in (-1.0, 2.5, float("nan"), "2"):
+        doc["compensation"]["chain_lead_samples"] = bad
+        with pytest.raises(BundleError, match="chain_lead_samples"):
+            Bundle.from_dict(doc)
+
+
 def test_without_a_shaper_the_chain_is_still_led_and_a_chain_beyond_the_lead_is_refused():
     import json
 
@@ -288,5 +313,9 @@ def test_the_report_says_what_the_fit_did_below_rest_and_how_much_of_the_lead_is
     assert "lead 0.4100 ms (of which 0.3740 ms the drive chain identified with the mode" in md
     # the rate limit is read under its unit's key (max_rate_n_per_s): it read "no rate limit" before
     assert "rate limit 40.0 N/ms" in md
+    doc["compensation"]["chain_lead_samples"] = 1.64
+    md = render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))
+    assert "with the mode: the reading's lag is led too), and 1.64 samples of the reference's rate" in md, md
     doc["compensation"].pop("chain_lead_s")
+    doc["compensation"].pop("chain_lead_samples")
     assert "lead 0.4100 ms." in render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))

@@ -205,9 +205,10 @@ def test_a_delay_found_with_the_chains_low_pass_refitted_records_it_and_leads_it
 def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_lead(fs_hz):
     # steps at 20 kHz behind a FIFO of 4 samples: the chain's delay (0.28 ms) holds the FIFO; the
     # forward model diagnose judged with keeps only the sampling's own 2 samples (0.1 ms) of it,
-    # and the FIFO is found in samples. The drive's whole lead at every rate is then the model's
-    # lag (low-pass, the delay kept, the samples found), once: the FIFO's 0.2 ms at 20 kHz is not
-    # led a second time through the chain's delay
+    # and the FIFO is found in samples. The drive's whole lead is then the low-pass's, the delay
+    # kept and the samples found, once: the FIFO's 0.2 ms at 20 kHz is not led a second time
+    # through the chain's delay. The delay kept, the sampling's own, is led in samples of the
+    # reference's rate (bundle.chain_leads): at the steps' rate it is the model's lag as judged
     from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES, Bundle
     from piezopress.analysis.mode_fit import lowpass_delay_group_delay_s
     from piezopress.pipelines import diagnose as D
@@ -228,10 +229,11 @@ def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_
         "input_delay", "", 1.0, 0.1, 90.0, {"delay_samples": 3.6, "delay_s": 3.6 / steps_fs}, [], [], 100.0, 0.1, found
     )
     ext = Bundle.from_dict(D.extend_bundle(bundle, [finding], found))
-    lag = 2 * 0.5 / 3000.0 + lowpass_delay_group_delay_s(wc, zc, kept) + 3.6 / fs_hz
+    # the sampling's own 2 samples are counted in samples of the reference's rate, as the FIFO is
+    lag = 2 * 0.5 / 3000.0 + lowpass_delay_group_delay_s(wc, zc, 0.0) + (kept * steps_fs + 3.6) / fs_hz
     assert ext.compensator().lead_at(fs_hz) == pytest.approx(lag, rel=1e-9)
-    doubled = 2 * 0.5 / 3000.0 + was + 3.6 / fs_hz  # what the lead was before: the FIFO twice at the steps' rate
-    assert ext.compensator().lead_at(fs_hz) < doubled - 0.9 * (d - kept)
+    doubled = 2 * 0.5 / 3000.0 + was + 3.6 / steps_fs  # what the lead was before: the FIFO twice at the steps' rate
+    assert ext.compensator().lead_at(steps_fs) == pytest.approx(doubled - (d - kept), rel=1e-9)
     got = ext.doc["shaper"]["mode"]["drive_chain"]
     assert got["delay_s"] == pytest.approx(kept) and got["delay_before_diagnose_s"] == pytest.approx(d)
     assert "input_delay" in got["extended_by"]

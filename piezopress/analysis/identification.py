@@ -43,7 +43,7 @@ from piezopress.analysis.bundle import (
     BUNDLE_VERSION,
     Bundle,
     BundleError,
-    chain_delay_s,
+    chain_leads,
     creep_removed,
     shaper_document,
 )
@@ -855,10 +855,10 @@ def compensation_settings(
     unit = sections["hysteresis"]["model"].get("output_unit", units.FORCE) if "hysteresis" in sections else units.FORCE
     if max_rate_per_s is None and units.is_force(unit):
         max_rate_per_s = FORCE_MAX_RATE_N_PER_S
-    lead = chain = 0.0
+    lead = chain = samples = 0.0
     if "shaper" in sections:
         m = sections["shaper"]["mode"]
-        chain = chain_delay_s(m.get("drive_chain"))
+        chain, samples = chain_leads(m.get("drive_chain"))
         lead = 2.0 * m["damping"] / m["natural_freq_rad_s"] + chain
     out = {
         "drive_min_v": drive_min_v,
@@ -868,6 +868,8 @@ def compensation_settings(
     }
     if chain:
         out["chain_lead_s"] = chain
+    if samples:
+        out["chain_lead_samples"] = samples
     return out
 
 
