@@ -840,7 +840,9 @@ def compensation_settings(
     The lead is the mode's low-frequency group delay ``2 zeta / wn`` (the shaper itself is
     applied centred on its centroid, so it adds none on average) plus the low-frequency delay
     of the drive chain identified with the mode (``shaper.mode.drive_chain``: a pure delay's,
-    or a first-order lag's time constant), recorded as ``chain_lead_s``. From command to
+    or a first-order lag's time constant), recorded as ``chain_lead_s``; of a series chain's pure
+    delay, the sampling's own (up to two samples of the steps' rate) is led in samples of each
+    reference's rate instead, ``chain_lead_samples`` (:func:`bundle.chain_leads`). From command to
     reading the runs cannot tell an amplifier's lag from a load cell's filter, and every figure
     is read from the load cell: leading the whole chain makes the reading follow the reference
     (where the lag is the load cell's, the force leads the reading by it). On the third test
