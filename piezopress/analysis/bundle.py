@@ -714,10 +714,8 @@ class Bundle:
         base = dg.Model(self.hysteresis, self.creep, wn, zeta, lp, creep_edge_aligned=self.creep_edge_aligned)
         series = _lowpass_delay(self._chain_doc)
         if series is not None and series[1] < 1.0:
-            wc, zc, d = series
-            fs = self._chain_doc.get("steps_sample_rate_hz")
-            own = SAMPLING_DELAY_SAMPLES / fs if _positive(fs) else 0.0
-            return replace(base, drive_lowpass=(wc, zc), drive_delay_s=min(d, own))
+            wc, zc, _ = series
+            return replace(base, drive_lowpass=(wc, zc), drive_delay_s=chain_own_delay(self._chain_doc)[0])
         _, tau = self.drive_chain
         return replace(base, drive_tau_s=tau or 0.0)
 
@@ -803,35 +801,35 @@ def chain_delay_s(chain: Any) -> float:
     return float(v) if _positive(v) else 0.0
 
 
-def chain_own_samples(chain: Any) -> float:
-    """The part of a series drive chain's pure delay (``lowpass_delay``, ``slew_lowpass_delay``)
-    that is the sampling's own, in samples of the steps it was identified on: up to
-    :data:`SAMPLING_DELAY_SAMPLES`; 0 for another form, or where the steps' rate is not recorded
-    (a bundle written before it was). A run sampled at another rate lags by as many of its own
-    samples (:func:`chain_leads`). The forward model ``diagnose`` judges with holds the same part,
-    in seconds at the steps' rate (:meth:`Bundle.forward_model`; see the README on why it is not
-    counted in samples there yet)."""
+def chain_own_delay(chain: Any) -> tuple[float, float]:
+    """``(seconds, steps' rate Hz)``: the part of a series drive chain's pure delay
+    (``lowpass_delay``, ``slew_lowpass_delay``) that is the sampling's own, up to
+    :data:`SAMPLING_DELAY_SAMPLES` of the steps it was identified on; ``(0, 0)`` for another form,
+    or where the steps' rate is not recorded (a bundle written before it was). The forward model
+    ``diagnose`` judges with holds this part, in seconds at the steps' rate
+    (:meth:`Bundle.forward_model`; the README says why not in samples there yet); the compensator
+    leads it in samples of each reference's rate (:func:`chain_leads`)."""
     series = _lowpass_delay(chain)
     fs = chain.get("steps_sample_rate_hz") if isinstance(chain, dict) else None
     if series is None or not _positive(fs):
-        return 0.0
-    return min(series[2], SAMPLING_DELAY_SAMPLES / float(fs)) * float(fs)
+        return 0.0, 0.0
+    return min(series[2], SAMPLING_DELAY_SAMPLES / float(fs)), float(fs)
 
 
 def chain_leads(chain: Any) -> tuple[float, float]:
     """``(seconds, samples)`` the compensator leads for a drive chain identified with the mode:
     :func:`chain_delay_s` less the sampling's own delay, and that own delay in samples of the
-    reference's rate (:func:`chain_own_samples`), so that a reference sampled faster or slower
+    reference's rate (:func:`chain_own_delay`), so that a reference sampled faster or slower
     than the steps is led by what the press lags at its rate. On the third test press (steps at
     20 kHz, 1.6 samples of its own: 82 us there, 32 us at 50 kHz, 0.33 ms at 5 kHz; seeds 0-2,
     ``bench/bench_presses.py``) the compensated 50 Hz loop read 2.38 -> 1.47 %, the 1 Hz loop
     0.62 -> 0.37 %, the random 0.2-20 Hz tracking 0.43 -> 0.24 %; the 0.1 Hz triangles at 500 Hz,
     whose loop the hysteresis was fitted on with that rate's lag in its width, 0.60 -> 0.70 %."""
-    own = chain_own_samples(chain)
+    own_s, fs = chain_own_delay(chain)
     total = chain_delay_s(chain)
-    if not own:
+    if not own_s:
         return total, 0.0
-    return max(0.0, total - own / float(chain["steps_sample_rate_hz"])), own
+    return max(0.0, total - own_s), own_s * fs
 
 
 def creep_removed(creep: CreepModel | None, command_v: np.ndarray, output: np.ndarray, fs_hz: float) -> np.ndarray:
@@ -1063,7 +1061,9 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
         if "input_delay" in refit_by and old[2] > kept + 1e-12:
             changes.update(delay_s=kept, delay_before_diagnose_s=old[2])
         if changes:
-            was, _ = chain_leads(chain) if "chain_lead_samples" in comp else (chain_delay_s(chain), 0.0)
+            # what lead_s held of the chain: all of it in seconds in a bundle written before the
+            # sampling's own delay was led in samples
+            was = chain_leads(chain)[0] if "chain_lead_samples" in comp else chain_delay_s(chain)
             chain.update(**changes, extended_by=f"diagnose: the chain refitted with {', '.join(refit_by)}")
             now, now_samples = chain_leads(chain)
             comp["lead_s"] = comp.get("lead_s", 0.0) - comp.get("chain_lead_s", was) + now
