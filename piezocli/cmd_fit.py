@@ -334,10 +334,19 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
             what = describe.get(chain.get("form"), f"of the form {chain.get('form')!r}")
             say(f"            no amplifier monitor recorded: the drive chain identified from the steps is {what}")
             own = fitted.doc.get("compensation", {}).get("chain_lead_samples")
-            if own:
+            if own and chain.get("delay_samples"):
+                seconds = (chain.get("delay_s") or 0.0) - own / chain["steps_sample_rate_hz"]
                 say(
-                    f"            of its delay, {own:.2f} samples are the sampling's own (a converter's hold and "
-                    "filter): led in samples of each reference's rate, not in seconds"
+                    f"            steps at two sample rates told its delay apart: {own:.2f} samples of each run's rate "
+                    "(a converter's hold and filter, a FIFO), led in samples of each reference's rate; the rest of "
+                    f"the chain's lag, {fitted.doc['compensation'].get('chain_lead_s', 0.0) * 1e6:.3g} us (the "
+                    f"low-pass's, and {seconds * 1e6:+.3g} us of delay), in seconds"
+                )
+            elif own:
+                say(
+                    f"            of its delay, {own:.2f} samples are taken as the sampling's own (a converter's hold "
+                    "and filter, up to 2 samples: the steps are at one rate): led in samples of each reference's "
+                    "rate, not in seconds; a step at a second rate (the default plan's step-50v-50khz) tells it"
                 )
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")

@@ -40,6 +40,7 @@ from piezopress.acquisition.rig_config import load_rig, parse_rig
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis import profile
 from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, wander_untold
+from piezopress.analysis.mode_fit import TWO_RATES_RATIO
 from piezopress.errors import PiezopressError
 from piezopress.resources import shipped
 
@@ -48,6 +49,9 @@ PLAN_FILE = "next-plan.toml"
 
 #: A step sampled this fast resolves the thesis press's ~1 kHz mode and a second one above it.
 STEP_RATE_HZ = 20_000.0
+#: The second rate of the steps (:data:`~piezopress.analysis.mode_fit.TWO_RATES_RATIO` above the
+#: first at least): a drive chain's delay that scales with the sample period told from one in seconds.
+SECOND_STEP_RATE_HZ = 50_000.0
 #: Rest and creep holds (s): the default plan's (long enough for drift and for log-time creep).
 REST_S = 120.0
 CREEP_HOLD_S = 120.0
@@ -149,24 +153,23 @@ def _groups(lo: float, hi: float, rest: float, fs_max: float) -> list[Group]:
         levels = sorted(
             {float(f"{rest + (hi - rest) * f:.3g}") for f in (2 / 15, 1 / 3, 2 / 3, 1.0)}
         )  # 20, 50, 100, 150 V of 150
+        step = {"kind": "step", "base_v": rest, "pre_s": 0.01, "hold_s": 0.1, "post_s": 0.05}
+        steps = [{"name": f"step-{v:g}v", **step, "level_v": v, "sample_rate_hz": fs_step} for v in levels]
+        # the 50 V step again at a second rate: a drive chain's delay in samples told from one in seconds
+        fs_second = min(SECOND_STEP_RATE_HZ, fs_max)
+        second = ""
+        if fs_second >= TWO_RATES_RATIO * fs_step:
+            v = levels[min(1, len(levels) - 1)]
+            steps.append(
+                {"name": f"step-{v:g}v-{fs_second / 1e3:g}khz", **step, "level_v": v, "sample_rate_hz": fs_second}
+            )
+            second = f", and the {v:g} V one at {fs_second / 1e3:g} kHz (a delay in samples told from one in seconds)"
         out.append(
             Group(
                 "steps",
-                f"steps of {', '.join(f'{v:g}' for v in levels)} V sampled at {fs_step / 1e3:g} kHz "
+                f"steps of {', '.join(f'{v:g}' for v in levels)} V sampled at {fs_step / 1e3:g} kHz{second} "
                 "(the small one identifies the mode; large ones show the slew and a second mode)",
-                [
-                    {
-                        "name": f"step-{v:g}v",
-                        "kind": "step",
-                        "base_v": rest,
-                        "level_v": v,
-                        "pre_s": 0.01,
-                        "hold_s": 0.1,
-                        "post_s": 0.05,
-                        "sample_rate_hz": fs_step,
-                    }
-                    for v in levels
-                ],
+                steps,
                 enables_model=("mode",),
             )
         )

@@ -363,8 +363,10 @@ def test_the_third_press_runs_the_chain_through_a_rig_file(tmp_path):
     assert check_backend(char.make_backend(None, rig)) == list(RULES)
     _ok("characterize", "--rig", rig, "--out", tmp_path / "char")
     out = _ok("fit", tmp_path / "char", "--rig", rig, "--out", tmp_path / "b.json")
-    # no monitor channel: the chain read from the steps (its filters' lags in series, as a delay) is said
-    assert "the drive chain identified from the steps is a delay of" in out, out
+    # no monitor channel: the chain read from the steps (its filters' lags in series, and a delay) is
+    # said, and the default plan's steps at two rates tell the delay's part in samples (its decimation filter's)
+    assert "the drive chain identified from the steps is a second-order low-pass at" in out, out
+    assert "steps at two sample rates told its delay apart: 2." in out, out
     doc = json.loads((tmp_path / "b.json").read_text())
     assert doc["hysteresis"]["model"]["family"] == "pi_preisach_plane", doc["hysteresis"]["fit"]["family_reason"]
     _ok("validate", "--bundle", tmp_path / "b.json", "--rig", rig, "--out", tmp_path / "val")
@@ -388,6 +390,8 @@ def test_fit_names_a_slew_limit_inside_the_chain_of_a_press_without_monitor(tmp_
     assert "the drive chain identified from the steps is a slew limit of" in out, out
     assert "before a second-order low-pass" in out, out
     mode = json.loads((tmp_path / "b.json").read_text())["shaper"]["mode"]
+    # its delay's part in samples is not split off: the slew alone's lag is led, as before
+    assert "steps at two sample rates told" not in out and mode["drive_chain"].get("delay_samples") is None, out
     assert mode["drive_chain"]["form"] == "slew_lowpass_delay"
     assert mode["drive_chain"]["slew_v_per_s"] == pytest.approx(100e-3 / 6e-6, rel=0.2)
     assert mode["natural_freq_rad_s"] == pytest.approx(2 * np.pi * 780.0, rel=0.05)

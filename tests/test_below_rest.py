@@ -22,6 +22,7 @@ import pytest
 
 from piezopress.acquisition import waveforms
 from piezopress.acquisition.plan import DriveLimits, PlanError, load_plan, parse_plan
+from piezopress.analysis import bundle as bundle_mod
 from piezopress.analysis import creep as C
 from piezopress.analysis import hysteresis as H
 from piezopress.analysis import identification
@@ -230,10 +231,49 @@ def test_a_series_chains_own_delay_is_led_in_samples_of_the_references_rate():
     # without the steps' rate (a bundle written before it was recorded): all of it in seconds, as before
     comp = identification.compensation_settings(_sections(chain))
     assert comp["chain_lead_s"] == pytest.approx(gd + 1.5e-4, rel=1e-12) and "chain_lead_samples" not in comp
-    for bad in (-1.0, 2.5, float("nan"), "2"):
+    for bad in (-1.0, 1e5, float("nan"), "2"):
         doc["compensation"]["chain_lead_samples"] = bad
         with pytest.raises(BundleError, match="chain_lead_samples"):
             Bundle.from_dict(doc)
+
+
+def test_a_delay_in_samples_steps_at_two_rates_told_is_led_as_told():
+    """Steps at two rates told the chain's delay: 2.5 samples and -30 us (a low-pass holding part
+    of the sampling's lag), recorded as 95 us at the steps' 20 kHz. The 2.5 samples are led in
+    samples of each reference's rate, the rest (the low-pass's lag, less 30 us) in seconds; the
+    two-sample rule of one rate is not applied. Found with an input delay by diagnose, the part in
+    samples goes with the finding, and the old rule stands for what the chain keeps."""
+    import json
+
+    gd = 2 * 0.7 / (2 * math.pi * 1000.0)
+    chain = {
+        "form": "lowpass_delay",
+        "lowpass_hz": 1000.0,
+        "lowpass_damping": 0.7,
+        "delay_s": -3e-5 + 2.5 / 20_000.0,
+        "delay_samples": 2.5,
+        "steps_sample_rate_hz": 20_000.0,
+    }
+    comp = identification.compensation_settings(_sections(chain))
+    assert comp["chain_lead_samples"] == pytest.approx(2.5, rel=1e-12)
+    assert comp["chain_lead_s"] == pytest.approx(gd - 3e-5, rel=1e-12)
+    doc = json.loads((ROOT / "sample_runs" / "bundle.json").read_text())
+    doc["compensation"].update(comp)
+    b = Bundle.from_dict(doc)
+    for fs in (500.0, 20_000.0, 50_000.0):
+        assert b.compensator(use_shaper=False).lead_at(fs) == pytest.approx(gd - 3e-5 + 2.5 / fs, rel=1e-12)
+    # what diagnose's forward model holds is the one-rate rule's, at the steps' rate (up to 2 samples)
+    assert bundle_mod.chain_own_delay(chain) == pytest.approx((9.5e-5, 20_000.0))
+    assert bundle_mod.chain_leads({**chain, "delay_samples": None}) == pytest.approx((gd, 1.9))
+    # ... and of it, what is in samples (1.9 of the 2.5 told) lasts fewer seconds in a faster run
+    doc["shaper"]["mode"]["drive_chain"] = chain
+    model = Bundle.from_dict(doc).forward_model()
+    assert model.drive_delay_s == pytest.approx(9.5e-5) and model.drive_delay_samples == pytest.approx(1.9)
+    assert model.drive_delay_at(50_000.0) == pytest.approx(9.5e-5 - 1.9 * (1 / 20_000.0 - 1 / 50_000.0))
+    assert model.drive_delay_at(20_000.0) == model.drive_delay_at(500.0) == pytest.approx(9.5e-5)
+    assert model.drive_delay_at(1e9) >= 0.0
+    doc["shaper"]["mode"]["drive_chain"] = {**chain, "delay_samples": None}  # one rate: seconds at every rate
+    assert Bundle.from_dict(doc).forward_model().drive_delay_at(50_000.0) == pytest.approx(9.5e-5)
 
 
 def test_without_a_shaper_the_chain_is_still_led_and_a_chain_beyond_the_lead_is_refused():

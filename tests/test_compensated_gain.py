@@ -201,15 +201,18 @@ def test_a_delay_found_with_the_chains_low_pass_refitted_records_it_and_leads_it
     assert bundle["shaper"]["mode"]["drive_chain"]["lowpass_hz"] == 900.0  # the base bundle untouched
 
 
+@pytest.mark.parametrize("samples", [None, 5.6])
 @pytest.mark.parametrize("fs_hz", [2_000.0, 20_000.0, 50_000.0])
-def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_lead(fs_hz):
+def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_lead(fs_hz, samples):
     # steps at 20 kHz behind a FIFO of 4 samples: the chain's delay (0.28 ms) holds the FIFO; the
     # forward model diagnose judged with keeps only the sampling's own 2 samples (0.1 ms) of it,
     # and the FIFO is found in samples. The drive's whole lead is then the low-pass's, the delay
     # kept and the samples found, once: the FIFO's 0.2 ms at 20 kHz is not led a second time
     # through the chain's delay. The delay kept, the sampling's own, is led in samples of the
-    # reference's rate (bundle.chain_leads): at the steps' rate it is the model's lag as judged
-    from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES, Bundle
+    # reference's rate (bundle.chain_leads): at the steps' rate it is the model's lag as judged.
+    # ``samples``: steps at two rates told 5.6 samples of the delay (the FIFO's 4 and the
+    # sampling's 1.6), which the base bundle leads in samples; the finding takes them over
+    from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES, Bundle, chain_leads
     from piezopress.analysis.mode_fit import lowpass_delay_group_delay_s
     from piezopress.pipelines import diagnose as D
 
@@ -218,9 +221,14 @@ def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_
     wc, zc, d = 2 * math.pi * 1300.0, 0.65, 2.8e-4
     chain = {"form": "lowpass_delay", "lowpass_hz": 1300.0, "lowpass_damping": zc, "delay_s": d}
     chain["steps_sample_rate_hz"] = steps_fs
+    if samples is not None:
+        chain["delay_samples"] = samples
     bundle["shaper"]["mode"]["drive_chain"] = chain
     was = lowpass_delay_group_delay_s(wc, zc, d)
-    bundle["compensation"] = {"lead_s": 2 * 0.5 / 3000.0 + was, "chain_lead_s": was}
+    seconds, base_samples = chain_leads(chain)
+    assert base_samples == pytest.approx(samples or SAMPLING_DELAY_SAMPLES)
+    bundle["compensation"] = {"lead_s": 2 * 0.5 / 3000.0 + seconds, "chain_lead_s": seconds}
+    bundle["compensation"]["chain_lead_samples"] = base_samples
     model = Bundle.from_dict(bundle).forward_model()
     kept = SAMPLING_DELAY_SAMPLES / steps_fs
     assert model.drive_delay_s == pytest.approx(kept)
@@ -236,6 +244,7 @@ def test_a_fifo_found_replaces_the_chains_delay_beyond_the_samplings_own_in_the_
     assert ext.compensator().lead_at(steps_fs) == pytest.approx(doubled - (d - kept), rel=1e-9)
     got = ext.doc["shaper"]["mode"]["drive_chain"]
     assert got["delay_s"] == pytest.approx(kept) and got["delay_before_diagnose_s"] == pytest.approx(d)
+    assert got.get("delay_samples") is None and got.get("delay_samples_before_diagnose") == samples
     assert "input_delay" in got["extended_by"]
     assert ext.forward_model().drive_delay_s == pytest.approx(kept)  # read back as the diagnosis judged it
     assert bundle["shaper"]["mode"]["drive_chain"]["delay_s"] == d  # the base bundle untouched

@@ -229,6 +229,24 @@ def test_the_next_plan_reveals_an_effect_the_first_plan_could_not(tmp_path, effe
     assert effect in out
 
 
+def test_the_next_plans_steps_are_at_two_rates_where_the_rig_samples_fast_enough():
+    """The steps the next plan proposes tell a drive chain's delay in samples from one in
+    seconds (``mode_fit``'s two-rate fit): the 50 V step again at 50 kHz beside the 20 kHz ones,
+    where the rig samples that fast; at 20 kHz at most, the steps at one rate."""
+    from piezopress.analysis.mode_fit import TWO_RATES_RATIO
+
+    def steps(fs_max):
+        g = next(g for g in NP._groups(0.0, 150.0, 0.0, fs_max) if g.id == "steps")
+        return sorted((p["level_v"], p["sample_rate_hz"]) for p in g.protocols), g.what
+
+    rates, what = steps(100_000.0)
+    assert rates == [(20.0, 2e4), (50.0, 2e4), (50.0, 5e4), (100.0, 2e4), (150.0, 2e4)]
+    assert "the 50 V one at 50 kHz (a delay in samples told from one in seconds)" in what
+    assert 5e4 >= TWO_RATES_RATIO * 2e4
+    rates, what = steps(20_000.0)
+    assert {fs for _, fs in rates} == {2e4} and "kHz (a delay" not in what
+
+
 def test_no_plan_when_every_cause_was_tested_and_imported_runs_assume_the_default_rig(tmp_path):
     runs = [pi_run("slow", 4000, fs=200.0, freq=1.0)]
     model = dg.Model(PIModel((0.0, 20.0), (1.0, 0.3), (0.0,), (2.0,), y0=50.0))

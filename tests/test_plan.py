@@ -22,8 +22,9 @@ def test_default_plan_covers_thesis_tests():
     )
     assert freqs == [0.1, 1.0, 5.0, 10.0, 50.0, 100.0]
     assert by["creep-150v"].params["hold_s"] == 120.0 and by["creep-150v"].params["level_v"] == 150.0
-    levels = sorted(p.params["level_v"] for p in plan.protocols if p.kind == "step")
-    assert levels == [20.0, 50.0, 100.0, 150.0]
+    levels = sorted((p.params["level_v"], p.sample_rate_hz) for p in plan.protocols if p.kind == "step")
+    # the thesis's four at 20 kHz, and the 50 V step again at 50 kHz: a chain's delay in samples
+    assert levels == [(20.0, 2e4), (50.0, 2e4), (50.0, 5e4), (100.0, 2e4), (150.0, 2e4)]
     # steps resolve a 1 kHz mode: at least 10 samples per period
     assert all(p.sample_rate_hz >= 10_000 for p in plan.protocols if p.kind == "step")
     assert by["triangle-increasing-0.1hz"].params["peaks_v"] == [30.0, 60.0, 90.0, 120.0, 150.0]

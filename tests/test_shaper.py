@@ -476,6 +476,54 @@ def test_a_lowpass_and_a_delay_in_series_are_identified_apart():
     assert mode_fit.lowpass_delay_group_delay_s(*found.parameter) == pytest.approx(2 * zc / wc + d, rel=0.1)
 
 
+def _two_rate_steps(make, wn=2 * np.pi * 800.0, zeta=0.06, noise=0.05):
+    """:func:`_steps_through` at 20 kHz, and the 50 V step again at 50 kHz."""
+    ts, cmds, ys = _steps_through(make, wn=wn, zeta=zeta, noise=noise)
+    fs = 50_000.0
+    t = np.arange(int(0.05 * fs)) / fs
+    c = np.where(t >= 0.005, 50.0, 0.0)
+    y = 50.0 + 2.0 * mode_response(make(c, fs), fs, wn, zeta, hold="foh")
+    return ts + [t], cmds + [c], ys + [y + np.random.default_rng(7).normal(0, noise, t.size)]
+
+
+@pytest.mark.parametrize(("delay_s", "samples"), [(3.0e-4, 0.0), (0.5e-4, 2.5), (0.0, 8.0)])
+def test_steps_at_two_rates_tell_a_delay_in_samples_from_one_in_seconds(delay_s, samples):
+    """A series chain (a 900 Hz low-pass, damping 0.8) whose delay is ``delay_s`` plus
+    ``samples`` samples of each run's rate (a DAC's hold, a decimating converter's filter, a
+    FIFO): steps at 20 kHz and one at 50 kHz give both parts, the samples within 0.3 and the
+    seconds within 15 us (the parts trade 0.3 samples at 20 kHz against 15 us); steps at one
+    rate do not try (``delay_samples`` None), and the chain drawn at each rate is the press's."""
+    from piezopress.analysis import mode_fit
+
+    wc, zc = 2 * np.pi * 900.0, 0.8
+
+    def make(c, fs):
+        return mode_fit.lowpass_delayed(c, fs, (wc, zc, delay_s, samples))
+
+    found = mode_fit.identify_mode_chain(*_two_rate_steps(make))
+    assert found.chain == "lowpass_delay", found.candidates
+    assert found.delay_samples == pytest.approx(samples, abs=0.3)
+    assert found.delay_s == pytest.approx(delay_s, abs=1.5e-5)
+    for fs in (500.0, 20_000.0, 50_000.0):  # the delay at each rate, as drawn
+        total = mode_fit.sampled_delay_s(found.delay_s, found.delay_samples, fs)
+        assert total == pytest.approx(delay_s + samples / fs, abs=1.5e-5 + 0.3 / fs)
+    one = mode_fit.identify_mode_chain(*_steps_through(make))
+    assert one.delay_samples is None and len(one.parameter) == 3
+    # at the one rate, the whole delay in seconds
+    assert one.delay_s == pytest.approx(delay_s + samples / 20_000.0, rel=0.1, abs=1e-5)
+
+
+def test_a_delay_in_samples_never_draws_a_negative_delay():
+    from piezopress.analysis import mode_fit
+
+    assert mode_fit.sampled_delay_s(-3e-5, 2.0, 20_000.0) == pytest.approx(7e-5)
+    assert mode_fit.sampled_delay_s(-3e-5, 1.0, 50_000.0) == 0.0
+    x = np.r_[np.zeros(10), np.ones(30)]
+    assert np.array_equal(
+        mode_fit.lowpass_delayed(x, 5e4, (3e4, 0.7, -3e-5, 1.0)), mode_fit.lowpass_delayed(x, 5e4, (3e4, 0.7, 0.0))
+    )
+
+
 def test_a_pure_delay_is_not_read_as_a_lowpass_in_series():
     """Three parameters fit a pure delay at least as well as one; the margin keeps the simpler
     chain where the steps show nothing more."""

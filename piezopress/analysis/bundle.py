@@ -465,7 +465,7 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
         comp.get("chain_lead_samples", 0.0),
         f"{w}.chain_lead_samples",
         0.0,
-        SAMPLING_DELAY_SAMPLES,
+        MAX_LEAD_SAMPLES,
         "the drive chain's own delay in samples of the reference's rate (the sampling's)",
     )
     slew = c.optional(
@@ -715,7 +715,12 @@ class Bundle:
         series = _lowpass_delay(self._chain_doc)
         if series is not None and series[1] < 1.0:
             wc, zc, _ = series
-            return replace(base, drive_lowpass=(wc, zc), drive_delay_s=chain_own_delay(self._chain_doc)[0])
+            own_s, fs = chain_own_delay(self._chain_doc)
+            samples = self._chain_doc.get("delay_samples")
+            told = {}
+            if _positive(samples) and own_s:  # of the delay held, what is in samples scales with each run's rate
+                told = {"drive_delay_samples": min(float(samples), own_s * fs), "drive_delay_rate_hz": fs}
+            return replace(base, drive_lowpass=(wc, zc), drive_delay_s=own_s, **told)
         _, tau = self.drive_chain
         return replace(base, drive_tau_s=tau or 0.0)
 
@@ -819,14 +824,23 @@ def chain_own_delay(chain: Any) -> tuple[float, float]:
 def chain_leads(chain: Any) -> tuple[float, float]:
     """``(seconds, samples)`` the compensator leads for a drive chain identified with the mode:
     :func:`chain_delay_s` less the sampling's own delay, and that own delay in samples of the
-    reference's rate (:func:`chain_own_delay`), so that a reference sampled faster or slower
-    than the steps is led by what the press lags at its rate. On the third test press (steps at
-    20 kHz, 1.6 samples of its own: 82 us there, 32 us at 50 kHz, 0.33 ms at 5 kHz; seeds 0-2,
-    ``bench/bench_presses.py``) the compensated 50 Hz loop read 2.38 -> 1.47 %, the 1 Hz loop
-    0.62 -> 0.37 %, the random 0.2-20 Hz tracking 0.43 -> 0.24 %; the 0.1 Hz triangles at 500 Hz,
-    whose loop the hysteresis was fitted on with that rate's lag in its width, 0.60 -> 0.70 %."""
-    own_s, fs = chain_own_delay(chain)
+    reference's rate, so that a reference sampled faster or slower than the steps is led by what
+    the press lags at its rate. Where steps at two sample rates told the delay's part in samples
+    (``delay_samples``), that part; else the rule of :func:`chain_own_delay` (up to
+    :data:`SAMPLING_DELAY_SAMPLES` of the steps' rate). On the third test press, seeds 0-2
+    (``bench/bench_presses.py``), all in seconds -> the two-sample rule (1.6 samples of the
+    steps' 20 kHz) -> steps at 20 and 50 kHz (2.2 samples, less 28-40 us in seconds): the
+    compensated 50 Hz loop read 2.38 -> 1.47 -> 1.01 %, the 1 Hz loop 0.62 -> 0.37 -> 0.33 %, the
+    random 0.2-20 Hz tracking 0.43 -> 0.24 -> 0.18 %; the 0.1 Hz triangles at 500 Hz, whose loop
+    the hysteresis was fitted on with that rate's lag in its width, 0.60 -> 0.70 -> 0.76 %."""
     total = chain_delay_s(chain)
+    samples = chain.get("delay_samples") if isinstance(chain, dict) else None
+    fs = chain.get("steps_sample_rate_hz") if isinstance(chain, dict) else None
+    if _lowpass_delay(chain) is not None and _positive(samples) and _positive(fs):
+        # steps at two rates told the delay's part in samples (mode_fit._fit_lowpass_delay): led
+        # as identified, the rest (the low-pass's lag, a seconds part that may be negative) in seconds
+        return max(0.0, total - float(samples) / float(fs)), float(samples)
+    own_s, fs = chain_own_delay(chain)
     if not own_s:
         return total, 0.0
     return max(0.0, total - own_s), own_s * fs
@@ -1060,6 +1074,9 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
         kept = float(model.drive_delay_s)
         if "input_delay" in refit_by and old[2] > kept + 1e-12:
             changes.update(delay_s=kept, delay_before_diagnose_s=old[2])
+        if "input_delay" in refit_by and chain.get("delay_samples") is not None:
+            # the part in samples steps at two rates told held the delay found: led by the finding
+            changes.update(delay_samples=None, delay_samples_before_diagnose=chain["delay_samples"])
         if changes:
             # what lead_s held of the chain: all of it in seconds in a bundle written before the
             # sampling's own delay was led in samples

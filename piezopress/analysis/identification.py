@@ -788,6 +788,7 @@ def shaper_section(
             ),
         )
         fit = chain.mode
+    steps_fs = min(r.sample_rate_hz for r in (steps or runs))
     fs = fs_hz or max(r.sample_rate_hz for r in runs)
     # only the designs valid at the identified damping (EI's closed form stops at 0.5)
     usable = tuple(n for n in ("zv", "zvd", "zvdd", "ei") if fit.zeta < shaper_mod.SHAPERS[n].zeta_range[1])
@@ -806,11 +807,17 @@ def shaper_section(
                 "form": chain.chain,
                 "slew_v_per_s": chain.slew_v_per_s,
                 "tau_s": chain.tau_s,
-                "delay_s": chain.delay_s,
+                # at the steps' (slowest) rate; its part in samples, where steps at two rates tell it
+                "delay_s": chain.delay_s
+                if chain.delay_samples is None
+                else mode_fit.sampled_delay_s(chain.delay_s or 0.0, chain.delay_samples, steps_fs),
+                # led in samples (bundle.chain_leads) where the steps' small-signal chain is the
+                # series alone; a slew's chain leads the lag the slew alone read, as before
+                "delay_samples": chain.delay_samples if chain.chain == "lowpass_delay" else None,
                 "lowpass_hz": None if chain.lowpass is None else chain.lowpass[0] / (2.0 * math.pi),
                 "lowpass_damping": None if chain.lowpass is None else chain.lowpass[1],
                 "low_frequency_delay_s": chain.lag_s,
-                "steps_sample_rate_hz": min(r.sample_rate_hz for r in (steps or runs)),
+                "steps_sample_rate_hz": steps_fs,
                 "rms_by_chain": chain.candidates,
             },
             "hold": fit.hold,

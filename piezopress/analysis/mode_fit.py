@@ -326,13 +326,17 @@ class ChainFit:
     # ``slew_lowpass_delay``: the chain's low-frequency delay (s), which steps that all slew do not
     # give from its parts (see identify_mode_chain)
     lag_s: float | None = None
+    # a series chain identified on steps at two sample rates: its delay's part in samples of each
+    # run's rate; ``delay_s`` is then the part in seconds, which may be negative (None: one rate)
+    delay_samples: float | None = None
 
     @property
     def parameter(self) -> float | tuple[float, ...] | None:
+        k = () if self.delay_samples is None else (float(self.delay_samples),)
         if self.chain == "lowpass_delay" and self.lowpass is not None:
-            return (*self.lowpass, float(self.delay_s or 0.0))
+            return (*self.lowpass, float(self.delay_s or 0.0), *k)
         if self.chain == "slew_lowpass_delay" and self.lowpass is not None and self.slew_v_per_s:
-            return (*self.lowpass, float(self.delay_s or 0.0), float(self.slew_v_per_s))
+            return (*self.lowpass, float(self.delay_s or 0.0), float(self.slew_v_per_s), *k)
         return {"slew": self.slew_v_per_s, "first_order": self.tau_s, "delay": self.delay_s}.get(self.chain)
 
 
@@ -358,18 +362,27 @@ def delayed(command: np.ndarray, fs_hz: float, delay_s: float) -> np.ndarray:
     return signals.delayed(c, fs_hz, delay_s)
 
 
-def lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, float, float]) -> np.ndarray:
+def lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, ...]) -> np.ndarray:
     """The held command through a unit second-order low-pass ``p[:2] = (wn rad/s, damping)``
-    (exact for a held input), then delayed by ``p[2]`` s (linear between samples)."""
-    wc, zc, d = p
+    (exact for a held input), then delayed by ``p[2]`` s (linear between samples); with a
+    fourth ``p[3]``, by ``p[2] + p[3] / fs_hz`` (never below 0): ``p[3]`` samples of the run's
+    own rate (:func:`sampled_delay_s`)."""
+    wc, zc, d = p[:3]
     out = mode_response(np.asarray(command, float), fs_hz, wc, zc, hold="zoh")
-    return signals.delayed(out, fs_hz, d)
+    return signals.delayed(out, fs_hz, sampled_delay_s(d, p[3] if len(p) > 3 else 0.0, fs_hz))
 
 
-def slew_lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, float, float, float]) -> np.ndarray:
+def sampled_delay_s(delay_s: float, samples: float, fs_hz: float) -> float:
+    """A delay of ``delay_s`` seconds and ``samples`` samples at ``fs_hz``, never below 0 (the
+    seconds part of a delay identified at two rates may be negative: a low-pass that holds part
+    of the sampling's lag)."""
+    return max(0.0, float(delay_s) + float(samples) / float(fs_hz))
+
+
+def slew_lowpass_delayed(command: np.ndarray, fs_hz: float, p: tuple[float, ...]) -> np.ndarray:
     """The command slewing at most ``p[3]`` V/s, then through :func:`lowpass_delayed`
-    ``(p[0], p[1], p[2])``."""
-    return lowpass_delayed(slew_limited(command, fs_hz, p[3]), fs_hz, p[:3])
+    ``(p[0], p[1], p[2], *p[4:])``."""
+    return lowpass_delayed(slew_limited(command, fs_hz, p[3]), fs_hz, (*p[:3], *p[4:]))
 
 
 def lowpass_delay_group_delay_s(wc: float, zc: float, delay_s: float) -> float:
@@ -388,6 +401,13 @@ CHAIN_DRIVES = {
 }
 
 
+#: Steps whose sample rates differ by at least this ratio tell a delay in samples from one in
+#: seconds (:func:`_fit_lowpass_delay`).
+TWO_RATES_RATIO = 1.5
+#: The most samples of its own rate a chain's delay is searched over at two rates.
+MAX_DELAY_SAMPLES = 32.0
+
+
 def _fit_lowpass_delay(
     t_s_list, command_list, y_list, start: ModeFit, lag_s: float, slew: tuple[float, float, float] | None = None
 ) -> tuple[float, ...]:
@@ -398,15 +418,32 @@ def _fit_lowpass_delay(
     low-frequency delay; the low-pass is kept above the mode (above 0.3 times it with a slew,
     which shapes the rise with it) and below Nyquist. ``slew``:
     ``(start, low, high)`` V/s of a slew limit fitted with them (``slew_lowpass_delay``, whose
-    ``(wc, zc, delay, slew)`` is returned)."""
+    ``(wc, zc, delay, slew)`` is returned).
+
+    Steps at sample rates :data:`TWO_RATES_RATIO` apart or more tell the delay's parts: a lag
+    that scales with the sample period (a DAC's hold, a decimating converter's filter, a FIFO)
+    from one in seconds. The delay is then ``delay + samples / fs`` at each run's rate, and
+    ``samples`` is returned last (``(wc, zc, delay, samples)``, ``(wc, zc, delay, slew,
+    samples)``); ``delay`` may be negative (a low-pass that holds part of the sampling's lag), the
+    delay at every rate of the runs is not. On the third test press (a held DAC and a 1.5-sample
+    decimation filter) steps at 20 and 50 kHz read 2.23 samples and -28 us (seed 0; seed 1: 2.23,
+    -40 us), with a 50 V step at 5 kHz instead 2.59 samples; with a FIFO of 6 samples, 8.23."""
     runs = [_prepare_run(i, t, c, y, None) for i, (t, c, y) in enumerate(zip(t_s_list, command_list, y_list))]
     fs = min(r.fs_hz for r in runs)
+    fs_top = max(r.fs_hz for r in runs)
+    two_rates = fs_top >= TWO_RATES_RATIO * fs
     wn_max = 0.99 * math.pi * fs
+    n_slew = 0 if slew is None else 1
+
+    def chain(q):
+        """The chain's parameters (the delay is ``q[4]`` at the fastest rate)."""
+        k = float(q[5 + n_slew]) if two_rates else 0.0
+        delay = float(q[4]) - k / fs_top
+        return (*q[2:4], delay, *([math.exp(q[5])] if slew is not None else []), *([k] if two_rates else []))
 
     def drive(r, q):
-        if slew is None:
-            return lowpass_delayed(r.drive, r.fs_hz, tuple(q[2:5]))
-        return slew_lowpass_delayed(r.drive, r.fs_hz, (*q[2:5], math.exp(q[5])))
+        p = chain(q)
+        return lowpass_delayed(r.drive, r.fs_hz, p) if slew is None else slew_lowpass_delayed(r.drive, r.fs_hz, p)
 
     def residuals(q):
         wn, zeta = q[:2]
@@ -428,11 +465,14 @@ def _fit_lowpass_delay(
         lower.append(math.log(slew[1]))
         upper.append(math.log(slew[2]))
         x0.append(math.log(slew[0]))
+    if two_rates:  # the delay at the fastest rate, and the samples a lag read at the slowest would take
+        lower.append(0.0)
+        upper.append(MAX_DELAY_SAMPLES)
+        x0[4] = 0.5 * lag * fs / fs_top
+        x0.append(0.5 * lag * fs)
     x0 = np.clip(x0, np.array(lower) + 1e-9, np.array(upper) - 1e-9)
     sol = least_squares(residuals, x0, bounds=(lower, upper), x_scale="jac", method="trf", max_nfev=400)
-    if slew is None:
-        return tuple(float(v) for v in sol.x[2:])
-    return (*(float(v) for v in sol.x[2:5]), float(math.exp(sol.x[5])))
+    return tuple(float(v) for v in chain(sol.x))
 
 
 def _rings_as(m: ModeFit, ringing: ModeFit) -> bool:
@@ -603,4 +643,5 @@ def identify_mode_chain(t_s_list, command_list, y_list, chain_from=None) -> Chai
         p[2] if series else p if best_name == "delay" else None,
         (p[0], p[1]) if series else None,
         lag_s,
+        p[-1] if series and len(p) == (5 if best_name == "slew_lowpass_delay" else 4) else None,
     )

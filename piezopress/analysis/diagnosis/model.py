@@ -204,6 +204,10 @@ class Model:
     # ... or its second-order low-pass (wn rad/s, damping) and the part of its pure delay that is the press's own
     drive_lowpass: tuple[float, float] | None = None
     drive_delay_s: float = 0.0
+    # where steps at two rates told the chain's delay in samples: those samples and the steps' rate;
+    # a run sampled faster lags by as many fewer seconds (:meth:`drive_delay_at`)
+    drive_delay_samples: float = 0.0
+    drive_delay_rate_hz: float | None = None
     # rate_dependent_hysteresis: every play threshold grows by rate_v_per_kv_s V per kV/s of the
     # drive rate (smoothed over rate_tau_s), or the loop's width (the plays' lag behind the
     # drive) by rate_loss_per_kv_s of itself per kV/s; the rate saturating at
@@ -291,7 +295,26 @@ class Model:
 
     def _chain_key(self) -> tuple:
         """What :meth:`felt` depends on beside the run: the drive chain."""
-        return (self.slew_v_per_s, self.drive_tau_s, self.drive_lowpass, self.drive_delay_s)
+        return (
+            self.slew_v_per_s,
+            self.drive_tau_s,
+            self.drive_lowpass,
+            self.drive_delay_s,
+            self.drive_delay_samples,
+            self.drive_delay_rate_hz,
+        )
+
+    def drive_delay_at(self, fs_hz: float) -> float:
+        """The drive chain's delay in a run sampled at ``fs_hz``: ``drive_delay_s`` (the delay at
+        the steps' rate), less, in a run sampled faster, the seconds its part in samples
+        (``drive_delay_samples``, told by steps at two rates) no longer lasts there; never below 0.
+        A run sampled slower keeps ``drive_delay_s``: the part the forward model holds of the
+        chain's delay is capped at the sampling's own at the steps' rate
+        (:func:`~piezopress.analysis.bundle.chain_own_delay`), and a delay beyond it is
+        ``input_delay``'s to name."""
+        if not (self.drive_delay_samples and self.drive_delay_rate_hz) or fs_hz <= self.drive_delay_rate_hz:
+            return self.drive_delay_s
+        return max(0.0, self.drive_delay_s - self.drive_delay_samples * (1.0 / self.drive_delay_rate_hz - 1.0 / fs_hz))
 
     def felt(self, run: RunData, x: np.ndarray) -> np.ndarray:
         """The drive the stack feels for the command ``x``: through the amplifier's own lag and
@@ -300,7 +323,7 @@ class Model:
             if self.slew_v_per_s:  # (as fit identifies them: mode_fit.slew_lowpass_delayed)
                 x = signals.rate_limit(x, x[0], self.slew_v_per_s / run.fs_hz)
             x = mode_response(x, run.fs_hz, *self.drive_lowpass, hold="zoh")
-            return signals.delayed(x, run.fs_hz, self.drive_delay_s)
+            return signals.delayed(x, run.fs_hz, self.drive_delay_at(run.fs_hz))
         if self.drive_tau_s > 0:  # the amplifier's own bandwidth (a held command through a first-order lag)
             x = x[0] + signals.first_order(x - x[0], self.drive_tau_s, run.fs_hz)
         x = signals.delayed(x, run.fs_hz, self.drive_delay_s)
