@@ -345,8 +345,9 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
             elif own:
                 say(
                     f"            of its delay, {own:.2f} samples are taken as the sampling's own (a converter's hold "
-                    "and filter, up to 2 samples: the steps are at one rate): led in samples of each reference's "
-                    "rate, not in seconds; a step at a second rate (the default plan's step-50v-50khz) tells it"
+                    "and filter, up to 2 samples of the steps' rate: the steps did not tell it): led in samples of "
+                    "each reference's rate, not in seconds; steps at a second rate (the default plan's "
+                    "step-50v-50khz) tell it for a chain without a slew limit"
                 )
     for name, why in res.not_fitted.items():
         say(f"{name}: not fitted: {why}")

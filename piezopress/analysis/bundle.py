@@ -811,9 +811,11 @@ def chain_own_delay(chain: Any) -> tuple[float, float]:
     (``lowpass_delay``, ``slew_lowpass_delay``) that is the sampling's own, up to
     :data:`SAMPLING_DELAY_SAMPLES` of the steps it was identified on; ``(0, 0)`` for another form,
     or where the steps' rate is not recorded (a bundle written before it was). The forward model
-    ``diagnose`` judges with holds this part, in seconds at the steps' rate
-    (:meth:`Bundle.forward_model`; the README says why not in samples there yet); the compensator
-    leads it in samples of each reference's rate (:func:`chain_leads`)."""
+    ``diagnose`` judges with holds this part, in seconds at the steps' rate and in runs sampled
+    slower; where steps at two rates told the chain's delay in samples (``delay_samples``), a run
+    sampled faster holds as many fewer seconds of it (:meth:`Bundle.forward_model`,
+    ``Model.drive_delay_at``; the README says why not in samples in the slow runs). The
+    compensator leads the chain's delay by :func:`chain_leads`."""
     series = _lowpass_delay(chain)
     fs = chain.get("steps_sample_rate_hz") if isinstance(chain, dict) else None
     if series is None or not _positive(fs):
