@@ -454,19 +454,15 @@ def check_compensation(c: _Checker, comp: Any, unit: str) -> Settings:
     chain = c.number(
         comp.get("chain_lead_s", 0.0), f"{w}.chain_lead_s", 0.0, lead, "the drive chain's part of lead_s in s"
     )
-    samples = c.number(
-        comp.get("delay_lead_samples", 0.0),
-        f"{w}.delay_lead_samples",
-        0.0,
-        MAX_LEAD_SAMPLES,
-        "the input delay's lead in samples of the reference's rate",
-    )
-    chain_samples = c.number(
-        comp.get("chain_lead_samples", 0.0),
-        f"{w}.chain_lead_samples",
-        0.0,
-        MAX_LEAD_SAMPLES,
-        "the drive chain's own delay in samples of the reference's rate (the sampling's)",
+
+    def lead_samples(key: str, what: str) -> float:
+        return c.number(
+            comp.get(key, 0.0), f"{w}.{key}", 0.0, MAX_LEAD_SAMPLES, f"{what} in samples of the reference's rate"
+        )
+
+    samples = lead_samples("delay_lead_samples", "the input delay's lead")
+    chain_samples = lead_samples(
+        "chain_lead_samples", "the drive chain's delay (a converter's hold and filter, a FIFO)"
     )
     slew = c.optional(
         comp.get("slew_v_per_s"),
