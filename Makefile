@@ -7,6 +7,9 @@ PP     := $(BIN)/piezopress
 OUT    ?= out
 RUNS   ?= sample_runs/characterization
 BUILD  ?= build
+# make refit STRUCTURE='n=8 gamma=2 m=4 plane=20': the hysteresis structure kept, not searched for
+STRUCTURE ?=
+STRUCTURE_OPT = $(if $(STRUCTURE),--structure '$(STRUCTURE)',)
 
 SAMPLES ?= sample_runs
 REPORT ?= report
@@ -20,6 +23,7 @@ help:
 	@echo "make lint      ruff check (the rules in pyproject.toml; CI runs it)"
 	@echo "make bench     run the benchmark scripts in bench/"
 	@echo "make refit RUNS=dir   rebuild $(BUILD)/bundle.json from a run directory; only stages whose inputs changed"
+	@echo "           STRUCTURE='n=8 gamma=2 m=4 plane=20' keeps that hysteresis structure instead of searching"
 	@echo "make report    regenerate $(REPORT)/ from sample_runs/ (nothing to do when nothing changed)"
 	@echo "make sample-runs SAMPLES=dir   record a new sample set from the virtual rig"
 
@@ -46,9 +50,9 @@ test-all: $(STAMP)
 # --if-changed skips it when they are unchanged, so a second `make refit` does nothing.
 refit: $(STAMP)
 	@mkdir -p $(BUILD)
-	$(PP) fit-hysteresis $(RUNS) --out $(BUILD)/hysteresis-first.json --if-changed
+	$(PP) fit-hysteresis $(RUNS) --out $(BUILD)/hysteresis-first.json --if-changed $(STRUCTURE_OPT)
 	$(PP) fit-creep $(RUNS) --hysteresis $(BUILD)/hysteresis-first.json --out $(BUILD)/creep.json --if-changed
-	$(PP) fit-hysteresis $(RUNS) --creep $(BUILD)/creep.json --out $(BUILD)/hysteresis.json --if-changed
+	$(PP) fit-hysteresis $(RUNS) --creep $(BUILD)/creep.json --out $(BUILD)/hysteresis.json --if-changed $(STRUCTURE_OPT)
 	$(PP) fit-shaper $(RUNS) --out $(BUILD)/shaper.json --if-changed
 	$(PP) bundle --hysteresis $(BUILD)/hysteresis.json --creep $(BUILD)/creep.json --shaper $(BUILD)/shaper.json --out $(BUILD)/bundle.json --if-changed
 

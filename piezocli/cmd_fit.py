@@ -35,6 +35,14 @@ _rows_opt = click.option(
     default=None,
     help="Fit only rows START to STOP-1 of each sweep (from 0); earlier rows still carry the state.",
 )
+_structure_opt = click.option(
+    "--structure",
+    default=None,
+    metavar="LABEL",
+    help="Fit this hysteresis structure instead of searching for one, as fit prints it after 'hysteresis:' "
+    "(e.g. 'n=8 gamma=2 m=4 plane=20'): keep a structure validated on the press through refits, or fit two and "
+    "let `piezopress compare` judge them on the press.",
+)
 _if_changed_opt = click.option(
     "--if-changed",
     is_flag=True,
@@ -72,12 +80,15 @@ def _wrote(path: Path, previous: Path | None) -> None:
     type=click.Path(dir_okay=False, path_type=Path),
     help="Creep section: remove creep from the outputs first.",
 )
+@_structure_opt
 @_skip_opt
 @_rows_opt
 @_replace_opt
 @_if_changed_opt
 @reports_errors
-def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, rows, replace, if_changed) -> None:
+def fit_hysteresis_cmd(
+    runs, out, names, holdout_fraction, creep_path, structure, skip_s, rows, replace, if_changed
+) -> None:
     """Fit the modified Prandtl-Ishlinskii model and its inverse on quasi-static sweeps.
 
     RUNS are run files or run directories; without --run, every triangle/sine run at up to
@@ -95,14 +106,15 @@ def fit_hysteresis_cmd(runs, out, names, holdout_fraction, creep_path, skip_s, r
       piezopress fit-hysteresis smart.parquet --skip-s 3.3 --out build/smart.json
     """
     files_mod.check_output(out, replace=replace or if_changed)  # before any fitting
+    grid = fit_mod.structure_grid(structure)
     creep = bundle_mod.read_document(creep_path, "creep") if creep_path else None
     digest = fit_mod.hysteresis_digest(
-        fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, skip_s=skip_s, rows=rows
+        fit_mod.select_hysteresis_runs(runs, names), creep, holdout_fraction, grid, skip_s=skip_s, rows=rows
     )
     if _skip(out, digest, if_changed):
         return
     doc, fit = fit_mod.fit_hysteresis_section(
-        runs, names=names, holdout_fraction=holdout_fraction, creep=creep, skip_s=skip_s, rows=rows
+        runs, names=names, holdout_fraction=holdout_fraction, grid=grid, creep=creep, skip_s=skip_s, rows=rows
     )
     click.echo(f"Runs: {', '.join(r['name'] for r in doc['runs'])}")
     click.echo(f"Chosen: {fit.reason}")
@@ -263,12 +275,13 @@ def bundle_cmd(hyst_path, creep_path, shaper_path, rig_path, max_rate, out, repl
     is_flag=True,
     help="Fit the thesis's model structure (12 plays, 1 dead zone, 3-pole creep): the base model diagnose extends.",
 )
+@_structure_opt
 @_skip_opt
 @_rows_opt
 @_replace_opt
 @json_option
 @reports_errors
-def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> None:
+def fit_all_cmd(runs, out, rig_path, base, structure, skip_s, rows, replace, as_json) -> None:
     """Fit hysteresis, creep and shaper from a characterization and write the bundle.
 
     The same as fit-hysteresis, fit-creep, fit-shaper and bundle in a row (their section
@@ -281,6 +294,7 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
     Example:
       piezopress fit runs/char --out build/bundle.json
       piezopress fit runs/smarthysteresis_150v_1hz.parquet --base --out build/smart-base.json
+      piezopress fit runs/char --structure 'n=8 gamma=2 m=4 plane=20' --out build/bundle-g2.json
     """
     act = char.rig_limits(rig_path or char.DEFAULT_RIG)  # the rig file checked, and its drive range, before fitting
     files_mod.check_output(out, replace=replace)
@@ -297,12 +311,15 @@ def fit_all_cmd(runs, out, rig_path, base, skip_s, rows, replace, as_json) -> No
         rows=rows,
         on_stage=lambda stage: say(f"fitting {stage} ... ({time.monotonic() - started:.1f} s so far)"),
         record_range=act if rig_path is None else None,
+        structure=structure,
     )
     res = fitted.result
     u = units.label(res.unit)
     hfit = res.fits["hysteresis"]
     say(f"hysteresis: {hfit.reason}")
     say(f"hysteresis: {_fit_error(hfit, res.unit)}")
+    if structure is not None:
+        say("hysteresis: the structure was given (--structure), not searched for")
     searched = res.sections["hysteresis"].get("fit", {}).get("base_structure")
     if searched:  # --base, and the thesis's plays could not draw the loop: say why it is not theirs
         say(f"hysteresis: not the thesis's structure: {searched}")

@@ -54,6 +54,12 @@ def select_shaper_runs(paths: Iterable[str | Path], names: Iterable[str] = ()) -
     return ident.shaper_runs(collect_runs(paths, names=names), bool(names))
 
 
+def structure_grid(structure: str | None) -> list | None:
+    """The hysteresis structures ``fit-hysteresis --structure`` fits (one; ``None``: the search's),
+    read from the label fit prints (:func:`~piezopress.analysis.identification.parse_structure`)."""
+    return None if structure is None else [ident.parse_structure(structure)]
+
+
 def hysteresis_digest(runs, creep, holdout_fraction, grid=None, skip_s=None, rows=None) -> str:
     extra = {} if skip_s is None and rows is None else {"skip_s": skip_s, "rows": rows}
     return inputs_digest(
@@ -145,13 +151,24 @@ def fit_all(
     rows: tuple[int | None, int | None] | None = None,
     on_stage: Callable[[str], None] | None = None,
     shaper: bool = True,
+    structure: str | None = None,
 ) -> FitAll:
     """Read the runs under ``paths`` and fit every section they allow
-    (:func:`piezopress.analysis.identification.identify`); each section gets the runs it came
-    from and the digest of its inputs. ``on_stage`` is told each stage's name (progress)."""
+    (:func:`piezopress.analysis.identification.identify`; ``structure``: the hysteresis structure
+    to fit instead of searching for one); each section gets the runs it came from and the digest of
+    its inputs. ``on_stage`` is told each stage's name (progress)."""
+    if structure is not None:
+        ident.parse_structure(structure)  # a structure that cannot be read is said before the runs are read
     runs = collect_runs(paths)
     found = ident.identify(
-        runs, base=base, skip_s=skip_s, rows=rows, shaper=shaper, on_stage=on_stage, note=profiles.note
+        runs,
+        base=base,
+        skip_s=skip_s,
+        rows=rows,
+        shaper=shaper,
+        structure=structure,
+        on_stage=on_stage,
+        note=profiles.note,
     )
     sections = {
         kind: section(kind, body, found.used[kind], inputs_digest(kind, found.used[kind], [], **found.settings[kind]))
@@ -190,6 +207,7 @@ def fit_bundle(
     max_rate_per_s: float | None = None,
     on_stage: Callable[[str], None] | None = None,
     record_range: Any = None,
+    structure: str | None = None,
 ) -> FittedBundle:
     """``piezopress fit``: every stage the runs allow (:func:`fit_all`), assembled with the
     compensation settings into a bundle, which is checked as any bundle read from a file.
@@ -198,9 +216,10 @@ def fit_bundle(
     :func:`piezopress.pipelines.characterize.rig_limits`), ``None``: 0 to 150 V. With
     ``record_range`` (limits to fall back on) and no ``limits``, runs from elsewhere (no press
     recorded) give the range the record drove, and our own runs ``record_range``. ``shaper=False``
-    leaves the shaper section out (a model of the press's static and slow behaviour only).
+    leaves the shaper section out (a model of the press's static and slow behaviour only);
+    ``structure``: the hysteresis structure to fit (:func:`~piezopress.analysis.identification.parse_structure`).
     """
-    res = fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=on_stage, shaper=shaper)
+    res = fit_all(runs, base=base, skip_s=skip_s, rows=rows, on_stage=on_stage, shaper=shaper, structure=structure)
     if record_range is not None and runs_from_elsewhere(res):
         # no rig named, runs from elsewhere: the actuator's range is the one the record drove
         limits = None

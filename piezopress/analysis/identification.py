@@ -68,6 +68,7 @@ __all__ = [
     "hysteresis_and_creep",
     "hysteresis_section",
     "identify",
+    "parse_structure",
     "quasi_static_sweeps",
     "shaper_runs",
     "shaper_section",
@@ -151,6 +152,7 @@ def below_rest_choice(
     holdout_fraction: float = 0.3,
     skip_s: float | None = None,
     rows: tuple[int | None, int | None] | None = None,
+    grid: Sequence[H.Candidate] | None = None,
 ) -> tuple[list[Any], str, tuple[dict[str, Any], H.HysteresisFit]]:
     """The sweeps ``fit`` fits the hysteresis on, why, and the hysteresis section fitted on them
     (:func:`hysteresis_section`, what :func:`hysteresis_and_creep` starts from): the sweeps below rest (``below``)
@@ -163,7 +165,7 @@ def below_rest_choice(
     6.9 %)."""
     above = [r for r in sweeps if all(r is not b for b in below)]
     names = ", ".join(r.name for r in below)
-    kw = {"holdout_fraction": holdout_fraction, "skip_s": skip_s, "rows": rows}
+    kw = {"holdout_fraction": holdout_fraction, "skip_s": skip_s, "rows": rows, "grid": grid}
     with_ = hysteresis_section(sweeps, **kw)
     if not above:
         return list(sweeps), f"{names}: every sweep goes below rest; all kept", with_
@@ -498,6 +500,7 @@ def hysteresis_and_creep(
     skip_s: float | None = None,
     rows: tuple[int | None, int | None] | None = None,
     first: tuple[dict[str, Any], H.HysteresisFit] | None = None,
+    grid: Sequence[H.Candidate] | None = None,
 ) -> tuple[dict[str, Any], H.HysteresisFit, dict[str, Any], creep_mod.CreepFit]:
     """Alternate: hysteresis on the ``sweeps``, creep on the held step ``hold`` given the
     hysteresis model, hysteresis again on the sweeps with that creep removed, ... (``passes``
@@ -524,11 +527,12 @@ def hysteresis_and_creep(
     recorded, not enforced.
 
     ``base`` fits the thesis's structure instead of choosing one (:data:`THESIS_GRID`,
-    :data:`THESIS_CREEP_FORMS`). Returns the last hysteresis and creep bodies and fits; the
+    :data:`THESIS_CREEP_FORMS`), ``grid`` the structures to choose among (default: the search's).
+    Returns the last hysteresis and creep bodies and fits; the
     creep body's ``fit`` lists every form with its hold and sweep errors.
     """
     forms = THESIS_CREEP_FORMS if base else creep_mod.FORMS
-    kw = {"holdout_fraction": holdout_fraction, "grid": None, "skip_s": skip_s, "rows": rows}
+    kw = {"holdout_fraction": holdout_fraction, "grid": grid, "skip_s": skip_s, "rows": rows}
     searched = None
     if base:
         kw["grid"], searched, base_note = base_structure(
@@ -923,6 +927,62 @@ class Identified:
         return Bundle.from_dict(doc, "the identified bundle")
 
 
+#: The form of a hysteresis structure's label (:attr:`piezopress.analysis.hysteresis.Candidate.label`).
+STRUCTURE_FORM = "'n=PLAYS gamma=SPACING m=DEAD_ZONES [plane=LEVELS | duhem=ELEMENTS [rest=relaxed|descended]]'"
+
+
+def parse_structure(label: str) -> H.Candidate:
+    """The hysteresis structure named by ``label``, as ``fit`` prints and records it (the bundle's
+    ``hysteresis.fit.chosen``, e.g. ``n=8 gamma=2 m=4 plane=20``); :class:`BundleError` naming the
+    value and the form expected (:data:`STRUCTURE_FORM`)."""
+
+    def bad(why: str) -> BundleError:
+        return BundleError(
+            f"structure {label!r}: {why}; expected {STRUCTURE_FORM} (the label fit prints after 'hysteresis:', "
+            "e.g. 'n=12 gamma=1 m=1', the thesis's)"
+        )
+
+    parts: dict[str, str] = {}
+    for word in str(label).split():
+        key, eq, value = word.partition("=")
+        if not eq or not value:
+            raise bad(f"{word!r} is not key=value")
+        if key not in ("n", "gamma", "m", "plane", "duhem", "rest"):
+            raise bad(f"unknown key {key!r}")
+        if key in parts:
+            raise bad(f"{key} given twice")
+        parts[key] = value
+    missing = [k for k in ("n", "gamma", "m") if k not in parts]
+    if missing:
+        raise bad(f"{', '.join(missing)} missing")
+
+    def integer(key: str, lowest: int) -> int:
+        try:
+            v = int(parts[key])
+        except ValueError:
+            raise bad(f"{key}={parts[key]} is not a whole number") from None
+        if v < lowest:
+            raise bad(f"{key}={v}; expected at least {lowest}")
+        return v
+
+    try:
+        gamma = float(parts["gamma"])
+    except ValueError:
+        raise bad(f"gamma={parts['gamma']} is not a number") from None
+    if not (math.isfinite(gamma) and gamma > 0):
+        raise bad(f"gamma={parts['gamma']}; expected a number above 0 (1: plays evenly spaced)")
+    plane = integer("plane", 2) if "plane" in parts else 0
+    duhem = integer("duhem", 1) if "duhem" in parts else 0
+    if plane and duhem:
+        raise bad("a plane and Duhem elements at once; one family at a time")
+    rest = parts.get("rest", H.DUHEM_RESTS[0])
+    if "rest" in parts and not duhem:
+        raise bad("rest= belongs to Duhem elements (duhem=)")
+    if rest not in H.DUHEM_RESTS:
+        raise bad(f"rest={rest}; expected one of {', '.join(H.DUHEM_RESTS)}")
+    return H.Candidate(integer("n", 1), gamma, integer("m", 0), plane, duhem, rest)
+
+
 def _why_runs_unfit(section: str, runs: Sequence[Any], unit: str) -> str | None:
     other = sorted({r.output_column for r in runs if r.output_unit != unit})
     if other:
@@ -941,6 +1001,7 @@ def identify(
     rows: tuple[int | None, int | None] | None = None,
     shaper: bool = True,
     holdout_fraction: float = 0.3,
+    structure: str | None = None,
     on_stage: Callable[[str], None] | None = None,
     note: Note | None = None,
 ) -> Identified:
@@ -952,13 +1013,24 @@ def identify(
     better (not with ``base``).
 
     ``base`` fits the thesis's structure (:data:`THESIS_GRID`, :data:`THESIS_CREEP_FORMS`);
-    ``shaper=False`` leaves the shaper out (not fitted, and said so); ``skip_s``/``rows``: the
+    ``structure`` fits the one named (:func:`parse_structure`) instead of searching for one (a
+    refit that keeps the structure a lab validated on its press, or structures compared where the
+    held-out ends cannot tell them apart: ``piezopress compare``); ``shaper=False`` leaves the
+    shaper out (not fitted, and said so); ``skip_s``/``rows``: the
     sweeps' fitted rows (:func:`fitted_rows`). ``on_stage`` is told each stage's name before it
     starts (progress), ``note`` any choice worth a line on stderr. :class:`BundleError` when no
     run is a quasi-static sweep.
     """
     runs = list(runs)
     stage = on_stage or (lambda name: None)
+    given = None
+    if structure is not None:
+        if base:
+            raise BundleError(
+                f"structure {structure!r} with base: the base is the thesis's structure (12 plays, 1 dead zone); "
+                "give one or the other"
+            )
+        given = [parse_structure(structure)]
     if base:  # the thesis's structure on the thesis's range (below_rest_runs)
         below = below_rest_runs(runs)
         if below:
@@ -973,7 +1045,7 @@ def identify(
     if below:
         stage("the sweeps below rest (kept where the model draws both ranges)")
         sweeps, below_why, first = below_rest_choice(
-            sweeps, below, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows
+            sweeps, below, holdout_fraction=holdout_fraction, skip_s=skip_s, rows=rows, grid=given
         )
         (note or _no_note)(below_why)
     unit = sweeps[0].output_unit
@@ -984,6 +1056,8 @@ def identify(
     used: dict[str, list[Any]] = {}
     settings: dict[str, dict[str, Any]] = {}
     rowed = {"skip_s": skip_s, "rows": list(rows) if rows is not None else None}
+    if given is not None:  # in the sections' digests only when given (a bundle fitted before keeps its digest)
+        rowed["structure"] = given[0].label
     hold = None
     try:
         hold = creep_run(runs)
@@ -994,7 +1068,14 @@ def identify(
         stage("hysteresis and creep (alternating, each creep form checked against the sweeps)")
         try:
             h, hfit, c, cfit = hysteresis_and_creep(
-                sweeps, hold, base=base, skip_s=skip_s, rows=rows, holdout_fraction=holdout_fraction, first=first
+                sweeps,
+                hold,
+                base=base,
+                skip_s=skip_s,
+                rows=rows,
+                holdout_fraction=holdout_fraction,
+                first=first,
+                grid=given,
             )
             sections.update(hysteresis=h, creep=c)
             fits.update(hysteresis=hfit, creep=cfit)
@@ -1019,7 +1100,7 @@ def identify(
         settings["hysteresis"] = {"base": True, "holdout_fraction": holdout_fraction, **rowed}
     elif why is not None:  # no held step: creep from the sweeps themselves, if they show it
         stage("hysteresis, and creep from the sweeps")
-        h, c, found = sweep_sections(sweeps, skip_s=skip_s, rows=rows, holdout_fraction=holdout_fraction)
+        h, c, found = sweep_sections(sweeps, skip_s=skip_s, rows=rows, holdout_fraction=holdout_fraction, grid=given)
         sections["hysteresis"], fits["hysteresis"], used["hysteresis"] = h, found, sweeps
         settings["hysteresis"] = {"from_sweeps": True, "holdout_fraction": holdout_fraction, **rowed}
         if c is not None:
@@ -1048,5 +1129,9 @@ def identify(
         not_fitted["shaper"] = why
     if below_why is not None and "hysteresis" in sections:
         sections["hysteresis"].setdefault("fit", {})["below_rest"] = below_why
+    if given is not None and "hysteresis" in sections:
+        sections["hysteresis"].setdefault("fit", {})["structure_given"] = (
+            f"{given[0].label}, given (structure=): not searched for"
+        )
     order = ("hysteresis", "creep", "shaper")
     return Identified({k: sections[k] for k in order if k in sections}, fits, not_fitted, unit, drive, used, settings)
