@@ -104,6 +104,8 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
     ]
     if fit.get("family_reason"):
         blocks.append(Para(f"Model family: {fit['family_reason']}."))
+    if fit.get("structure_given"):  # fit --structure: the structure was not chosen by the search
+        blocks.append(Para(f"Structure: {fit['structure_given']} (fit --structure)."))
     if fit.get("base_structure"):  # a `fit --base` bundle whose loop the thesis's plays could not draw
         blocks.append(Para(f"Not the thesis's structure: {fit['base_structure']}."))
     if fit.get("below_rest"):

@@ -77,6 +77,7 @@ def test_the_structure_given_is_the_one_fitted_recorded_and_in_the_digest(runs):
     found = ident.identify(runs, structure=label)
     fit = found.sections["hysteresis"]["fit"]
     assert fit["chosen"] == label and fit["structure_given"].startswith(label)
+    assert fit["reason"].startswith(f"{label}, given, not searched for: ")
     assert [c["candidate"] for c in fit["candidates"]] == [label]  # nothing else was tried
     assert found.settings["hysteresis"]["structure"] == label == found.settings["creep"]["structure"]
     assert "structure" not in ident.identify(runs).settings["hysteresis"]  # a searched fit keeps its old digest
@@ -109,8 +110,24 @@ def test_fit_hysteresis_keeps_the_structure_given_and_refits_when_it_changes(tmp
 
     res = fit("--structure", "n=6 gamma=2 m=2")
     assert res.exit_code == 0 and "Chosen: n=6 gamma=2 m=2" in res.output, res.output
+    import json
+
+    assert json.loads(out.read_text())["fit"]["structure_given"].startswith("n=6 gamma=2 m=2, given")
     assert "up to date" in fit("--structure", "n=6 gamma=2 m=2").output
     res = fit("--structure", "n=4 gamma=1 m=1")
     assert res.exit_code == 0 and "Chosen: n=4 gamma=1 m=1" in res.output, res.output
     res = fit("--structure", "n=4 gamma=1 m=1 plane=1")
     assert res.exit_code == 1 and "plane=1; expected at least 2" in res.output and "Traceback" not in res.output
+
+
+def test_the_report_says_the_structure_was_given(tmp_path):
+    import json
+
+    from piezopress.pipelines.report_doc import render_markdown
+    from piezopress.pipelines.report_model import _model_quality
+
+    doc = json.loads((ROOT / "sample_runs" / "bundle.json").read_text())
+    assert "fit --structure" not in render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))
+    doc["hysteresis"]["fit"]["structure_given"] = "n=6 gamma=2 m=2, given (structure=): not searched for"
+    md = render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))
+    assert "Structure: n=6 gamma=2 m=2, given (structure=): not searched for (fit --structure)." in md, md

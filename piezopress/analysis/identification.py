@@ -1130,8 +1130,9 @@ def identify(
     if below_why is not None and "hysteresis" in sections:
         sections["hysteresis"].setdefault("fit", {})["below_rest"] = below_why
     if given is not None and "hysteresis" in sections:
-        sections["hysteresis"].setdefault("fit", {})["structure_given"] = (
-            f"{given[0].label}, given (structure=): not searched for"
-        )
+        fitted = sections["hysteresis"].setdefault("fit", {})
+        fitted["structure_given"] = f"{given[0].label}, given (structure=): not searched for"
+        # the search's sentence ("within 1 % of the best of 1 candidates") would read as a choice
+        fitted["reason"] = f"{given[0].label}, given, not searched for: {fitted.get('reason', '')}"
     order = ("hysteresis", "creep", "shaper")
     return Identified({k: sections[k] for k in order if k in sections}, fits, not_fitted, unit, drive, used, settings)
