@@ -99,7 +99,7 @@ def fit_hysteresis_section(
         runs, holdout_fraction=holdout_fraction, grid=grid, creep=cm, skip_s=skip_s, rows=rows
     )
     if grid is not None and len(grid) == 1:  # one structure given (--structure): the bundle says so
-        body["fit"]["structure_given"] = f"{grid[0].label}, given (structure=): not searched for"
+        body["fit"]["structure_given"] = ident.given_structure(grid[0])
     digest = hysteresis_digest(runs, creep, holdout_fraction, grid, skip_s=skip_s, rows=rows)
     return section("hysteresis", body, runs, digest), fit
 

@@ -983,6 +983,11 @@ def parse_structure(label: str) -> H.Candidate:
     return H.Candidate(integer("n", 1), gamma, integer("m", 0), plane, duhem, rest)
 
 
+def given_structure(cand: H.Candidate) -> str:
+    """The hysteresis fit's record (``structure_given``) of a structure given, not searched for."""
+    return f"{cand.label}, given (structure=): not searched for"
+
+
 def _why_runs_unfit(section: str, runs: Sequence[Any], unit: str) -> str | None:
     other = sorted({r.output_column for r in runs if r.output_unit != unit})
     if other:
@@ -1131,7 +1136,7 @@ def identify(
         sections["hysteresis"].setdefault("fit", {})["below_rest"] = below_why
     if given is not None and "hysteresis" in sections:
         fitted = sections["hysteresis"].setdefault("fit", {})
-        fitted["structure_given"] = f"{given[0].label}, given (structure=): not searched for"
+        fitted["structure_given"] = given_structure(given[0])
         # the search's sentence ("within 1 % of the best of 1 candidates") would read as a choice
         fitted["reason"] = f"{given[0].label}, given, not searched for: {fitted.get('reason', '')}"
     order = ("hysteresis", "creep", "shaper")
