@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -331,6 +332,14 @@ def fit_all_cmd(runs, out, rig_path, base, structure, skip_s, rows, replace, as_
             f"shaper:     wn = {s['mode']['natural_freq_rad_s']:.4g} rad/s, damping {s['mode']['damping']:.4g}; "
             f"{s['choice']['reason']}"
         )
+        ar = s["mode"].get("antiresonance")
+        if ar:
+            wz = ar["natural_freq_rad_s"]
+            say(
+                f"            an anti-resonance above the mode: zeros at {wz / (2 * math.pi):.4g} Hz "
+                f"({wz / s['mode']['natural_freq_rad_s']:.2f} times the mode), damping {ar['damping']:.3g} "
+                "(in the forward model and the compensator's lead)"
+            )
         chain = s["mode"].get("drive_chain")
         if chain:  # the applied drive was not recorded: say which chain the steps showed
             describe = {

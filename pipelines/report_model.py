@@ -163,7 +163,7 @@ def _model_quality(bundle: dict[str, Any], bundle_path: Path, missing: list[str]
                 f"Mode identified from {', '.join(r.get('name', '?') for r in s.get('runs', []))} against "
                 f"`{mode.get('drive_used', '?')}`: "
                 f"wn = {_num(wn, 0)} rad/s ({_num(wn / (2 * math.pi), 1)} Hz), damping {_num(zeta, 4)}; "
-                f"fit residual (RMS) {resid or 'not recorded'}."
+                f"fit residual (RMS) {resid or 'not recorded'}." + _antiresonance_text(mode)
             ),
             Table(
                 (
@@ -416,3 +416,16 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
             )
         )
     return blocks
+
+
+def _antiresonance_text(mode: dict) -> str:
+    """The anti-resonance ``fit`` identified above the mode, said (empty: none)."""
+    ar = mode.get("antiresonance")
+    if not isinstance(ar, dict):
+        return ""
+    wz, wn = float(ar.get("natural_freq_rad_s", math.nan)), float(mode.get("natural_freq_rad_s", math.nan))
+    return (
+        f" An anti-resonance above it: zeros at {_num(wz / (2 * math.pi), 1)} Hz ({_num(wz / wn, 2)} times the "
+        f"mode), damping {_num(float(ar.get('damping', math.nan)), 3)}; the forward model and the compensator's lead "
+        "include it."
+    )

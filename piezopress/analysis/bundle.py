@@ -339,6 +339,19 @@ def check_creep(c: _Checker, sec: Mapping[str, Any], unit: str) -> CreepModel:
         raise BundleError(f"{c.source}: creep.model: {exc}") from None
 
 
+def _check_frequency_damping(c: _Checker, m: Mapping[str, Any], where: str) -> tuple[float, float]:
+    """``(natural_freq_rad_s, damping)`` of a mode, a shaper's design or an anti-resonance, checked."""
+    wn = c.number(
+        c.get(m, where, "natural_freq_rad_s"),
+        f"{where}.natural_freq_rad_s",
+        0.0,
+        MAX_WN_RAD_S,
+        "a natural frequency in rad/s",
+        lo_open=True,
+    )
+    return wn, c.number(c.get(m, where, "damping"), f"{where}.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
+
+
 def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
     s = c.mapping(s, where, "a mapping (the input shaper)")
     name = c.get(s, where, "name")
@@ -356,15 +369,7 @@ def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
         )
     if any(t1 < t0 for t0, t1 in zip(t, t[1:])):
         c.fail(f"{where}.times_s", list(t), "non-decreasing impulse times")
-    wn = c.number(
-        c.get(s, where, "natural_freq_rad_s"),
-        f"{where}.natural_freq_rad_s",
-        0.0,
-        MAX_WN_RAD_S,
-        "a natural frequency in rad/s",
-        lo_open=True,
-    )
-    zeta = c.number(c.get(s, where, "damping"), f"{where}.damping", 0.0, 1.0, "a damping ratio", hi_open=True)
+    wn, zeta = _check_frequency_damping(c, s, where)
     zp = s.get("zv_power")
     if zp is not None and not (isinstance(zp, int) and not isinstance(zp, bool) and 1 <= zp <= 20):
         c.fail(f"{where}.zv_power", zp, "null or an integer 1 to 20")
@@ -374,21 +379,21 @@ def _check_shaper(c: _Checker, s: Any, where: str) -> Shaper:
         raise BundleError(f"{c.source}: {where}: {exc}") from None
 
 
+def check_antiresonance(c: _Checker, ar: Any) -> tuple[float, float] | None:
+    """``shaper.mode.antiresonance``: null, or the zeros above the mode ``fit`` identified,
+    ``{"natural_freq_rad_s", "damping"}`` (:func:`~piezopress.analysis.mode.antiresonant`)."""
+    if ar is None:
+        return None
+    where = "shaper.mode.antiresonance"
+    ar = c.mapping(ar, where, "null or a mapping (the anti-resonance's natural_freq_rad_s and damping)")
+    return _check_frequency_damping(c, ar, where)
+
+
 def check_shaper(
     c: _Checker, sec: Mapping[str, Any], unit: str
 ) -> tuple[Shaper, Shaper | None, tuple[float, float, float | None]]:
     mode = c.mapping(c.get(sec, "shaper", "mode"), "shaper.mode", "a mapping (the identified mode)")
-    wn = c.number(
-        c.get(mode, "shaper.mode", "natural_freq_rad_s"),
-        "shaper.mode.natural_freq_rad_s",
-        0.0,
-        MAX_WN_RAD_S,
-        "a natural frequency in rad/s",
-        lo_open=True,
-    )
-    zeta = c.number(
-        c.get(mode, "shaper.mode", "damping"), "shaper.mode.damping", 0.0, 1.0, "a damping ratio", hi_open=True
-    )
+    wn, zeta = _check_frequency_damping(c, mode, "shaper.mode")
     lp = c.optional(mode.get("sensor_lowpass_hz"), "shaper.mode.sensor_lowpass_hz", 1.0, 1e9, "null or a cut-off in Hz")
     mu = mode.get("output_unit")
     if mu is not None and units.normalise(mu) != unit:
@@ -397,6 +402,7 @@ def check_shaper(
             mu,
             f"{unit!r}, the hysteresis model's output unit (one unit across the sections)",
         )
+    check_antiresonance(c, mode.get("antiresonance"))
     sh = _check_shaper(c, c.get(sec, "shaper", "shaper"), "shaper.shaper")
     sh2 = _check_shaper(c, sec["shaper2"], "shaper.shaper2") if sec.get("shaper2") else None
     return sh, sh2, (wn, zeta, lp)
@@ -699,6 +705,13 @@ class Bundle:
             slew_v_per_s=s.slew_v_per_s,
         )
 
+    @property
+    def antiresonance(self) -> tuple[float, float] | None:
+        """The zeros above the mode ``fit`` identified, ``(wz rad/s, damping)`` (None: none, or no mode)."""
+        mode = self.doc.get("shaper", {}).get("mode") if isinstance(self.doc, dict) else None
+        ar = mode.get("antiresonance") if isinstance(mode, dict) else None
+        return check_antiresonance(_Checker(self.source), ar) if ar is not None else None
+
     def forward_model(self):
         """The forward model (:class:`piezopress.analysis.diagnosis.Model`): hysteresis, and
         creep and mode when present."""
@@ -707,7 +720,15 @@ class Bundle:
         wn, zeta, lp = self.mode if self.mode is not None else (None, None, None)
         # the drive chain's bandwidth is the press's own (a lag a low-pass chain explains is no
         # input delay, no slew limit); an identified slew stays for diagnose to name, as with a monitor
-        base = dg.Model(self.hysteresis, self.creep, wn, zeta, lp, creep_edge_aligned=self.creep_edge_aligned)
+        base = dg.Model(
+            self.hysteresis,
+            self.creep,
+            wn,
+            zeta,
+            lp,
+            creep_edge_aligned=self.creep_edge_aligned,
+            antiresonance=self.antiresonance,
+        )
         series = _lowpass_delay(self._chain_doc)
         if series is not None and series[1] < 1.0:
             wc, zc, _ = series
@@ -816,7 +837,14 @@ def chain_own_delay(chain: Any) -> tuple[float, float]:
     fs = chain.get("steps_sample_rate_hz") if isinstance(chain, dict) else None
     if series is None or not _positive(fs):
         return 0.0, 0.0
-    return min(series[2], SAMPLING_DELAY_SAMPLES / float(fs)), float(fs)
+    own = SAMPLING_DELAY_SAMPLES / float(fs)
+    plain = chain.get("delay_without_antiresonance_s")
+    if _positive(plain) or plain == 0:
+        # an anti-resonance fitted with the chain moves lag between its low-pass and its delay (the
+        # zeros' lead, a low-pass of another frequency): what is beyond the sampling's own is judged
+        # on the delay the steps read without the zeros, and the rest held
+        return max(0.0, series[2] - max(0.0, float(plain) - own)), float(fs)
+    return min(series[2], own), float(fs)
 
 
 def chain_leads(chain: Any) -> tuple[float, float]:
@@ -984,12 +1012,26 @@ def extend_logarithmic_creep(ext: dict[str, Any], comp: dict[str, Any], f: Any) 
         ext["creep"]["fit"]["edge_aligned"] = True
 
 
+def antiresonance_lead_s(zeros: tuple[float, float] | None) -> float:
+    """The low-frequency lead of an anti-resonance's zeros ``(wz rad/s, damping)``: ``2 zeta_z / wz`` (0: none)."""
+    return 0.0 if zeros is None else 2.0 * float(zeros[1]) / float(zeros[0])
+
+
+def mode_lag_s(mode: Mapping[str, Any]) -> float:
+    """The low-frequency delay of a bundle's mode (``shaper.mode``): ``2 zeta / wn``, less the lead
+    of an anti-resonance above it (:func:`~piezopress.analysis.mode.antiresonant`)."""
+    ar = mode.get("antiresonance")
+    zeros = (float(ar["natural_freq_rad_s"]), float(ar["damping"])) if isinstance(ar, Mapping) else None
+    return 2.0 * float(mode["damping"]) / float(mode["natural_freq_rad_s"]) - antiresonance_lead_s(zeros)
+
+
 def modal_delay_s(model: Any) -> float:
-    """The low-frequency delay of a model's mode(s): ``2 zeta / wn``, each mode weighted by its share
-    (modes in series: the sum of their delays)."""
+    """The low-frequency delay of a model's mode(s): ``2 zeta / wn`` (less the main mode's
+    anti-resonance's lead), each mode weighted by its share (modes in series: the sum of their delays)."""
     series = bool(getattr(model, "mode2_series", False))
     share2 = model.mode2[0] if model.mode2 and not series else 0.0
-    d = (1.0 - share2) * 2.0 * float(model.zeta) / float(model.wn)
+    own = 2.0 * float(model.zeta) / float(model.wn) - antiresonance_lead_s(getattr(model, "antiresonance", None))
+    d = (1.0 - share2) * own
     if model.mode2:
         d += (1.0 if series else share2) * 2.0 * float(model.mode2[2]) / float(model.mode2[1])
     return d
@@ -1045,9 +1087,7 @@ def extend_document(bundle: dict[str, Any], findings: list[Any], model: Any = No
             sh["mode"] = {**sh["mode"], "natural_freq_rad_s": float(model.wn), "damping": float(model.zeta)}
             sh["extended_by"] = f"diagnose: the mode refitted with {', '.join(refit_by)}"
             # the lead's modal part (2 zeta / wn of the base mode) replaced by the refitted modes' low-frequency delay
-            old_modal = (
-                2.0 * float(bundle["shaper"]["mode"]["damping"]) / float(bundle["shaper"]["mode"]["natural_freq_rad_s"])
-            )
+            old_modal = mode_lag_s(bundle["shaper"]["mode"])
             comp["lead_s"] = (
                 float(bundle.get("compensation", {}).get("lead_s", old_modal))
                 - old_modal

@@ -45,6 +45,7 @@ from piezopress.analysis.bundle import (
     BundleError,
     chain_leads,
     creep_removed,
+    mode_lag_s,
     shaper_document,
 )
 from piezopress.analysis.signatures import noise_floor_without_lines
@@ -778,6 +779,11 @@ def shaper_section(
         # between them; both discretisations are exact for their kind of drive: keep the better fit
         fits = [mode_fit.identify_mode_runs(*args, hold=hold) for hold in ("zoh", "foh")]
         fit = min(fits, key=lambda f: float(np.mean(f.rms_residual)))
+        try:  # an anti-resonance above the mode, where the steps show one
+            zeroed = mode_fit.identify_mode_runs(*args, hold=fit.hold, antiresonance=True)
+            fit = zeroed if mode_fit.antiresonance_shown(fit, zeroed) else fit
+        except FitError:
+            pass
     else:  # the applied drive is not recorded: the chain from command to stack is identified with the mode
         steps = list(steps) if steps is not None else runs
         scuts = [first_hold_end(r.command_v) for r in steps]
@@ -821,13 +827,22 @@ def shaper_section(
                 "lowpass_hz": None if chain.lowpass is None else chain.lowpass[0] / (2.0 * math.pi),
                 "lowpass_damping": None if chain.lowpass is None else chain.lowpass[1],
                 "low_frequency_delay_s": chain.lag_s,
+                # where the zeros of an anti-resonance were fitted with the series chain: its delay
+                # read without them (what is beyond the sampling's own is judged on it)
+                "delay_without_antiresonance_s": None
+                if chain.delay_without_zeros is None
+                else mode_fit.sampled_delay_s(*chain.delay_without_zeros, steps_fs),
                 "steps_sample_rate_hz": steps_fs,
                 "rms_by_chain": chain.candidates,
             },
             "hold": fit.hold,
+            # the zeros above the mode, where the steps showed them (mode_fit.antiresonance_shown)
+            "antiresonance": None
+            if fit.zeros is None
+            else {"natural_freq_rad_s": fit.zeros[0], "damping": fit.zeros[1]},
             "output_unit": units.unit_of_column(same_output(runs)),
             "sensor_lowpass_hz": sensor_lowpass(runs),
-            "fit": {k: v for k, v in plain(fit).items() if k not in ("wn", "zeta")},
+            "fit": {k: v for k, v in plain(fit).items() if k not in ("wn", "zeta", "zeros")},
         },
         "shaper": shaper_document(choice.shaper),
         "choice": {"reason": choice.reason, "designed_at_hz": fs, "candidates": choice.table},
@@ -872,7 +887,7 @@ def compensation_settings(
     if "shaper" in sections:
         m = sections["shaper"]["mode"]
         chain, samples = chain_leads(m.get("drive_chain"))
-        lead = 2.0 * m["damping"] / m["natural_freq_rad_s"] + chain
+        lead = mode_lag_s(m) + chain
     out = {
         "drive_min_v": drive_min_v,
         "drive_max_v": drive_max_v,

@@ -17,7 +17,16 @@ from scipy.signal import lfilter
 
 from piezopress.errors import FitError
 
-__all__ = ["HOLDS", "mode_zoh", "mode_foh", "mode_response", "check_mode", "check_fs", "damped"]
+__all__ = [
+    "HOLDS",
+    "mode_zoh",
+    "mode_foh",
+    "mode_response",
+    "antiresonant",
+    "check_mode",
+    "check_fs",
+    "damped",
+]
 
 
 def check_mode(wn: float, zeta: float, *, zeta_max: float = 1.0) -> tuple[float, float]:
@@ -97,14 +106,61 @@ def mode_foh(wn: float, zeta: float, fs_hz: float) -> tuple[np.ndarray, np.ndarr
 HOLDS = {"zoh": mode_zoh, "foh": mode_foh}
 
 
-def mode_response(drive, fs_hz: float, wn: float, zeta: float, *, hold: str = "zoh") -> np.ndarray:
+def _rate_part(wn: float, zeta: float, fs_hz: float, hold: str) -> np.ndarray:
+    """The numerator of ``s G(s)`` (``G`` the unit mode) discretised exactly for ``hold``, over
+    the poles of :func:`mode_zoh` (units 1/s; zero at DC).
+
+    ``zoh``: ``(1 - z^-1) Z{g(kT)}`` with ``g`` the mode's impulse response
+    ``(wn^2 / wd) exp(-sigma t) sin(wd t)`` (``s G``'s step response);
+    ``foh``: ``z (1 - z^-1)^2 / T Z{r(kT)}`` with ``r`` the mode's unit-step response (``s G``'s
+    ramp response)."""
+    sigma, wd = damped(wn, zeta)
+    dt = 1.0 / fs_hz
+    alpha, beta = math.exp(-sigma * dt), wd * dt
+    cb, sb = math.cos(beta), math.sin(beta)
+    if hold == "zoh":
+        g = wn * wn / wd * alpha * sb
+        return np.array([0.0, g, -g])
+    a1, a2 = -2.0 * alpha * cb, alpha * alpha
+    c = sigma / wd * alpha * sb - alpha * cb
+    p, q = a1 - c + 1.0, a2 + c
+    return np.array([p, q - p, -q]) / dt
+
+
+def antiresonant(
+    wn: float, zeta: float, zeros: tuple[float, float], fs_hz: float, *, hold: str = "zoh"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact discretisation ``(b, a)`` of the unit-gain mode with a pair of zeros (an
+    anti-resonance) ``zeros = (wz rad/s, damping)``:
+    ``G(s) = (wn / wz)^2 (s^2 + 2 zeta_z wz s + wz^2) / (s^2 + 2 zeta wn s + wn^2)`` (a stack
+    pushing a platen on a compliant frame: the force drops to a notch at ``wz`` above the mode).
+
+    Written as ``c + (1 - c) M(s) + k s M(s)`` (``M`` the unit mode, ``c = (wn / wz)^2``,
+    ``k = 2 zeta_z / wz - 2 zeta wn / wz^2``), each part exact for the hold (:func:`mode_zoh` or
+    :func:`mode_foh`; :func:`_rate_part`), over the mode's own poles. Unit DC gain; the
+    low-frequency delay is ``2 zeta / wn - 2 zeta_z / wz`` (the zeros lead)."""
+    if hold not in HOLDS:
+        raise FitError(f"hold={hold!r}: expected one of {sorted(HOLDS)}")
+    wn, zeta = check_mode(wn, zeta)
+    wz, zz = check_mode(*zeros)
+    fs_hz = check_fs(fs_hz)
+    b_m, a = HOLDS[hold](wn, zeta, fs_hz)
+    c = (wn / wz) ** 2
+    k = 2.0 * zz / wz - 2.0 * zeta * wn / (wz * wz)
+    return c * a + (1.0 - c) * b_m + k * _rate_part(wn, zeta, fs_hz, hold), a
+
+
+def mode_response(
+    drive, fs_hz: float, wn: float, zeta: float, *, hold: str = "zoh", zeros: tuple[float, float] | None = None
+) -> np.ndarray:
     """Output of the unit-gain mode to the sampled ``drive``, at rest at ``drive[0]``.
 
     ``hold="zoh"``: the drive is held between samples (a command from a DAC);
     ``hold="foh"``: it is linear between samples (a sampled continuous voltage).
+    ``zeros``: an anti-resonance ``(wz rad/s, damping)`` above the mode (:func:`antiresonant`).
     """
     if hold not in HOLDS:
         raise FitError(f"hold={hold!r}: expected one of {sorted(HOLDS)}")
     d = np.asarray(drive, dtype=float)
-    b, a = HOLDS[hold](wn, zeta, fs_hz)
+    b, a = HOLDS[hold](wn, zeta, fs_hz) if zeros is None else antiresonant(wn, zeta, zeros, fs_hz, hold=hold)
     return d[0] + lfilter(b, a, d - d[0])

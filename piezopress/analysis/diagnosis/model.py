@@ -198,6 +198,8 @@ class Model:
     wn: float | None = None
     zeta: float | None = None
     sensor_lowpass_hz: float | None = None  # the load cell's analog RC filter, a known part of the chain
+    # the zeros above the mode fit identified (wz rad/s, damping): the main mode's anti-resonance
+    antiresonance: tuple[float, float] | None = None
     # extensions
     slew_v_per_s: float | None = None  # amplifier_slew_limit (or the identified drive chain's slew)
     drive_tau_s: float = 0.0  # the drive chain's first-order lag, identified by fit when no monitor was recorded
@@ -378,7 +380,15 @@ class Model:
             modes.append(self.mode2)
         # a held command reaches the mode held, unless a low-pass in the chain has made it smooth
         hold = "foh" if self.drive_lowpass is not None else "zoh"
-        out = sum(share * mode_response(c, run.fs_hz, wn, z, hold=hold) for share, wn, z in modes) if modes else c
+        zeros = [self.antiresonance] + [None] * (len(modes) - 1)  # the main mode's
+        out = (
+            sum(
+                share * mode_response(c, run.fs_hz, wn, z, hold=hold, zeros=zz)
+                for (share, wn, z), zz in zip(modes, zeros)
+            )
+            if modes
+            else c
+        )
         if series:  # what the main mode delivers is smooth: it reaches the second mode sampled, not held
             out = mode_response(out, run.fs_hz, self.mode2[1], self.mode2[2], hold="foh")
         if self.sensor_lowpass_hz:
