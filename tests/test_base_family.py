@@ -45,10 +45,20 @@ def test_a_loop_of_another_family_gets_the_searched_structure_and_a_base_that_fi
     c = doc["creep"]["model"]
     fast = sum(g for g, tau in zip(c["gains"], c["taus_s"]) if tau <= 0.5)
     assert c["form"] == "spectrum" and fast < 0.01, c
-    # the chain (a 2.5 kHz amplifier, a 1.5 kHz Bessel filter, a 1.5-sample decimation filter):
-    # a low-pass and a delay of the sampling's own size, not a delay of 0.37 ms
-    chain = doc["shaper"]["mode"]["drive_chain"]
-    assert chain["form"] == "lowpass_delay" and chain["delay_s"] * chain["steps_sample_rate_hz"] < 3.0, chain
+    # the chain (a 2.5 kHz amplifier, a 1.5 kHz Bessel filter, a 1.5-sample decimation filter after a
+    # held DAC): a low-pass and a delay, not a delay of 0.37 ms. With the press's anti-resonance fitted
+    # (zeros at 2.3 times the mode), the low-pass reads the Bessel filter (1.49 kHz), the delay the
+    # sampling's samples (2.23: the DAC's hold and the filter's 1.5) and, in seconds, about the
+    # amplifier's lag (70 us; 66 us read)
+    mode = doc["shaper"]["mode"]
+    chain = mode["drive_chain"]
+    fs = chain["steps_sample_rate_hz"]
+    assert chain["form"] == "lowpass_delay" and chain["delay_samples"] < 3.0, chain
+    assert 0.0 <= chain["delay_s"] - chain["delay_samples"] / fs < 1e-4, chain
+    assert chain["lowpass_hz"] == pytest.approx(1500.0, rel=0.2), chain
+    assert mode["antiresonance"]["natural_freq_rad_s"] / mode["natural_freq_rad_s"] == pytest.approx(2.3, rel=0.1)
+    # what is beyond the sampling's own is judged on the delay read without the zeros: the sampling's
+    assert chain["delay_without_antiresonance_s"] * fs < 3.0, chain
     B.write_document(doc, tmp_path / "base.json")
     res, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
     # the base fits its own sweeps within 10 noise floors (225 with the thesis's operators)
