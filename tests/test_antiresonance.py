@@ -201,3 +201,15 @@ def test_what_is_beyond_the_sampling_s_delay_is_judged_without_the_zeros(delay_s
     assert bundle_mod.chain_own_delay(chain) == pytest.approx((own_s, 20_000.0))
     model = Bundle.from_dict(_sample_doc(chain=chain)).forward_model()
     assert model.drive_delay_s == pytest.approx(own_s)
+
+
+def test_the_report_names_the_zeros_and_says_nothing_without_them(tmp_path):
+    from piezopress.pipelines.report_doc import render_markdown
+    from piezopress.pipelines.report_model import _model_quality
+
+    doc = _sample_doc()
+    wn = doc["shaper"]["mode"]["natural_freq_rad_s"]
+    md = render_markdown(_model_quality(doc, tmp_path / "bundle.json", []))
+    hz = ZEROS["natural_freq_rad_s"] / (2 * math.pi)
+    assert f"An anti-resonance above it: zeros at {hz:.1f} Hz ({ZEROS['natural_freq_rad_s'] / wn:.2f} times" in md
+    assert "anti-resonance" not in render_markdown(_model_quality(_sample_doc(None), tmp_path / "b.json", []))
