@@ -37,8 +37,13 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	@$(PP) demo --out $(OUT)/demo-$$(date -u +%Y%m%dT%H%M%SZ)
 
+# The tests on every core (pytest-xdist): a module's tests on one worker, so its fixtures are built
+# once (--dist loadscope), and each worker's linear algebra on one thread (two workers of two
+# threads each on two cores oversubscribe them). TEST_WORKERS=0: one process, as plain pytest runs.
+TEST_WORKERS ?= auto
+ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(ONE_THREAD) $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
