@@ -38,12 +38,11 @@ demo: $(STAMP)
 	@$(PP) demo --out $(OUT)/demo-$$(date -u +%Y%m%dT%H%M%SZ)
 
 # The tests on every core (pytest-xdist): a module's tests on one worker, so its fixtures are built
-# once (--dist loadscope), and each worker's linear algebra on one thread (two workers of two
-# threads each on two cores oversubscribe them). TEST_WORKERS=0: one process, as plain pytest runs.
+# once (--dist loadscope), and each worker's OpenMP on one thread (OpenBLAS's is one already:
+# piezopress/__init__.py). TEST_WORKERS=0: one process, as plain pytest runs.
 TEST_WORKERS ?= auto
-ONE_THREAD := OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 test: $(STAMP)
-	$(ONE_THREAD) $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
