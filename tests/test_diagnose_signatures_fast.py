@@ -171,13 +171,13 @@ def test_a_mode_in_series_passes_the_main_modes_response_through_it():
     assert np.allclose(replace(series, mode2=(0.3, w2, 0.03)).predict(run), series.predict(run))
 
 
-def _mode_context(model: dg.Model, seed: int = 0) -> dg.Context:
+def _mode_context(model: dg.Model, seed: int = 0, base: dg.Model = MODE) -> dg.Context:
     rng = np.random.default_rng(seed)
     runs = []
     for x, name in _steps():
         r = _run(x, np.zeros_like(x), name)
         runs.append(_run(x, model.predict(r) + rng.normal(0.0, 0.05, x.size), name))
-    return dg.Context(runs, MODE, frozenset(), {r.name: 0.05 for r in runs})
+    return dg.Context(runs, base, frozenset(), {r.name: 0.05 for r in runs})
 
 
 @pytest.mark.parametrize("ratio", [1.45, 1.7])
@@ -202,6 +202,60 @@ def test_a_second_mode_in_parallel_keeps_its_form():
     assert "series" not in f.parameters and not f.model.mode2_series
     assert f.parameters["share"] == pytest.approx(0.2, rel=0.3)
     assert f.parameters["natural_freq_rad_s"] == pytest.approx(w2, rel=0.1)
+
+
+#: Zeros above the main mode as an identification without a second mode reads them: damped at
+#: the fit's floor, between the main mode and where a parallel second mode rings.
+SHADOW_ZEROS = (2 * math.pi * 1900.0, 0.005)
+MODE_WITH_SHADOW = replace(MODE, antiresonance=SHADOW_ZEROS)
+
+
+def test_a_second_mode_in_parallel_is_fitted_without_the_zeros_that_were_its_shadow():
+    # two modes in parallel make their own anti-resonance between them: an identification without
+    # the second mode puts zeros there, and a second mode fitted over them read a share of 2-6 %
+    # instead of 10-18 % on the second test press (unnamed on 3 of 20 seeds)
+    w2 = 2 * math.pi * 2500.0
+    truth = replace(MODE, mode2=(0.15, w2, 0.04))
+    f = dg.cause_second_resonance(_mode_context(truth, base=MODE_WITH_SHADOW))
+    assert f is not None and f.accepted, f
+    assert f.parameters["zeros_dropped"] == 1.0 and f.model.antiresonance is None
+    assert f.parameters["share"] == pytest.approx(0.15, rel=0.3)
+    assert f.parameters["natural_freq_rad_s"] == pytest.approx(w2, rel=0.05)
+    assert f.parameters["damping"] == pytest.approx(0.04, rel=0.5)
+
+
+def test_the_zeros_are_dropped_only_where_the_steps_ring_at_the_mode_fitted_without_them():
+    # the press's own zeros (the third test press's, damped 0.15) make a notch and no peak: there a
+    # "mode" fitted without the zeros drew the notch 4-10 % better on the held-out steps (clean
+    # seed 0, and the second population's seed 0) with nothing ringing; the steps' own peak
+    # (response_peaks) is what tells the second mode's anti-resonance from the press's
+    from piezopress.analysis.diagnosis.causes import second_resonance as sr
+
+    w2 = 2 * math.pi * 2500.0
+    ctx = _mode_context(replace(MODE, mode2=(0.15, w2, 0.04)), base=MODE_WITH_SHADOW)
+    fit, _ = dg.judging._split(ctx.steps())
+    f1 = MODE.wn / (2 * math.pi)
+    kept = sr._parallel_fit(MODE_WITH_SHADOW, fit, f1, 0.45 * FS, rings=[])
+    assert kept is None or "zeros_dropped" not in kept[1], kept[1]
+    for elsewhere in (1.3 * 2500.0, 2500.0 / 1.3):  # a ring beyond the peak tolerance of the mode
+        far = sr._parallel_fit(MODE_WITH_SHADOW, fit, f1, 0.45 * FS, rings=[elsewhere])
+        assert far is None or "zeros_dropped" not in far[1], (elsewhere, far[1])
+    dropped = sr._parallel_fit(MODE_WITH_SHADOW, fit, f1, 0.45 * FS, rings=[2500.0 * 1.03])
+    assert dropped is not None and dropped[1]["zeros_dropped"] == 1.0 and dropped[0].antiresonance is None
+
+
+def test_the_extension_drops_the_zeros_the_finding_read_as_the_second_mode_s():
+    from types import SimpleNamespace
+
+    from piezopress.analysis import bundle
+
+    zeros = {"natural_freq_rad_s": SHADOW_ZEROS[0], "damping": SHADOW_ZEROS[1]}
+    params = {"share": 0.15, "natural_freq_rad_s": 2 * math.pi * 2500.0, "damping": 0.04}
+    for extra, kept in (({}, zeros), ({"zeros_dropped": 1.0}, None)):
+        ext = {"shaper": {"mode": {"natural_freq_rad_s": MODE.wn, "damping": 0.07, "antiresonance": dict(zeros)}}}
+        bundle.extend_second_resonance(ext, {}, SimpleNamespace(parameters=params | extra))
+        assert ext["shaper"]["mode"]["antiresonance"] == kept
+        assert ext["shaper"]["shaper2"]["natural_freq_rad_s"] == params["natural_freq_rad_s"]
 
 
 def test_one_mode_is_not_named_two():

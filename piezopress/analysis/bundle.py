@@ -985,9 +985,14 @@ def extend_rate_dependence(ext: dict[str, Any], comp: dict[str, Any], f: Any) ->
 
 
 def extend_second_resonance(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
-    """A second shaper for the second mode (with a shaper section to add it to)."""
+    """A second shaper for the second mode (with a shaper section to add it to); where the
+    finding read the mode's zeros as the second mode's own anti-resonance (``zeros_dropped``),
+    the mode's zeros are dropped with it."""
     if "shaper" in ext:
         ext["shaper"]["shaper2"] = second_shaper(f.parameters)
+        mode = ext["shaper"].get("mode")
+        if f.parameters.get("zeros_dropped") and isinstance(mode, dict) and mode.get("antiresonance") is not None:
+            mode["antiresonance"] = None
 
 
 def extend_hysteresis_order(ext: dict[str, Any], comp: dict[str, Any], f: Any) -> None:
