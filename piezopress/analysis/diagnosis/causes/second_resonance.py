@@ -190,8 +190,7 @@ def _parallel_fit(base, fit, f1: float, top_hz: float, rings: Sequence[float] = 
                 )
             except ValueError:
                 continue
-            rings_there = any(abs(np.log(sol.x[1] / (2 * np.pi * fr))) < np.log(SERIES_PEAK_TOLERANCE) for fr in rings)
-            if dropped and not rings_there:
+            if dropped and not _rings_at(sol.x[1], rings):
                 continue  # the zeros' notch, not a mode: no peak of the steps' own where it rings
             if best is None or sol.cost < best.cost:
                 best, best_zeros = sol, zeros
@@ -216,6 +215,11 @@ def _parallel_fit(base, fit, f1: float, top_hz: float, rings: Sequence[float] = 
             "anti-resonance (two modes in parallel make their own): dropped"
         )
     return model_for(x, best_zeros), params, ev
+
+
+def _rings_at(w_rad_s: float, rings: Sequence[float]) -> bool:
+    """Whether one of the steps' own peaks (``rings``, Hz) lies within :data:`SERIES_PEAK_TOLERANCE` of ``w_rad_s``."""
+    return any(abs(np.log(w_rad_s / (2 * np.pi * fr))) < np.log(SERIES_PEAK_TOLERANCE) for fr in rings)
 
 
 def _series_fit(base, fit, peak_hz: float, f1: float, top_hz: float):
