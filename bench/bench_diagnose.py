@@ -27,6 +27,14 @@ drive, so that two rests pin a wander of the offset on the runs' start times), t
 wander, seeds 0-7, was named alone on 7 of 8 (5 with the default plan), but with the metadata cut
 to the required fields (no start times) on 0 of seeds 0-3 (3 with the default plan): one rate for
 every run cannot draw the rests' opposite trends, so the default plan keeps its one rest.
+``tests/plans/characterize-thesis-only.toml`` (the default plan less the three runs it adds to the
+thesis's: the sweep below rest, the 50 kHz step, the rest) and ``characterize-foreign-forms.toml``
+(sines at other rates, the rest first, a 90 s hold at 120 V that returns to rest, steps at one
+rate) judge diagnose on forms it was not written beside; with ``--minimal`` on the third press,
+seed 0 (stop 69), no traceback in either. Thesis-only: 7 of 10 rows alone (clean nothing; slew and
+mains with a log creep beside them, the offset drift read as log creep); foreign forms: 7 of 9
+(clean: a log creep of 0.46 % per decade, just over the 0.4 % bar, on a press whose own creep
+spectrum reaches 300 s, past the 90 s hold; the log creep row with an interference beside it).
 
 ``--gain`` measures instead the gain on the press of every cause whose extension enters the
 compensator (``pipelines/gain.py``): the table per cause, base bundle against extended on every

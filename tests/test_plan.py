@@ -184,3 +184,42 @@ def test_rig_keys_template_writes_an_editable_rig_file(tmp_path, backend, source
     assert out.read_text() == (root / "rigs" / source).read_text()
     res = CliRunner().invoke(cli, ["rig-keys", "--template", str(out)])
     assert res.exit_code != 0 and "already exists" in res.output
+
+
+def test_the_thesis_only_plan_is_the_default_plan_without_its_three_additions():
+    """``tests/plans/characterize-thesis-only.toml`` (``bench_diagnose --plan``: the runs a lab with the
+    thesis's own protocol brings) is the default plan less the sweep below rest, the 50 kHz step and the
+    rest, every other protocol as the default plan has it (in step with it)."""
+    import tomllib
+
+    default = tomllib.loads((ROOT / "protocols" / "characterize.toml").read_text(encoding="utf-8"))
+    path = ROOT / "tests" / "plans" / "characterize-thesis-only.toml"
+    thesis = tomllib.loads(path.read_text(encoding="utf-8"))
+    added = {"triangle-below-rest-0.1hz", "step-50v-50khz", "rest-120s"}
+    assert added <= {p["name"] for p in default["protocol"]}
+    assert thesis["protocol"] == [p for p in default["protocol"] if p["name"] not in added]
+    plan = load_plan(path, LIMITS)
+    assert len(plan.protocols) == len(default["protocol"]) - 3
+    assert not any(p.kind in ("below_rest", "custom") for p in plan.protocols)
+
+
+def test_the_foreign_forms_plan_shares_no_form_with_the_default_plan():
+    """``tests/plans/characterize-foreign-forms.toml`` (``bench_diagnose --plan``: diagnose judged on runs
+    in forms none of our code was written beside) loads within the default limits, names no run as the
+    default plan does, sweeps with sines at none of the default's frequencies, and samples its steps at
+    one rate none of the default's steps use; its hold returns to rest, and its rest comes first."""
+    default = load_plan(ROOT / "protocols" / "characterize.toml", LIMITS)
+    plan = load_plan(ROOT / "tests" / "plans" / "characterize-foreign-forms.toml", LIMITS)
+    assert not {p.name for p in plan.protocols} & {p.name for p in default.protocols}
+    sweeps = [p for p in plan.protocols if p.kind in ("triangle", "sine", "below_rest")]
+    assert sweeps and all(p.kind == "sine" for p in sweeps)
+    default_hz = {p.params["freq_hz"] for p in default.protocols if "freq_hz" in p.params}
+    assert not {p.params["freq_hz"] for p in sweeps} & default_hz
+    steps = [p for p in plan.protocols if p.kind == "step"]
+    default_step_rates = {p.sample_rate_hz for p in default.protocols if p.kind == "step"}
+    assert len({p.sample_rate_hz for p in steps}) == 1 and not {p.sample_rate_hz for p in steps} & default_step_rates
+    (hold,) = [p for p in plan.protocols if p.kind == "creep"]
+    _, v = hold.waveform()
+    assert v[-1] == 0.0 and hold.params["post_s"] > 0
+    _, first = plan.protocols[0].waveform()
+    assert plan.protocols[0].kind == "custom" and not np.any(first)
