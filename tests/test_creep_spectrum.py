@@ -131,3 +131,22 @@ def test_where_the_creep_is_kept_from_the_hold_fit_refits_the_loop_in_its_own_st
     with_first = identification.sweep_holdout_rms(sweeps, searched[0][2], C.CreepModel.from_dict(c["model"]))
     assert "the loop fitted again with it removed" in c["fit"]["reason"]
     assert c["fit"]["sweep_check"]["with_creep_rms"] < 0.9 * with_first
+
+
+def test_two_poles_cancelling_inside_the_size_bound_are_no_creep():
+    """A pair of poles close together whose gains cancel is one edge fitted twice, even inside
+    :data:`MAX_PLAUSIBLE_ELEMENT_GAIN` (the third press's slew-limited seed 0: +0.60 and -0.55 at
+    0.108 and 0.100 s); poles of opposite sign far apart, or that do not cancel, are a zero's
+    shaping of the creep (every base of the three presses: at least 2.6x apart)."""
+    fs = 50.0
+    edge = C.CreepModel("poles", 0.94, (21.99, 0.108, 0.1), (0.0128, 0.597, -0.554), {})
+    thesis = C.CreepModel("poles", 0.96, (36.1, 1.085, 0.1), (0.0118, 0.0153, -0.0014), {})
+    apart = C.CreepModel("poles", 0.96, (11.8, 0.377, 0.1), (0.022, 0.033, -0.009), {})
+    same_sign = C.CreepModel("poles", 0.96, (0.108, 0.1), (0.3, 0.2), {})
+    assert C._cancelling(edge) and not C._plausible(edge) and not C._stable(edge, fs)
+    for m in (thesis, apart, same_sign):
+        assert not C._cancelling(m) and C._plausible(m), m.describe()
+    # at the bounds: 1.5x apart and cancelling to 24 % is refused; 1.6x apart, or to 26 %, is kept
+    assert C._cancelling(C.CreepModel("poles", 1.0, (1.0, 1.5), (0.5, -0.38), {}))
+    assert not C._cancelling(C.CreepModel("poles", 1.0, (1.0, 1.6), (0.5, -0.38), {}))
+    assert not C._cancelling(C.CreepModel("poles", 1.0, (1.0, 1.5), (0.5, -0.37), {}))

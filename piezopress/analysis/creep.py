@@ -983,8 +983,32 @@ def _stable(model: CreepModel, fs_hz: float) -> bool:
 MAX_PLAUSIBLE_ELEMENT_GAIN = 1.0
 
 
+#: Two elements whose time constants lie within this ratio of each other and whose gains have
+#: opposite signs and cancel to under :data:`CANCELLING_FRACTION` of the larger are one edge
+#: fitted twice, whatever their size: on the third test press with a slew-limited amplifier
+#: (seed 0), the thesis's poles put +0.60 and -0.55 of the step in poles at 0.108 and 0.100 s,
+#: just inside :data:`MAX_PLAUSIBLE_ELEMENT_GAIN`, where on the clean seeds the same pair came out
+#: beyond it; the base's creep then saturated at 29 s and ``diagnose`` named a log creep for the
+#: press's own creep of minutes. No other fit of the three presses comes near (their bases, 60
+#: cases: any two poles of opposite sign at least 2.6x apart, and none cancelling to under 60 %).
+CANCELLING_TAU_RATIO = 1.5
+CANCELLING_FRACTION = 0.25
+
+
+def _cancelling(model: CreepModel) -> bool:
+    """Whether two of the model's elements cancel each other (:data:`CANCELLING_TAU_RATIO`)."""
+    pairs = itertools.combinations(zip(model.taus_s, model.gains, strict=True), 2)
+    return any(
+        g1 * g2 < 0
+        and max(t1, t2) <= CANCELLING_TAU_RATIO * min(t1, t2)
+        and abs(g1 + g2) < CANCELLING_FRACTION * max(abs(g1), abs(g2))
+        for (t1, g1), (t2, g2) in pairs
+    )
+
+
 def _plausible(model: CreepModel) -> bool:
-    return all(math.isfinite(g) and abs(g) <= MAX_PLAUSIBLE_ELEMENT_GAIN for g in model.gains)
+    sized = all(math.isfinite(g) and abs(g) <= MAX_PLAUSIBLE_ELEMENT_GAIN for g in model.gains)
+    return sized and not _cancelling(model)
 
 
 #: Shortest time constant the thesis form may take, in samples: faster poles only fit what is
@@ -1134,7 +1158,7 @@ def fit_creep(t_s, u, y, *, holdout_fraction: float = 0.3, forms: tuple[str, ...
     if not usable:
         raise FitError(
             f"{where}: no creep form gives a stable compensator with plausible elements (each within "
-            f"+/-{MAX_PLAUSIBLE_ELEMENT_GAIN:g} of the instantaneous response): "
+            f"+/-{MAX_PLAUSIBLE_ELEMENT_GAIN:g} of the instantaneous response, no two cancelling each other): "
             f"{'; '.join(c.model.describe() for c in candidates)}"
         )
     chosen = min(usable, key=lambda c: c.holdout_rms)
