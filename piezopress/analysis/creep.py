@@ -996,7 +996,9 @@ CANCELLING_FRACTION = 0.25
 
 
 def _cancelling(model: CreepModel) -> bool:
-    """Whether two of the model's elements cancel each other (:data:`CANCELLING_TAU_RATIO`)."""
+    """Whether two of the model's elements cancel each other: time constants within
+    :data:`CANCELLING_TAU_RATIO`, gains of opposite sign summing to under
+    :data:`CANCELLING_FRACTION` of the larger."""
     pairs = itertools.combinations(zip(model.taus_s, model.gains, strict=True), 2)
     return any(
         g1 * g2 < 0
