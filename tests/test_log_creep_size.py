@@ -56,6 +56,12 @@ def test_a_documented_log_creep_is_named_and_its_rate_measured(seed):
     f = cause_logarithmic_creep(_context(_runs(0.012, seed)))
     assert f is not None and f.accepted and not f.too_small
     assert f.parameters["per_decade"] == pytest.approx(0.012, rel=0.25)
+    # how sure: the size is measured on a decade no run shows, and the evidence says so, with the
+    # hold that tells a creep going on from one ending there
+    said = f.evidence.split("beyond the model's creep it rises ", 1)[1]
+    rise = float(said.split(" % of the step in the decade after the 120 s hold, which no run shows", 1)[0])
+    assert rise == pytest.approx(1.2, rel=0.35)  # the documented 1.2 % per decade, against poles
+    assert said.endswith("a creep that ends within that decade draws the same hold (a hold of 1200 s tells them apart)")
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -110,3 +116,59 @@ def test_a_log_creep_of_a_stroke_kept_at_rest_is_not_also_a_drift(remanent, seed
     assert [f.cause for f in d.findings] == ["logarithmic_creep"], d.summary
     assert d.findings[0].parameters["per_decade"] == pytest.approx(0.012, rel=0.3)
     assert d.model.creep_bias == pytest.approx(remanent, rel=0.3)  # the kept stroke, read on the rest run
+
+
+def test_a_log_creep_puts_the_hold_that_measures_its_size_in_the_next_plan(tmp_path):
+    """Issue 20, "where the runs cannot tell ..., put the experiment that would tell them apart in
+    next-plan.toml": a log creep's size is measured on the decade after the hold, which no run
+    shows. Named, the next plan holds the drive ten times as long (every cause was tested), and
+    says why; a rise too small to be named asks for nothing."""
+    from piezopress.acquisition.plan import load_plan
+    from piezopress.acquisition.rig_config import load_rig
+    from piezopress.pipelines import next_plan as NP
+
+    runs = _runs(0.012, 0)
+    d = dg.diagnose(dg.Model(PI, creep=POLES), runs, ["triangle-0.1hz"], causes=["logarithmic_creep"])
+    (f,) = d.findings
+    assert not d.not_tested and f.tell_hold_s == round(10 * (runs[0].t_s[-1] - runs[0].t_s[0])) == 1200
+    assert f.as_dict()["tell_hold_s"] == f.tell_hold_s
+    assert "logarithmic_creep's size is measured on the decade after the hold, which no run shows" in d.summary
+    info = NP.next_plan([], _context(runs), d, tmp_path, ["runs/"])
+    pair = "logarithmic_creep from a creep that ends within the decade after the hold"
+    assert info is not None and info["tells_apart"] == [pair] and info["serves"] == []
+    assert [g["tells"] for g in info["groups"]] == [[pair]] and info["refit_for"] == ["logarithmic_creep"]
+    text = (tmp_path / "next-plan.toml").read_text()
+    assert f"#   {pair}: these runs cannot tell them apart" in text and "a hold of 1200 s does" in text
+    assert "piezopress fit runs/ more/ --base --out base-2.json      # logarithmic_creep need the base" in text
+    (p,) = load_plan(tmp_path / "next-plan.toml", load_rig(NP.DEFAULT_RIG).limits).protocols
+    t, x = p.waveform()
+    assert p.run_kind == "creep" and t[-1] >= 1200.0 and float(np.ptp(x)) > 0
+    small = dg.diagnose(dg.Model(PI, creep=POLES), _runs(0.003, 0), ["triangle-0.1hz"], causes=["logarithmic_creep"])
+    assert not small.findings and NP.next_plan([], _context(runs), small, tmp_path / "small", ["runs/"]) is None
+
+
+def test_the_long_hold_is_shortened_to_the_plans_limits_and_left_out_where_too_little_remains():
+    """A hold asked for beside other groups keeps the plan within what the loader allows (the
+    runs' longest hold of 1200 s asks for 3600 s, the limit of a whole plan): shortened, said so,
+    and the plan loads; where what remains is under a fifth of the hold asked for, it is left out
+    (the plan is never one the loader refuses)."""
+    import dataclasses
+    import tomllib
+
+    from piezopress.acquisition.plan import parse_plan
+    from piezopress.pipelines import next_plan as NP
+
+    ctx = _context(_runs(0.012, 0))
+    rig = NP.rig_of_runs([])
+    pair = "logarithmic_creep from a creep that ends within the decade after the hold"
+    plan = NP.choose(ctx, [], rig, (0.0, 150.0), ["logarithmic_creep from sensor_offset_drift"], {pair: 3600.0})
+    assert [g.id for g in plan.groups] == [NP.TELL_GROUP, NP.LONG_HOLD_GROUP]
+    (hold,) = plan.groups[1].protocols
+    assert 0.2 * 3600.0 <= hold["hold_s"] < 3600.0 and plan.tell_why[pair].endswith(" in part")
+    assert "3600 s asked for, shortened to fit the plan's limits" in plan.groups[1].what
+    text = NP.plan_text(plan, {}, ["runs/"], 50.0)
+    checked = parse_plan(tomllib.loads(text), rig.limits)
+    assert rig.limits.max_duration_s - 5.0 <= checked.duration_s <= rig.limits.max_duration_s
+    tight = dataclasses.replace(rig, limits=dataclasses.replace(rig.limits, max_duration_s=1200.0))
+    plan = NP.choose(ctx, [], tight, (0.0, 150.0), ["logarithmic_creep from sensor_offset_drift"], {pair: 3600.0})
+    assert [g.id for g in plan.groups] == [NP.TELL_GROUP] and pair not in plan.tells_apart

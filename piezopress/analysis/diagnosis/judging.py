@@ -124,6 +124,9 @@ class Finding:
     #: a form of the cause the runs did not allow to be tried, and what would (said where the cause
     #: is not named: "not found" is then about the forms tried)
     untried: str = ""
+    #: a held step this long (s) would tell the finding from what its runs cannot tell it from (its
+    #: evidence says what): ``next-plan.toml`` adds one (0: no such experiment)
+    tell_hold_s: float = 0.0
 
     @property
     def unit(self) -> str:
@@ -191,6 +194,7 @@ class Finding:
             "could_also_be_gain_pct": {c: float(g) for c, g in self.could_also_be.items()},
             **({"too_small": self.too_small} if self.too_small else {}),
             **({"not_its_signature": self.refused} if self.refused else {}),
+            **({"tell_hold_s": self.tell_hold_s} if self.tell_hold_s else {}),
         }
 
 

@@ -388,6 +388,11 @@ def diagnose(
             )
             if wander_untold(ctx, {f.cause, *f.could_also_be}):
                 head += f"; {TELL_DRIFT_FROM_CREEP}"
+        if f.tell_hold_s:  # how sure: its size is measured where no run shows it (its evidence says how)
+            head += (
+                f"; {f.cause}'s size is measured on the decade after the hold, which no run shows "
+                f"(a hold of {f.tell_hold_s:g} s tells)"
+            )
     weak = [f for f in findings if f.strength == "weak"]
     if weak:  # how sure: a finding backed by one held-out run, or not by a third of them, is said to be
         head += "; weak evidence for " + ", ".join(f"{f.cause} ({f.strength_text().split(': ', 1)[1]})" for f in weak)

@@ -39,6 +39,9 @@ from piezopress.analysis.diagnosis.slow import (
 #: beyond the poles, with held-out gains of 54-61 %; the documented log creep of the three presses
 #: (seeds 0-3 or 0-7 each) 0.79-1.78 %.
 LOG_CREEP_MIN_PER_DECADE = 0.004
+#: The longest held step asked for to tell a log creep from a creep that ends within the decade
+#: after the hold (10x the longest hold, up to this): an hour of the press.
+TELL_HOLD_MAX_S = 3600.0
 
 
 def _slow(run: RunData, v: np.ndarray, rate_hz: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
@@ -213,7 +216,8 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # its size: what the extension draws beyond the model's own creep over the decade after the
     # hold, the error a creep model that saturates leaves there (the tail's gamma alone trades off
     # with the Kelvin-Voigt elements beside it, and the model's creep may rise over decades too)
-    beyond = _beyond_next_decade(ext.creep, ctx.model.creep, float(run.t_s[-1] - run.t_s[0]))
+    hold_s = float(run.t_s[-1] - run.t_s[0])
+    beyond = _beyond_next_decade(ext.creep, ctx.model.creep, hold_s)
     if not ramp:
         # judged like a drift (:func:`cause_sensor_offset_drift`), on the cycle-averaged residuals of
         # every long run: a creep grows with the drive, in the sweeps as in the hold, where a drift does not
@@ -237,6 +241,15 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
             "; the runs show a drift of the reading, so the tail was judged across every long run against it and "
             f"a slow creep element ({100 * across.tail_per_decade:.3g} % per decade there)"
         )
+    # how sure: that size is an extrapolation, and the finding says so (a creep spread over the
+    # hold's decades that ends within the next one draws the same hold: the third test press's
+    # own creep, to 300 s, rises 0.33-0.64 % beyond saturating poles there after a 121 s hold)
+    tell_s = float(min(round(10.0 * hold_s), TELL_HOLD_MAX_S))
+    ev += (
+        f"; beyond the model's creep it rises {100 * beyond:.2g} % of the step in the decade after the {hold_s:.0f} s "
+        "hold, which no run shows: a creep that ends within that decade draws the same hold"
+        + (f" (a hold of {tell_s:.0f} s tells them apart)" if tell_s > 2.0 * hold_s else "")
+    )
     return Finding(
         "logarithmic_creep",
         ev,
@@ -256,6 +269,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
             if beyond < LOG_CREEP_MIN_PER_DECADE
             else ""
         ),
+        tell_hold_s=tell_s if tell_s > 2.0 * hold_s else 0.0,
     )
 
 
