@@ -373,8 +373,9 @@ def choose(
 ) -> NextPlan:
     """The smallest cover (greedy, cheapest group first) of the untested causes; with ``untold``
     (findings that could be another cause, "a from b": :func:`untold_findings`), the group that
-    tells a drift from a creep as well; with ``holds`` ("a from b" -> the hold that tells them
-    apart, s: :func:`hold_findings`), one held step of the longest of them."""
+    tells a drift from a creep as well; with ``holds`` (cause -> the hold that tells its finding
+    from a creep ending within the decade after the runs' hold, s: :func:`hold_findings`), one held
+    step of the longest of them."""
     holds = holds or {}
     lo, hi = max(drive[0], rig.limits.drive_min_v), min(drive[1], rig.limits.drive_max_v)
     if not hi > lo:
@@ -453,19 +454,20 @@ def choose(
     why = {}
     long_hold = _long_hold_group(hi, rest, rig.limits, max(holds.values(), default=0.0), chosen, taken)
     if long_hold is not None:
-        long_hold.tells = list(holds)
+        pairs = {f"{cid} from {HOLD_RIVAL}": asked for cid, asked in holds.items()}
+        long_hold.tells = list(pairs)
         chosen.append(long_hold)
-        tells_apart += list(holds)
+        tells_apart += list(pairs)
         held = long_hold.protocols[0]["hold_s"]
         # the base's creep refitted on the long hold: judged against the creep fitted on the
         # short one, the press's own creep of minutes beyond its poles read as a drift (the third
         # test press, slew seed 5: a drift at 26 % where the log creep was refused at -101 %; with
         # the base refitted, the slew alone, and the hidden log creep of seed 0 named alone either way)
-        refit_for += [c for c in dict.fromkeys(pair.split(" from ", 1)[0] for pair in holds) if c not in refit_for]
+        refit_for += [cid for cid in holds if cid not in refit_for]
         why = {
             pair: f"the size is measured on the decade after the hold, which no run shows; a hold of {held:g} s does"
             + ("" if held >= asked else " in part")
-            for pair, asked in holds.items()
+            for pair, asked in pairs.items()
         }
     return NextPlan(chosen, serves, unservable, refit_for, rig, tells_apart, why)
 
@@ -482,15 +484,14 @@ def untold_findings(ctx: dg.Context, result: dg.Diagnosis) -> list[str]:
     return out
 
 
+#: What a finding whose size is measured on the decade after the hold could also be.
+HOLD_RIVAL = "a creep that ends within the decade after the hold"
+
+
 def hold_findings(result: dg.Diagnosis) -> dict[str, float]:
-    """Findings whose size is measured where no run shows it ("logarithmic_creep from a creep that
-    ends within the decade after the hold") -> the held step that tells them apart (s,
-    ``Finding.tell_hold_s``)."""
-    return {
-        f"{f.cause} from a creep that ends within the decade after the hold": f.tell_hold_s
-        for f in result.findings
-        if f.tell_hold_s > 0.0
-    }
+    """The causes of the findings whose size is measured where no run shows it -> the held step
+    that tells them from :data:`HOLD_RIVAL` (s, ``Finding.tell_hold_s``)."""
+    return {f.cause: f.tell_hold_s for f in result.findings if f.tell_hold_s > 0.0}
 
 
 def plan_text(

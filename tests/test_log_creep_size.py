@@ -161,7 +161,8 @@ def test_the_long_hold_is_shortened_to_the_plans_limits_and_left_out_where_too_l
     ctx = _context(_runs(0.012, 0))
     rig = NP.rig_of_runs([])
     pair = "logarithmic_creep from a creep that ends within the decade after the hold"
-    plan = NP.choose(ctx, [], rig, (0.0, 150.0), ["logarithmic_creep from sensor_offset_drift"], {pair: 3600.0})
+    wander, asked = ["logarithmic_creep from sensor_offset_drift"], {"logarithmic_creep": 3600.0}
+    plan = NP.choose(ctx, [], rig, (0.0, 150.0), wander, asked)
     assert [g.id for g in plan.groups] == [NP.TELL_GROUP, NP.LONG_HOLD_GROUP]
     (hold,) = plan.groups[1].protocols
     assert 0.2 * 3600.0 <= hold["hold_s"] < 3600.0 and plan.tell_why[pair].endswith(" in part")
@@ -170,5 +171,5 @@ def test_the_long_hold_is_shortened_to_the_plans_limits_and_left_out_where_too_l
     checked = parse_plan(tomllib.loads(text), rig.limits)
     assert rig.limits.max_duration_s - 5.0 <= checked.duration_s <= rig.limits.max_duration_s
     tight = dataclasses.replace(rig, limits=dataclasses.replace(rig.limits, max_duration_s=1200.0))
-    plan = NP.choose(ctx, [], tight, (0.0, 150.0), ["logarithmic_creep from sensor_offset_drift"], {pair: 3600.0})
+    plan = NP.choose(ctx, [], tight, (0.0, 150.0), wander, asked)
     assert [g.id for g in plan.groups] == [NP.TELL_GROUP] and pair not in plan.tells_apart
