@@ -36,6 +36,12 @@ mains with a log creep beside them, the offset drift read as log creep); foreign
 (clean: a log creep of 0.46 % per decade, just over the 0.4 % bar, on a press whose own creep
 spectrum reaches 300 s, past the 90 s hold; the log creep row with an interference beside it).
 
+``--follow`` then does what each diagnosis's ``next-plan.toml`` tells its user to do (its "Then:"
+lines): the plan characterized on the same press, its state and clock as the first runs left it,
+the base refitted on both run sets where the plan says so (``refit_for``), both run sets diagnosed;
+a second matrix counts what a user who follows the advice gets (a case without a plan keeps its first
+diagnosis). ``--matrix-from FILE --follow`` prints that matrix of a record.
+
 ``--gain`` measures instead the gain on the press of every cause whose extension enters the
 compensator (``pipelines/gain.py``): the table per cause, base bundle against extended on every
 validation row, with each row's noise, beside the finding's prediction gain; ``--gain-out``
@@ -51,7 +57,7 @@ characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` 
 cluster; ``--no-batch`` (or Dask missing) runs each case start to end in a process pool.
 
 Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2] [--no-batch]
-         [--record results.jsonl] [--minimal | --stamped] [--plan PLAN.toml]
+         [--record results.jsonl] [--minimal | --stamped] [--plan PLAN.toml] [--follow]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
@@ -155,11 +161,23 @@ def _characterized(out: Path, rig: str, effect: str, seed: int, minimal: bool | 
     runs with their metadata cut to the run format's four required fields and no manifest
     (``tests/foreign.py``, as runs from another program arrive); ``"stamped"``: and their times on
     one session clock from :data:`SESSION_CLOCK_S`."""
-    from piezopress.pipelines import characterize as char
+    return _characterized_on(out, rig, effect, seed, minimal)[0]
 
+
+def _characterized_on(out: Path, rig: str, effect: str, seed: int, minimal: bool | str) -> tuple[Path, object]:
+    """:func:`_characterized`, and the press it ran on (its state and clock as the runs left them:
+    ``--follow`` plays the next plan on it)."""
     backend, plan = _backend(rig, effect, seed)
     plan = plan or os.environ.get(PLAN_ENV) or None  # --plan: in place of the default plan
-    char.characterize(out, backend=backend, **({"plan_path": plan} if plan else {}))
+    return _played(out, backend, plan, minimal), backend
+
+
+def _played(out: Path, backend, plan: str | Path | None, minimal: bool | str) -> Path:
+    """``plan`` (None: the default) characterized on ``backend`` into ``out``, cut as
+    :func:`_characterized` cuts it."""
+    from piezopress.pipelines import characterize as char
+
+    char.characterize(out, backend=backend, **({"plan_path": str(plan)} if plan else {}))
     if not minimal:
         return out
     sys.path.insert(0, str(ROOT / "tests"))
@@ -247,7 +265,14 @@ def _base_creep(path: Path) -> str | None:
     return form
 
 
-def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False, base_creep: str | None = None) -> None:
+def _record(
+    path: Path | None,
+    job: tuple,
+    r: tuple,
+    minimal: bool = False,
+    base_creep: str | None = None,
+    followed: dict | None = None,
+) -> None:
     if path is None:
         return
     with open(path, "a", encoding="utf-8") as fh:
@@ -263,30 +288,73 @@ def _record(path: Path | None, job: tuple, r: tuple, minimal: bool = False, base
                     **({"stamped": True} if minimal == "stamped" else {}),
                     **({"base_creep": base_creep} if base_creep else {}),
                     **({"plan": Path(os.environ[PLAN_ENV]).name} if os.environ.get(PLAN_ENV) else {}),
+                    **({"followed": followed} if followed is not None else {}),
                 }
             )
             + "\n"
         )
 
 
-def one(args: tuple[str, str, int, bool]) -> tuple[str, tuple[str, ...], float, str | None]:
+def _named(result, effect: str) -> tuple[tuple[str, ...], float]:
+    """The causes a diagnosis named ("none": nothing) and the hidden cause's held-out gain."""
+    named = tuple(f.cause for f in result.findings) or ("none",)
+    return named, next((f.gain_pct for f in result.findings if f.cause == effect), float("nan"))
+
+
+def _follow(tmp: Path, backend, runs: Path, minimal: bool | str, effect: str) -> dict:
+    """What a user who follows the diagnosis's advice gets: ``next-plan.toml`` played on the same
+    press (its state and clock as the first runs left them), the base refitted on both run sets
+    where the plan says so (``refit_for``), and both diagnosed, as the plan's own "Then:" lines
+    run them. Without a plan the first diagnosis stands (there is nothing more to run)."""
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    rig, effect, seed, minimal = args
+    info = D.next_plan_info(tmp / "diag") or {}
+    if not info.get("file"):
+        return {"played": None}
+    more = _played(tmp / "more", backend, info["file"], minimal)
+    base = tmp / "base.json"
+    if info.get("refit_for"):
+        base = tmp / "base-2.json"
+        B.write_document(F.fit_bundle([runs, more], base=True).doc, base)
+    result, _ = D.diagnose([runs, more], base, tmp / "diag-2")
+    named, gain = _named(result, effect)
+    return {
+        "played": info.get("protocols", []),
+        "duration_s": info.get("duration_s"),
+        "refit": bool(info.get("refit_for")),
+        "named": list(named),
+        "gain_pct": None if not np.isfinite(gain) else gain,
+    }
+
+
+def one(args: tuple) -> tuple[str, tuple[str, ...], float, str | None, dict | None]:
+    """One case start to end: characterize, ``fit --base``, ``diagnose`` (and with ``follow``, the
+    next plan played: :func:`_follow`). Returns (effect, named, gain, base creep, followed)."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    rig, effect, seed, minimal, *rest = args
+    follow = bool(rest and rest[0])
+    followed = None
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         try:
-            runs = _characterized(tmp / "char", rig, effect, seed, minimal)
+            runs, backend = _characterized_on(tmp / "char", rig, effect, seed, minimal)
             B.write_document(F.fit_bundle([runs], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
             base_creep = _base_creep(tmp / "base.json")
             result, _ = D.diagnose([runs], tmp / "base.json", tmp / "diag")
         except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
-            return effect, (f"error: {type(exc).__name__}",), float("nan"), None
-    named = tuple(f.cause for f in result.findings) or ("none",)
-    gain = next((f.gain_pct for f in result.findings if f.cause == effect), float("nan"))
-    return effect, named, gain, base_creep
+            return effect, (f"error: {type(exc).__name__}",), float("nan"), None, None
+        named, gain = _named(result, effect)
+        if follow:
+            try:
+                followed = _follow(tmp, backend, runs, minimal, effect)
+            except Exception as exc:  # noqa: BLE001 - as above: a row of the matrix
+                followed = {"played": "?", "named": [f"error: {type(exc).__name__}"], "gain_pct": None}
+    return effect, named, gain, base_creep, followed
 
 
 def main() -> None:
@@ -337,6 +405,13 @@ def main() -> None:
     )
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument(
+        "--follow",
+        action="store_true",
+        help="then play each diagnosis's next-plan.toml on the same press, refit the base where the plan says so, "
+        "diagnose both run sets, and print that matrix too (what a user who follows the advice gets; one process "
+        "pool, as --no-batch)",
+    )
+    ap.add_argument(
         "--record", type=Path, default=None, help="append every diagnosis to this JSON-lines file as it ends"
     )
     ap.add_argument(
@@ -373,6 +448,10 @@ def main() -> None:
     a = ap.parse_args()
     if a.stamped:
         a.minimal = "stamped"
+        if a.follow:
+            raise SystemExit("--follow with --stamped: the next plan's runs would be stamped on the first runs' clock")
+    if a.follow and a.gain:
+        raise SystemExit("--follow plays the next plan after each diagnosis: not with --gain")
     if a.fitted and not (a.gain and a.rig != "ours"):
         raise SystemExit("--fitted measures the gain on a press written apart: add --gain --rig second or third")
     if a.plan is not None:
@@ -393,22 +472,33 @@ def main() -> None:
         raise SystemExit("pairs run on the test presses (--rig second or third); the virtual rig hides one effect")
     if a.matrix_from:  # the matrix of results recorded earlier (a run stopped part way, or several joined)
         results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig and r[5] == a.minimal]
+        if a.follow:  # the matrix after the next plan, of the cases recorded with --follow
+            results = [(*r[6], *r[3:6]) for r in results if r[6] is not None]
         seeds = sorted({r[4] for r in results})
-        print_matrix(a.rig, hidden, [r[:3] for r in results], f"{len(seeds)} seeds ({_ranges(seeds)})", None)
+        over = f"{len(seeds)} seeds ({_ranges(seeds)})" + ("; after the next plan" if a.follow else "")
+        print_matrix(a.rig, hidden, [r[:3] for r in results], over, None)
         return
     # seed by seed over every row, so that a run stopped part way has every row at (nearly) the same count
     jobs = [(a.rig, e, s) for s in range(a.first_seed, a.first_seed + a.seeds) for e in hidden]
     start = time.perf_counter()
     from piezopress.pipelines.batch import dask_available
 
-    if a.no_batch or not dask_available():
-        if not a.no_batch:
+    followed = []
+    if a.no_batch or a.follow or not dask_available():
+        if not (a.no_batch or a.follow):
             print("Dask is not installed: one process pool instead (pip install 'piezopress[fleet]')", file=sys.stderr)
         results = []
         with ProcessPoolExecutor(a.workers) as pool:
-            for job, r in zip(jobs, pool.map(one, [(*j, a.minimal) for j in jobs])):
+            for k, (job, r) in enumerate(zip(jobs, pool.map(one, [(*j, a.minimal, a.follow) for j in jobs])), 1):
                 results.append(r[:3])
-                _record(a.record, job, r[:3], a.minimal, r[3])
+                _record(a.record, job, r[:3], a.minimal, r[3], r[4])
+                line = f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(r[1])}"
+                if r[4] is not None:
+                    f = r[4]
+                    after = ", ".join(f["named"]) if f.get("played") else "(no plan: as first)"
+                    followed.append((r[0], tuple(f.get("named") or r[1]), _gain_of(f.get("gain_pct"), r[2])))
+                    line += f" -> after the next plan: {after}"
+                print(line, file=sys.stderr)
     else:
         results = run_as_batch(jobs, a.workers, a.record, a.minimal)
     wall = time.perf_counter() - start
@@ -416,6 +506,14 @@ def main() -> None:
     over += ", times on a session clock from 3600 s" if a.minimal == "stamped" else ""
     over += f", the plan {a.plan.name} in place of the default" if a.plan is not None else ""
     print_matrix(a.rig, hidden, results, over, (wall, len(jobs), a.workers))
+    if a.follow:
+        print()
+        print_matrix(a.rig, hidden, followed, over + "; after each diagnosis's next-plan.toml was played", None)
+
+
+def _gain_of(followed: float | None, first: float) -> float:
+    """The hidden cause's gain after the next plan (the first's where no plan was played)."""
+    return first if followed is None else float(followed)
 
 
 def _read_results(path: Path) -> list[tuple]:
@@ -428,9 +526,20 @@ def _read_results(path: Path) -> list[tuple]:
             r["rig"],
             r["seed"],
             "stamped" if r.get("stamped") else bool(r.get("minimal")),
+            _followed_of(r),
         )
         for r in rows
     ]
+
+
+def _followed_of(row: dict) -> tuple | None:
+    """A recorded case's (effect, named, gain) after the next plan; None where not recorded with --follow."""
+    f = row.get("followed")
+    if f is None:
+        return None
+    first = float("nan") if row["gain_pct"] is None else row["gain_pct"]
+    named = tuple(f["named"]) if f.get("played") else tuple(row["named"])
+    return (row["effect"], named, _gain_of(f.get("gain_pct"), first) if f.get("played") else first)
 
 
 def _ranges(seeds: list[int]) -> str:

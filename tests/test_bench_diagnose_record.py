@@ -67,3 +67,63 @@ def test_a_recorded_row_carries_the_base_creep_of_a_real_base_fit(tmp_path):
         "gain_pct": None,
         "base_creep": "poles",
     }
+
+
+def test_a_followed_row_reads_back_as_what_the_user_got():
+    """``--follow`` records, beside the first diagnosis, the one after the next plan was played;
+    ``--matrix-from --follow`` reads that back. Where no plan was written the first diagnosis
+    stands (nothing more to run); a row recorded without ``--follow`` has no such matrix."""
+    bd = _bench()
+    first = {"rig": "third", "effect": "sensor_offset_drift", "seed": 0, "gain_pct": None}
+    played = {
+        **first,
+        "named": ["logarithmic_creep"],
+        "followed": {"played": ["rest"], "named": ["sensor_offset_drift"]},
+    }
+    played["followed"]["gain_pct"] = 41.0
+    assert bd._followed_of(played) == ("sensor_offset_drift", ("sensor_offset_drift",), 41.0)
+    none = {**first, "named": ["sensor_offset_drift"], "gain_pct": 55.0, "followed": {"played": None}}
+    assert bd._followed_of(none) == ("sensor_offset_drift", ("sensor_offset_drift",), 55.0)
+    assert bd._followed_of({**first, "named": ["none"]}) is None
+
+
+def test_follow_plays_the_next_plan_on_the_same_press_and_refits_only_where_asked(tmp_path, monkeypatch):
+    """:func:`bench_diagnose._follow` does what the plan's own "Then:" lines say: characterize the
+    plan on the press the first runs were measured on (not a new draw of it), refit the base on
+    both run sets only where the plan lists causes in ``refit_for``, diagnose both run sets."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    bd = _bench()
+    press = object()
+    calls: dict[str, list] = {"played": [], "fit": [], "diagnosed": []}
+
+    class Result:
+        findings = [type("F", (), {"cause": "sensor_offset_drift", "gain_pct": 40.0})()]
+
+    def played(out, backend, plan, minimal):
+        calls["played"].append((backend, plan, minimal))
+        return out
+
+    monkeypatch.setattr(bd, "_played", played)
+    monkeypatch.setattr(
+        F, "fit_bundle", lambda dirs, base: calls["fit"].append(list(dirs)) or type("R", (), {"doc": {}})
+    )
+    monkeypatch.setattr(B, "write_document", lambda doc, path: None)
+    monkeypatch.setattr(
+        D, "diagnose", lambda dirs, bundle, out: calls["diagnosed"].append((list(dirs), bundle)) or (Result, None)
+    )
+    for refit in ([], ["logarithmic_creep"]):
+        monkeypatch.setattr(
+            D, "next_plan_info", lambda d, r=refit: {"file": "plan.toml", "protocols": ["rest"], "refit_for": r}
+        )
+        got = bd._follow(tmp_path, press, tmp_path / "char", False, "sensor_offset_drift")
+        assert got["named"] == ["sensor_offset_drift"] and got["gain_pct"] == 40.0 and got["refit"] == bool(refit)
+    assert [c[0] for c in calls["played"]] == [press, press] and calls["played"][0][1] == "plan.toml"
+    assert calls["fit"] == [[tmp_path / "char", tmp_path / "more"]]  # only the second plan asked for a refit
+    assert [c[1].name for c in calls["diagnosed"]] == ["base.json", "base-2.json"]
+    assert all(c[0] == [tmp_path / "char", tmp_path / "more"] for c in calls["diagnosed"])
+    monkeypatch.setattr(D, "next_plan_info", lambda d: {"file": None})
+    assert bd._follow(tmp_path, press, tmp_path / "char", False, "x") == {"played": None}
+    assert len(calls["played"]) == 2  # no plan: nothing played

@@ -14,7 +14,13 @@ from piezopress.analysis.diagnosis.cause import Cause
 from piezopress.analysis.diagnosis.judging import Context, Finding
 from piezopress.analysis.diagnosis.model import run_starts
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
-from piezopress.analysis.diagnosis.slow import DRIFT_MAX_OF_RANGE, WANDER_UNTRIED, _drift_fit, wander_untried
+from piezopress.analysis.diagnosis.slow import (
+    CLOCK_WINDOW_MAX_S,
+    DRIFT_MAX_OF_RANGE,
+    WANDER_UNTRIED,
+    _drift_fit,
+    wander_untried,
+)
 
 
 def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
@@ -77,6 +83,12 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         "and a slow "
         f"creep element, judged on the rest against the creep element alone)"
     )
+    if d.left_out:
+        ev += (
+            "; left out: "
+            + ", ".join(f"{r.name} ({r.t_s[-1] - r.t_s[0]:.0f} s)" for r in d.left_out)
+            + f", longer than the {CLOCK_WINDOW_MAX_S:.0f} s a wander is drawn over (it turns within them)"
+        )
     return Finding(
         "sensor_offset_drift",
         ev,
