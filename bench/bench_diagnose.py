@@ -491,13 +491,16 @@ def main() -> None:
         with ProcessPoolExecutor(a.workers) as pool:
             for k, (job, r) in enumerate(zip(jobs, pool.map(one, [(*j, a.minimal, a.follow) for j in jobs])), 1):
                 results.append(r[:3])
-                _record(a.record, job, r[:3], a.minimal, r[3], r[4])
+                # (with --follow a failed first diagnosis is recorded as followed by nothing: it counts as it stands)
+                _record(a.record, job, r[:3], a.minimal, r[3], {"played": None} if a.follow and r[4] is None else r[4])
                 line = f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(r[1])}"
                 if r[4] is not None:
                     f = r[4]
                     after = ", ".join(f["named"]) if f.get("played") else "(no plan: as first)"
                     followed.append((r[0], tuple(f.get("named") or r[1]), _gain_of(f.get("gain_pct"), r[2])))
                     line += f" -> after the next plan: {after}"
+                elif a.follow:  # the first diagnosis failed: nothing to follow, the case counts as it stands
+                    followed.append(r[:3])
                 print(line, file=sys.stderr)
     else:
         results = run_as_batch(jobs, a.workers, a.record, a.minimal)

@@ -85,6 +85,8 @@ def test_a_followed_row_reads_back_as_what_the_user_got():
     none = {**first, "named": ["sensor_offset_drift"], "gain_pct": 55.0, "followed": {"played": None}}
     assert bd._followed_of(none) == ("sensor_offset_drift", ("sensor_offset_drift",), 55.0)
     assert bd._followed_of({**first, "named": ["none"]}) is None
+    failed = {**first, "named": ["error: ValueError"], "followed": {"played": None}}  # a first diagnosis that failed
+    assert bd._followed_of(failed)[1] == ("error: ValueError",)
 
 
 def test_follow_plays_the_next_plan_on_the_same_press_and_refits_only_where_asked(tmp_path, monkeypatch):
