@@ -491,16 +491,16 @@ def main() -> None:
         with ProcessPoolExecutor(a.workers) as pool:
             for k, (job, r) in enumerate(zip(jobs, pool.map(one, [(*j, a.minimal, a.follow) for j in jobs])), 1):
                 results.append(r[:3])
-                # (with --follow a failed first diagnosis is recorded as followed by nothing: it counts as it stands)
-                _record(a.record, job, r[:3], a.minimal, r[3], {"played": None} if a.follow and r[4] is None else r[4])
+                # with --follow a first diagnosis that failed has nothing to follow: it counts as it stands
+                f = r[4] if r[4] is not None or not a.follow else {"played": None}
+                _record(a.record, job, r[:3], a.minimal, r[3], f)
                 line = f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(r[1])}"
-                if r[4] is not None:
-                    f = r[4]
-                    after = ", ".join(f["named"]) if f.get("played") else "(no plan: as first)"
-                    followed.append((r[0], tuple(f.get("named") or r[1]), _gain_of(f.get("gain_pct"), r[2])))
-                    line += f" -> after the next plan: {after}"
-                elif a.follow:  # the first diagnosis failed: nothing to follow, the case counts as it stands
-                    followed.append(r[:3])
+                if f is not None:
+                    after = _after(r[:3], f)
+                    followed.append(after)
+                    line += (
+                        f" -> after the next plan: {', '.join(after[1]) if f.get('played') else '(no plan: as first)'}"
+                    )
                 print(line, file=sys.stderr)
     else:
         results = run_as_batch(jobs, a.workers, a.record, a.minimal)
@@ -514,9 +514,13 @@ def main() -> None:
         print_matrix(a.rig, hidden, followed, over + "; after each diagnosis's next-plan.toml was played", None)
 
 
-def _gain_of(followed: float | None, first: float) -> float:
-    """The hidden cause's gain after the next plan (the first's where no plan was played)."""
-    return first if followed is None else float(followed)
+def _after(first: tuple, followed: dict) -> tuple:
+    """(effect, named, gain) after the next plan, from the first diagnosis's and ``--follow``'s
+    record of it: the first stands where no plan was played."""
+    if not followed.get("played"):
+        return first
+    gain = followed.get("gain_pct")
+    return (first[0], tuple(followed["named"]), first[2] if gain is None else float(gain))
 
 
 def _read_results(path: Path) -> list[tuple]:
@@ -537,12 +541,10 @@ def _read_results(path: Path) -> list[tuple]:
 
 def _followed_of(row: dict) -> tuple | None:
     """A recorded case's (effect, named, gain) after the next plan; None where not recorded with --follow."""
-    f = row.get("followed")
-    if f is None:
+    if row.get("followed") is None:
         return None
-    first = float("nan") if row["gain_pct"] is None else row["gain_pct"]
-    named = tuple(f["named"]) if f.get("played") else tuple(row["named"])
-    return (row["effect"], named, _gain_of(f.get("gain_pct"), first) if f.get("played") else first)
+    first = (row["effect"], tuple(row["named"]), float("nan") if row["gain_pct"] is None else row["gain_pct"])
+    return _after(first, row["followed"])
 
 
 def _ranges(seeds: list[int]) -> str:

@@ -596,6 +596,11 @@ def test_a_drift_is_told_from_a_log_creep_across_runs_at_other_drive_levels():
     assert both.with_tail <= 0.5 * both.extended
 
 
+def _thermal_wander(clock_s, amplitude_n: float):
+    """A thermal wander of the offset on the session clock: two slow sines, 17 and 41 min."""
+    return amplitude_n * (np.sin(2 * np.pi * clock_s / 1020.0 + 1.0) + 0.6 * np.sin(2 * np.pi * clock_s / 2460.0 + 2.0))
+
+
 def _wander_runs(timed: bool, amplitude_n: float, seed: int = 0):
     """Five runs of two minutes on one session clock (a rest, a 0.1 Hz triangle, a held step, a
     lower triangle, a rest: 5 s apart), read through a thermal wander of the offset (two slow
@@ -618,7 +623,7 @@ def _wander_runs(timed: bool, amplitude_n: float, seed: int = 0):
     t0 = datetime(2026, 11, 29, 8, 0, tzinfo=UTC)
 
     def wander(c):
-        return amplitude_n * (np.sin(2 * np.pi * c / 1020.0 + 1.0) + 0.6 * np.sin(2 * np.pi * c / 2460.0 + 2.0))
+        return _thermal_wander(c, amplitude_n)
 
     runs, truth = [], {}
     for i, (name, (kind, x)) in enumerate(drives.items()):
@@ -886,10 +891,8 @@ def _with_long_hold(ctx: dg.Context, amplitude_n: float, hold_s: float = 1210.0)
     meta = {"started_utc": (first + timedelta(seconds=c0)).isoformat()}
     run = dg.RunData("hold-long", "creep", t, np.where(t >= 1.0, 150.0, 0.0), np.zeros_like(t), fs, meta=meta)
 
-    def wander(c):  # as _wander_runs draws it
-        return amplitude_n * (np.sin(2 * np.pi * c / 1020.0 + 1.0) + 0.6 * np.sin(2 * np.pi * c / 2460.0 + 2.0))
-
-    y = ctx.model.predict(run) + wander(c0 + t) - wander(c0) + np.random.default_rng(5).normal(0.0, 0.05, t.size)
+    drift = _thermal_wander(c0 + t, amplitude_n) - _thermal_wander(c0, amplitude_n)
+    y = ctx.model.predict(run) + drift + np.random.default_rng(5).normal(0.0, 0.05, t.size)
     runs = [*ctx.runs, dataclasses.replace(run, y=y)]
     return dg.Context(runs, ctx.model, frozenset(), {r.name: dg.noise_floor(r.y) for r in runs})
 

@@ -211,14 +211,15 @@ def _drift_fit(
     fitted on the first 60 % and judged on the rest, as the others are."""
     long = _long_runs(ctx)
     windows = wander_windows([r for r, _ in long], clock)
+    too_long = [bool(windows) and r.duration_s > CLOCK_WINDOW_MAX_S for r, _ in long]
     # where the wander is tried, a run longer than a window is left out: the wander turns within it
     # (a quadratic draws it over a quarter of an hour at most), so every form's trend, fitted on its
     # first 60 %, misreads its end (the third test press, seed 0, with the next plan's 1210 s hold
     # after its rests: the held-out RMS 4.5 N against 1.4 N without it, and the wander, named alone at
     # 38 % without it, lost to a warm-up that read 7 % worse than none)
-    left_out = tuple(r for r, _ in long if windows and r.t_s[-1] - r.t_s[0] > CLOCK_WINDOW_MAX_S)
+    left_out = tuple(r for (r, _), out in zip(long, too_long) if out)
     rows = []  # (run, t, slow residual, slow creep responses per tau (the tail's last), floor of the averages)
-    for r, window in (p for p in long if p[0] not in left_out):
+    for r, window in (p for p, out in zip(long, too_long) if not out):
         t, res = _slow_residual(r, r.y - ctx.pred(r), window)
         h = ctx.model.static(r)
         creeps = [_slow_residual(r, signals.first_order(h, tau, r.fs_hz), window)[1] for tau in DRIFT_CREEP_TAUS_S]

@@ -86,7 +86,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     if d.left_out:
         ev += (
             "; left out: "
-            + ", ".join(f"{r.name} ({r.t_s[-1] - r.t_s[0]:.0f} s)" for r in d.left_out)
+            + ", ".join(f"{r.name} ({r.duration_s:.0f} s)" for r in d.left_out)
             + f", longer than the {CLOCK_WINDOW_MAX_S:.0f} s a wander is drawn over (it turns within them)"
         )
     return Finding(
