@@ -269,11 +269,13 @@ def test_a_delay_in_samples_steps_at_two_rates_told_is_led_as_told():
     doc["shaper"]["mode"]["drive_chain"] = chain
     model = Bundle.from_dict(doc).forward_model()
     assert model.drive_delay_s == pytest.approx(9.5e-5) and model.drive_delay_samples == pytest.approx(1.9)
+    assert model.chain_samples == pytest.approx(2.5)  # the whole told delay: input_delay's contrast checks on it
     assert model.drive_delay_at(50_000.0) == pytest.approx(9.5e-5 - 1.9 * (1 / 20_000.0 - 1 / 50_000.0))
     assert model.drive_delay_at(20_000.0) == model.drive_delay_at(500.0) == pytest.approx(9.5e-5)
     assert model.drive_delay_at(1e9) >= 0.0
     doc["shaper"]["mode"]["drive_chain"] = {**chain, "delay_samples": None}  # one rate: seconds at every rate
     assert Bundle.from_dict(doc).forward_model().drive_delay_at(50_000.0) == pytest.approx(9.5e-5)
+    assert Bundle.from_dict(doc).forward_model().chain_samples == 0.0  # not told: the contrast is not checked
 
 
 def test_without_a_shaper_the_chain_is_still_led_and_a_chain_beyond_the_lead_is_refused():

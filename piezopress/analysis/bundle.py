@@ -736,7 +736,11 @@ class Bundle:
             samples = self._chain_doc.get("delay_samples")
             told = {}
             if _positive(samples) and own_s:  # of the delay held, what is in samples scales with each run's rate
-                told = {"drive_delay_samples": min(float(samples), own_s * fs), "drive_delay_rate_hz": fs}
+                told = {
+                    "drive_delay_samples": min(float(samples), own_s * fs),
+                    "drive_delay_rate_hz": fs,
+                    "chain_samples": float(samples),
+                }
             return replace(base, drive_lowpass=(wc, zc), drive_delay_s=own_s, **told)
         _, tau = self.drive_chain
         return replace(base, drive_tau_s=tau or 0.0)

@@ -210,6 +210,9 @@ class Model:
     # a run sampled faster lags by as many fewer seconds (:meth:`drive_delay_at`)
     drive_delay_samples: float = 0.0
     drive_delay_rate_hz: float | None = None
+    # the chain's whole delay in samples as those steps told it (the sampling's own and any FIFO), of
+    # which the model holds drive_delay_samples: what input_delay's rate contrast is checked against
+    chain_samples: float = 0.0
     # rate_dependent_hysteresis: every play threshold grows by rate_v_per_kv_s V per kV/s of the
     # drive rate (smoothed over rate_tau_s), or the loop's width (the plays' lag behind the
     # drive) by rate_loss_per_kv_s of itself per kV/s; the rate saturating at

@@ -106,6 +106,18 @@ def cause_input_delay(ctx: Context) -> Finding | None:
         return _delay_on_sweeps(
             ctx
         )  # no fast runs the base was not fitted on: swept runs where a lag of a few samples shows
+    found = _delay_on_fast_runs(ctx)
+    if found is not None and found.accepted:
+        return found
+    # where the fast runs' shape cannot tell the delay from the chain's bandwidth, two steps of one
+    # size at two sample rates tell a delay counted in samples apart from any lag in seconds
+    by_rate = _delay_by_rate_contrast(ctx)
+    return by_rate if by_rate is not None and by_rate.accepted else found
+
+
+def _delay_on_fast_runs(ctx: Context) -> Finding | None:
+    """The delay fitted with the mode (and the chain's low-pass) on the fast runs the base was
+    not fitted on, judged on their held-out part against a baseline with the same freedom."""
     fit, held = _fast_split(ctx)
     steps_fit = [(r, sl) for r, sl in fit if r.kind == "step"]
     # the baseline: the mode refitted within its bounds, and the chain's own lag (CHAIN_LAG_S)
@@ -165,6 +177,105 @@ def cause_input_delay(ctx: Context) -> Finding | None:
 #: Runs whose sample rates differ by more than this factor can tell a delay counted in samples
 #: from one in time.
 SAMPLE_RATES_APART = 1.2
+
+#: Two steps are of one size where their heights differ by less than this fraction.
+SAME_STEP = 0.05
+
+#: A delay counted in samples is named from this many samples beyond what the model holds: the
+#: rate contrast reads a fraction of a sample that the converters' timing leaves on every press
+#: (third test press, clean, seeds 0-1: 0.5 samples, held-out gain 19 and 24 %; second press, clean:
+#: 0.25 samples, 59 %), and a board's FIFO or a converter's latency is whole samples.
+MIN_CONTRAST_SAMPLES = 1.0
+
+
+def _step_edges(r) -> np.ndarray:
+    """The first sample of each edge of a step run's command (a jump of a fifth of its height)."""
+    jump = np.abs(np.diff(r.x))
+    idx = np.flatnonzero(jump > 0.2 * max(float(np.max(np.abs(r.x - r.x[0]))), 1e-12)) + 1
+    return idx[np.r_[True, np.diff(idx) > 1]] if idx.size else idx
+
+
+def rate_pairs(ctx: Context) -> list[tuple]:
+    """Step runs of one size (within :data:`SAME_STEP`) at two sample rates (more than
+    :data:`SAMPLE_RATES_APART` apart), each with a rise and a fall, none the base was fitted on:
+    ``(slower, faster)``, each run in one pair at most."""
+    steps = [r for r in ctx.independent(ctx.steps()) if _step_edges(r).size >= 2]
+    pairs, used = [], set()
+    for a in sorted(steps, key=lambda r: r.fs_hz):
+        for b in sorted(steps, key=lambda r: -r.fs_hz):
+            if id(a) in used or id(b) in used or b.fs_hz <= SAMPLE_RATES_APART * a.fs_hz:
+                continue
+            if abs(a.step_v - b.step_v) <= SAME_STEP * max(abs(a.step_v), abs(b.step_v)):
+                pairs.append((a, b))
+                used.update((id(a), id(b)))
+    return pairs
+
+
+def rate_contrast(model, pairs: list[tuple], edge: int, window_s: float, forces: dict[int, np.ndarray]) -> float:
+    """RMS of what two runs of each pair leave of the model differently, about the step's
+    ``edge``-th edge (0: the rise, 1: the fall), from half a millisecond before it to ``window_s``
+    after it: each run's residual, the faster run's interpolated onto the slower one's samples,
+    their difference less its mean. The static map, the creep and the mode leave both runs alike
+    (one drive, one press, in time), so they cancel; a lag counted in samples does not."""
+    out = []
+    for a, b in pairs:
+        ea = a.y - model.reading(a, forces[id(a)])
+        eb = b.y - model.reading(b, forces[id(b)])
+        t0 = a.t_s[_step_edges(a)[edge]]
+        sel = (a.t_s >= t0 - 5e-4) & (a.t_s <= t0 + window_s)
+        d = ea[sel] - np.interp(a.t_s[sel], b.t_s, eb)
+        out.append(d - d.mean())
+    return float(np.sqrt(np.mean(np.concatenate(out) ** 2))) if out else float("nan")
+
+
+def _delay_by_rate_contrast(ctx: Context) -> Finding | None:
+    """A delay counted in samples, read off steps of one size at two sample rates
+    (:func:`rate_pairs`): the slower run lags by as many more seconds as its samples are longer.
+    A low-pass, a mode or a delay in seconds lags both alike, and the static map's misfit is the
+    same in both, so the difference of their residuals (:func:`rate_contrast`) shows the delay
+    alone where the fast runs' shape cannot tell it from the chain's bandwidth (third test press,
+    a FIFO of 3 samples: the drive chain's low-pass refitted 1250 -> 810 Hz took the lag of the
+    steps at 20 kHz as well as the delay did). The samples are fitted on the rises and judged on
+    the falls."""
+    pairs = rate_pairs(ctx)
+    m = ctx.model
+    if not pairs or (m.chain_samples and m.chain_samples - _bundle.SAMPLING_DELAY_SAMPLES < MIN_CONTRAST_SAMPLES):
+        # the chain identified from steps at two rates (fit) read no more samples than the
+        # sampling's own: a contrast is then an unmodelled edge's (third test press, a coupling of
+        # the drive voltage, seed 1: 1.0 sample, held-out gain 29 %, where the chain read 2.23)
+        return None
+    runs = [r for p in pairs for r in p]
+    forces = _forces(m, runs)  # a delay changes only the reading
+    gaps = [min(np.diff(a.t_s[_step_edges(a)[:2]])[0], np.diff(b.t_s[_step_edges(b)[:2]])[0]) for a, b in pairs]
+    # the mode's ring-down (four time constants), within half the time between the edges
+    window = min(0.5 * min(gaps), 4.0 / (m.zeta * m.wn) if m.wn and m.zeta else 0.02)
+    slow = min(a.fs_hz for a, _ in pairs)
+    n = _search(
+        lambda k: rate_contrast(replace(m, delay_samples=m.delay_samples + k), pairs, 0, window, forces),
+        0.0,
+        5e-3 * slow,
+        41,
+    )
+    if n < MIN_CONTRAST_SAMPLES or n / slow <= CHAIN_LAG_S:
+        return None
+    ext = replace(m, delay_samples=m.delay_samples + n)
+    held = [(r, slice(int(_step_edges(r)[1]) - int(5e-4 * r.fs_hz), None)) for r in runs]
+    fit = [(r, slice(0, int(_step_edges(r)[1]) - int(5e-4 * r.fs_hz))) for r in runs]
+    at = ", ".join(f"{1e6 * n / r:.3g} us at {r / 1e3:g} kHz" for r in sorted({r.fs_hz for r in runs}))
+    names = "; ".join(f"{a.name} and {b.name}" for a, b in pairs)
+    ev = (
+        f"steps of one size at two sample rates ({names}) lag each other by {n:.2g} samples more than the "
+        f"model draws ({at}): a delay counted in samples (a board's FIFO, a converter's filter), which a "
+        "low-pass or a mode of the chain, lagging both alike in seconds, cannot explain (fitted on the rises, "
+        "judged on the falls)"
+    )
+
+    def cost(segments, model):
+        held_pairs = [(a, b) for a, b in pairs if {id(a), id(b)} <= {id(r) for r, _ in segments}]
+        return rate_contrast(model, held_pairs, 1, window, forces) if held_pairs else float("nan")
+
+    f = _judge(ctx, "input_delay", ev, fit, held, ext, {"delay_samples": n, "delay_s": n / slow}, m, cost=cost)
+    return replace(f, gain_by_run={})  # judged on pairs of runs, never on one alone
 
 
 def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[float], moved: str = "") -> Finding | None:
