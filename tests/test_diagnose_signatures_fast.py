@@ -428,3 +428,20 @@ def test_a_widening_one_width_for_every_fast_rate_draws_is_refused_with_the_reas
     )
     assert found is not None and not found.accepted
     assert found.refused.startswith("one widening for every fast rate predicts the fast sweeps' held-out ends")
+
+
+@pytest.mark.parametrize(
+    "slew, shown",
+    [(20e3, True), (300e3, True), (1.0e6, False), (2.0e6, False)],  # 150 V at 20 kHz: 150, 10, 3 and 1.5 samples
+)
+def test_a_slew_is_a_ramp_the_steps_resolve(slew, shown):
+    """A slew limit ramps a step over step / slew: where that lasts fewer than MIN_RAMP_SAMPLES
+    samples of the steps' rate on every step, it cannot be told from a lag of half its length."""
+    runs = [_run(x, np.zeros_like(x), n) for x, n in _steps()]
+    why = slew_cause.ramp_unresolved(slew, runs)
+    assert (why == "") == shown, why
+    if not shown:
+        assert "step-150v" in why and "samples" in why and "a lag of half its length" in why
+    # the most resolving step decides: the same 150 V step sampled at 100 kHz shows a 1 MV/s ramp
+    fast = [dg.RunData("step-150v-100k", "step", np.arange(2000) / 1e5, runs[-1].x[:2000], runs[-1].y[:2000], 1e5)]
+    assert slew_cause.ramp_unresolved(1.0e6, runs + fast) == ""
