@@ -20,10 +20,10 @@ WN, ZETA = 5000.0, 0.08
 NOISE_N = 0.05
 
 
-def _step(name: str, fs: float, height: float, seed: int) -> dg.RunData:
-    """A step of ``height`` V at 10 ms, back at 110 ms, 200 ms sampled at ``fs`` (no reading yet)."""
+def _step(name: str, fs: float, height: float, seed: int, at_s: float = 0.01) -> dg.RunData:
+    """A step of ``height`` V at ``at_s``, back 100 ms later, 200 ms sampled at ``fs`` (no reading yet)."""
     t = np.arange(int(0.2 * fs)) / fs
-    x = np.where((t >= 0.01) & (t < 0.11), height, 0.0)
+    x = np.where((t >= at_s) & (t < at_s + 0.1), height, 0.0)
     return dg.RunData(name, "step", t, x, np.zeros_like(x), fs)
 
 
@@ -105,3 +105,21 @@ def test_the_contrast_is_checked_against_the_samples_the_chain_was_identified_wi
     runs = _press_runs(replace(BASE, delay_samples=3.0))
     f = ID._delay_by_rate_contrast(_context(runs, replace(BASE, chain_samples=told)))
     assert (f is not None and f.accepted) == named, f
+
+
+def test_steps_at_other_times_read_as_steps_at_one_time():
+    """The faster run's step 23.3 ms later than the slower one's (another program's timing): each
+    residual is read on the time since its own edge, so the contrast reads what it reads of steps
+    at one time. The press also lags 0.1 ms in seconds beyond the model, in both runs; the FIFO
+    shifts that lag's residual too, so both read a part of a sample over the 3 (read at one time
+    for both runs, the later step was compared with nothing: the slower run's residual alone,
+    5 samples)."""
+    press = replace(BASE, delay_samples=3.0, delay_s=1e-4)
+    found = []
+    for at in (0.01, 0.0333):
+        runs = [_step("a-50v", 20_000.0, 50.0, 1), _step("b-50v-50khz", 50_000.0, 50.0, 2, at_s=at)]
+        f = ID._delay_by_rate_contrast(_context([_read(press, r, i) for i, r in enumerate(runs)], BASE))
+        assert f is not None and f.accepted, f
+        found.append(f.parameters["delay_samples"])
+    assert found[1] == pytest.approx(found[0], abs=0.05)
+    assert 3.0 <= found[0] <= 3.6

@@ -214,16 +214,19 @@ def rate_pairs(ctx: Context) -> list[tuple]:
 def rate_contrast(model, pairs: list[tuple], edge: int, window_s: float, forces: dict[int, np.ndarray]) -> float:
     """RMS of what two runs of each pair leave of the model differently, about the step's
     ``edge``-th edge (0: the rise, 1: the fall), from half a millisecond before it to ``window_s``
-    after it: each run's residual, the faster run's interpolated onto the slower one's samples,
-    their difference less its mean. The static map, the creep and the mode leave both runs alike
-    (one drive, one press, in time), so they cancel; a lag counted in samples does not."""
+    after it: each run's residual on the time since its own edge, the faster run's interpolated
+    onto the slower one's samples, their difference less its mean. The static map, the creep and
+    the mode leave both runs alike (one drive, one press, in time), so they cancel; a lag counted
+    in samples does not. (Each on its own edge: two runs whose steps come at other times, or a
+    sample apart, compare the same part of the response.)"""
     out = []
     for a, b in pairs:
         ea = a.y - model.reading(a, forces[id(a)])
         eb = b.y - model.reading(b, forces[id(b)])
-        t0 = a.t_s[_step_edges(a)[edge]]
-        sel = (a.t_s >= t0 - 5e-4) & (a.t_s <= t0 + window_s)
-        d = ea[sel] - np.interp(a.t_s[sel], b.t_s, eb)
+        ta = a.t_s - a.t_s[_step_edges(a)[edge]]
+        tb = b.t_s - b.t_s[_step_edges(b)[edge]]
+        sel = (ta >= -5e-4) & (ta <= window_s)
+        d = ea[sel] - np.interp(ta[sel], tb, eb)
         out.append(d - d.mean())
     return float(np.sqrt(np.mean(np.concatenate(out) ** 2))) if out else float("nan")
 
