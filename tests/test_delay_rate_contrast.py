@@ -44,7 +44,8 @@ def _context(runs: list[dg.RunData], model: dg.Model) -> Context:
     return Context(runs, model, frozenset(), {r.name: noise_floor(r.y) for r in runs})
 
 
-BASE = dg.Model(MODEL, wn=WN, zeta=ZETA, drive_lowpass=(2 * np.pi * 1200.0, 0.8))
+#: the model as a bundle whose chain fit told 5.2 samples (a FIFO of 3 beside the sampling's own)
+BASE = dg.Model(MODEL, wn=WN, zeta=ZETA, drive_lowpass=(2 * np.pi * 1200.0, 0.8), chain_samples=5.2)
 
 
 def test_the_pairs_are_steps_of_one_size_at_two_rates():
@@ -97,11 +98,12 @@ def test_the_whole_cause_names_the_fifo_where_the_fast_runs_shape_could_not():
     assert result.findings[0].parameters["delay_samples"] == pytest.approx(3.0, abs=0.33)
 
 
-@pytest.mark.parametrize("told, named", [(2.2, False), (5.2, True)])
+@pytest.mark.parametrize("told, named", [(0.0, False), (2.2, False), (5.2, True)])
 def test_the_contrast_is_checked_against_the_samples_the_chain_was_identified_with(told, named):
-    """Where ``fit`` identified the chain's delay in samples from steps at two rates, a contrast is
-    named only where that delay is a sample or more beyond the sampling's own (two samples): else
-    the contrast is an unmodelled edge's, not a FIFO's."""
+    """A contrast is named only where ``fit`` identified the chain's delay in samples from steps at
+    two rates and that delay is a sample or more beyond the sampling's own (two samples): else (a
+    chain told in no samples, 0: a slew's, or none identified) the contrast is an unmodelled
+    edge's, not a FIFO's."""
     runs = _press_runs(replace(BASE, delay_samples=3.0))
     f = ID._delay_by_rate_contrast(_context(runs, replace(BASE, chain_samples=told)))
     assert (f is not None and f.accepted) == named, f
