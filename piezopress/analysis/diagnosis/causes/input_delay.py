@@ -211,20 +211,22 @@ def rate_pairs(ctx: Context) -> list[tuple]:
     return pairs
 
 
-def rate_contrast(model, pairs: list[tuple], edge: int, window_s: float, forces: dict[int, np.ndarray]) -> float:
+def rate_contrast(
+    model, pairs: list[tuple], edge: int, window_s: float, forces: dict[int, np.ndarray], edges: dict[int, np.ndarray]
+) -> float:
     """RMS of what two runs of each pair leave of the model differently, about the step's
     ``edge``-th edge (0: the rise, 1: the fall), from half a millisecond before it to ``window_s``
     after it: each run's residual on the time since its own edge, the faster run's interpolated
     onto the slower one's samples, their difference less its mean. The static map, the creep and
     the mode leave both runs alike (one drive, one press, in time), so they cancel; a lag counted
     in samples does not. (Each on its own edge: two runs whose steps come at other times, or a
-    sample apart, compare the same part of the response.)"""
+    sample apart, compare the same part of the response.) ``edges``: each run's :func:`_step_edges`."""
     out = []
     for a, b in pairs:
         ea = a.y - model.reading(a, forces[id(a)])
         eb = b.y - model.reading(b, forces[id(b)])
-        ta = a.t_s - a.t_s[_step_edges(a)[edge]]
-        tb = b.t_s - b.t_s[_step_edges(b)[edge]]
+        ta = a.t_s - a.t_s[edges[id(a)][edge]]
+        tb = b.t_s - b.t_s[edges[id(b)][edge]]
         sel = (ta >= -5e-4) & (ta <= window_s)
         d = ea[sel] - np.interp(ta[sel], tb, eb)
         out.append(d - d.mean())
@@ -240,9 +242,9 @@ def _delay_by_rate_contrast(ctx: Context) -> Finding | None:
     a FIFO of 3 samples: the drive chain's low-pass refitted 1250 -> 810 Hz took the lag of the
     steps at 20 kHz as well as the delay did). The samples are fitted on the rises and judged on
     the falls."""
-    pairs = rate_pairs(ctx)
     m = ctx.model
-    if not pairs or m.chain_samples - _bundle.SAMPLING_DELAY_SAMPLES < MIN_CONTRAST_SAMPLES:
+    pairs = rate_pairs(ctx) if m.chain_samples - _bundle.SAMPLING_DELAY_SAMPLES >= MIN_CONTRAST_SAMPLES else []
+    if not pairs:
         # the contrast checks what the chain identified from steps at two rates (fit) told: where
         # it read no more samples than the sampling's own, or told none, a contrast is an
         # unmodelled edge's (third test press: a coupling of the drive voltage, seed 1, 1.0 sample
@@ -252,12 +254,13 @@ def _delay_by_rate_contrast(ctx: Context) -> Finding | None:
         return None
     runs = [r for p in pairs for r in p]
     forces = _forces(m, runs)  # a delay changes only the reading
-    gaps = [min(np.diff(a.t_s[_step_edges(a)[:2]])[0], np.diff(b.t_s[_step_edges(b)[:2]])[0]) for a, b in pairs]
+    edges = {id(r): _step_edges(r) for r in runs}  # found once: the search reads them at every trial
+    gaps = [min(float(r.t_s[edges[id(r)][1]] - r.t_s[edges[id(r)][0]]) for r in p) for p in pairs]
     # the mode's ring-down (four time constants), within half the time between the edges
     window = min(0.5 * min(gaps), 4.0 / (m.zeta * m.wn) if m.wn and m.zeta else 0.02)
     slow = min(a.fs_hz for a, _ in pairs)
     n = _search(
-        lambda k: rate_contrast(replace(m, delay_samples=m.delay_samples + k), pairs, 0, window, forces),
+        lambda k: rate_contrast(replace(m, delay_samples=m.delay_samples + k), pairs, 0, window, forces, edges),
         0.0,
         5e-3 * slow,
         41,
@@ -265,8 +268,9 @@ def _delay_by_rate_contrast(ctx: Context) -> Finding | None:
     if n < MIN_CONTRAST_SAMPLES or n / slow <= CHAIN_LAG_S:
         return None
     ext = replace(m, delay_samples=m.delay_samples + n)
-    held = [(r, slice(int(_step_edges(r)[1]) - int(5e-4 * r.fs_hz), None)) for r in runs]
-    fit = [(r, slice(0, int(_step_edges(r)[1]) - int(5e-4 * r.fs_hz))) for r in runs]
+    cut = {id(r): int(edges[id(r)][1]) - int(5e-4 * r.fs_hz) for r in runs}  # half a millisecond before the fall
+    held = [(r, slice(cut[id(r)], None)) for r in runs]
+    fit = [(r, slice(0, cut[id(r)])) for r in runs]
     at = ", ".join(f"{1e6 * n / r:.3g} us at {r / 1e3:g} kHz" for r in sorted({r.fs_hz for r in runs}))
     names = "; ".join(f"{a.name} and {b.name}" for a, b in pairs)
     ev = (
@@ -278,7 +282,7 @@ def _delay_by_rate_contrast(ctx: Context) -> Finding | None:
 
     def cost(segments, model):
         held_pairs = [(a, b) for a, b in pairs if {id(a), id(b)} <= {id(r) for r, _ in segments}]
-        return rate_contrast(model, held_pairs, 1, window, forces) if held_pairs else float("nan")
+        return rate_contrast(model, held_pairs, 1, window, forces, edges) if held_pairs else float("nan")
 
     f = _judge(ctx, "input_delay", ev, fit, held, ext, {"delay_samples": n, "delay_s": n / slow}, m, cost=cost)
     return replace(f, gain_by_run={})  # judged on pairs of runs, never on one alone
