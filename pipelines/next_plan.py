@@ -490,8 +490,11 @@ HOLD_RIVAL = "a creep that ends within the decade after the hold"
 
 def hold_findings(result: dg.Diagnosis) -> dict[str, float]:
     """The causes of the findings whose size is measured where no run shows it -> the held step
-    that tells them from :data:`HOLD_RIVAL` (s, ``Finding.tell_hold_s``)."""
-    return {f.cause: f.tell_hold_s for f in result.findings if f.tell_hold_s > 0.0}
+    that tells them from :data:`HOLD_RIVAL` (s, ``Finding.tell_hold_s``): the findings named, and
+    those found too small only against a model whose own extrapolation there no run pins either
+    (a creep spectrum's elements slower than the hold: the cause says so by keeping its hold)."""
+    unnamed = [f for f in result.considered if f.too_small and f.gain_pct >= dg.MIN_GAIN_PCT]
+    return {f.cause: f.tell_hold_s for f in [*result.findings, *unnamed] if f.tell_hold_s > 0.0}
 
 
 def plan_text(
