@@ -253,6 +253,24 @@ def test_diagnose_names_a_slew_limit_alone_where_the_chain_lag_was_read_on_slewe
     assert slew == pytest.approx(100e-3 / 6e-6, rel=0.2)
 
 
+def _slew_alone(tmp_path: Path, seed: int):
+    """``bench_diagnose --rig third``'s current-limit draw of ``seed``, characterized with the
+    default plan, ``fit --base``, diagnosed: the slew must be named alone. Returns the diagnosis."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    press = tp.hidden_press("amplifier_slew_limit", np.random.default_rng([seed, 97]))
+    char.characterize(tmp_path / "char", backend=press)
+    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
+    result, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
+    assert [f.cause for f in result.findings] == ["amplifier_slew_limit"], [
+        (f.cause, f.evidence) for f in result.findings
+    ]
+    return result
+
+
 @pytest.mark.slow
 def test_no_delay_is_named_beside_a_slew_for_a_lag_only_the_slewed_runs_show(tmp_path):
     """``bench_diagnose --rig third``, current limit seed 13 (11 V/ms: the 50 and 100 Hz triangles
@@ -261,18 +279,7 @@ def test_no_delay_is_named_beside_a_slew_for_a_lag_only_the_slewed_runs_show(tmp
     delay of 0.187 ms gained 40 % beside the slew (65 and 38 % on the fast triangles, 0.3 and 1.8 %
     on the slow ones) and was named; now the runs too slow to slew refuse it, and the slew is named
     alone."""
-    from piezopress.pipelines import bundle as B
-    from piezopress.pipelines import characterize as char
-    from piezopress.pipelines import diagnose as D
-    from piezopress.pipelines import fit as F
-
-    press = tp.hidden_press("amplifier_slew_limit", np.random.default_rng([13, 97]))
-    char.characterize(tmp_path / "char", backend=press)
-    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
-    result, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
-    assert [f.cause for f in result.findings] == ["amplifier_slew_limit"], [
-        (f.cause, f.evidence) for f in result.findings
-    ]
+    result = _slew_alone(tmp_path, 13)
     tested = {t["cause"]: t["result"] for t in result.tested}
     assert "too slow to slew" in tested["input_delay"], tested["input_delay"]
 
@@ -284,18 +291,7 @@ def test_no_log_creep_is_named_beside_a_slew_from_elements_a_drift_cancels(tmp_p
     under the 0.4 % bar). Its size was read on the hold's own fit instead, whose Kelvin-Voigt
     elements a free drift cancels: 450 % of the step over the decade after the hold, and a log
     creep was named beside the slew. Now the slew is named alone, the log creep said too small."""
-    from piezopress.pipelines import bundle as B
-    from piezopress.pipelines import characterize as char
-    from piezopress.pipelines import diagnose as D
-    from piezopress.pipelines import fit as F
-
-    press = tp.hidden_press("amplifier_slew_limit", np.random.default_rng([7, 97]))
-    char.characterize(tmp_path / "char", backend=press)
-    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
-    result, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
-    assert [f.cause for f in result.findings] == ["amplifier_slew_limit"], [
-        (f.cause, f.evidence) for f in result.findings
-    ]
+    result = _slew_alone(tmp_path, 7)
     tested = {t["cause"]: t for t in result.tested}
     assert tested["logarithmic_creep"]["result"].startswith("not found (too small to matter"), tested
     assert tested["logarithmic_creep"]["parameters"]["per_decade"] < 0.004
