@@ -131,8 +131,8 @@ def _slewed(r, slew_v_per_s: float) -> bool:
     """Whether a rate limit at ``slew_v_per_s`` moves run ``r``'s drive by more than 1 % of its range."""
     x = np.asarray(r.x, dtype=float)
     span = float(np.ptp(x)) if x.size else 0.0
-    if span <= 0.0:
-        return False
+    if span <= 0.0 or float(np.max(np.abs(np.diff(x)))) <= slew_v_per_s / r.fs_hz:
+        return False  # (no sample outruns the limit: nothing to step through)
     lim = signals.rate_limit(x, float(x[0]), slew_v_per_s / r.fs_hz)
     return bool(np.max(np.abs(lim - x)) > 0.01 * span)
 
