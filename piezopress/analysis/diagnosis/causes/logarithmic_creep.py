@@ -89,6 +89,20 @@ def _creep_fit(
     )
 
 
+def _with_tail(
+    static_gain: float, taus: Sequence[float], gains: Sequence[float], tail_taus: np.ndarray, per_decade: float
+) -> creep_mod.CreepModel:
+    """Kelvin-Voigt elements and a log tail of ``per_decade`` (two elements per decade at
+    ``tail_taus``, each half of it), as one creep model."""
+    return creep_mod.CreepModel(
+        "kv",
+        static_gain,
+        tuple(float(x) for x in taus) + tuple(float(x) for x in tail_taus),
+        tuple(float(g) for g in gains) + (0.5 * per_decade,) * tail_taus.size,
+        {"per_decade": per_decade},
+    )
+
+
 def _beyond_next_decade(creep: creep_mod.CreepModel, model: creep_mod.CreepModel, hold_s: float) -> float:
     """How much more of a unit step ``creep`` rises than ``model`` from ``hold_s`` to ten times
     that after the step (closed form)."""
@@ -172,13 +186,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         else:
             c0, d0, e0 = c1, 0.0, 0.0
             base_creep = creep_mod.fit_poles(t[:k], ub[:k], y[:k] - c1, tau_bounds_s=(5.0 / fs, 10 * t[-1]))
-        log = creep_mod.CreepModel(
-            "kv",
-            kc1,
-            tuple(float(grid[i]) for i in i1) + tuple(float(x) for x in tail_taus),
-            tuple(g1) + (0.5 * gamma,) * tail_taus.size,
-            {"per_decade": gamma},
-        )
+        log = _with_tail(kc1, [float(grid[i]) for i in i1], g1, tail_taus, gamma)
         # the offsets fitted took the kept stroke's static part (K_c bias), which the model's
         # creep of it leaves out (it is part of the rest level)
         c0 += base_creep.static_gain * bias
@@ -245,18 +253,9 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         # (third test press, current limit seed 7: an element that rose 450 % of the step over the
         # decade after the hold, against a drift): what the runs judged is the tail across them, so
         # its size and the extension are the tail's, on the model's own creep
-        g = rate = max(across.tail_per_decade, 0.0)
+        rate = max(across.tail_per_decade, 0.0)
         c = ctx.model.creep
-        ext = replace(
-            ext,
-            creep=creep_mod.CreepModel(
-                "kv",
-                c.static_gain,
-                tuple(c.taus_s) + tuple(float(x) for x in tail_taus),
-                tuple(c.gains) + (0.5 * g,) * tail_taus.size,
-                {"per_decade": g},
-            ),
-        )
+        ext = replace(ext, creep=_with_tail(c.static_gain, c.taus_s, c.gains, tail_taus, rate))
         beyond = _beyond_next_decade(ext.creep, c, hold_s)
         names = sorted(r.name for r in across.runs)
         ev += (
