@@ -475,13 +475,21 @@ def choose(
 def untold_findings(ctx: dg.Context, result: dg.Diagnosis) -> list[str]:
     """Findings the runs cannot tell from what they could also be ("logarithmic_creep from
     sensor_offset_drift"): a drift of the reading and a creep, with no two rests far apart on a
-    recorded clock (:func:`~piezopress.analysis.diagnosis.slow.wander_untold`)."""
+    recorded clock (:func:`~piezopress.analysis.diagnosis.slow.wander_untold`); and where nothing
+    slow was named but a rest moves (the signature ``dg.MOVES_AT_REST``), that movement
+    (:data:`MOVES_AT_REST_PAIR`)."""
     out = []
     for f in result.findings:
         rivals = [c for c in f.could_also_be if wander_untold(ctx, {f.cause, c})]
         if rivals:
             out.append(f"{f.cause} from {' or '.join(rivals)}")
+    if any(s.get("kind") == dg.MOVES_AT_REST for s in result.signatures):  # nothing named, the rest moves
+        out.append(MOVES_AT_REST_PAIR)
     return out
+
+
+#: What the tell group tells where a rest moves and nothing is named (``dg.MOVES_AT_REST``).
+MOVES_AT_REST_PAIR = "the movement at rest: a wander of the reading (sensor_offset_drift) from creep the model lacks"
 
 
 #: What a finding whose size is measured on the decade after the hold could also be.

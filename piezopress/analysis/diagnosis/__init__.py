@@ -145,6 +145,7 @@ from piezopress.analysis.diagnosis.residuals import (  # noqa: F401
     rms,
 )
 from piezopress.analysis.diagnosis.search import (  # noqa: F401
+    MOVES_AT_REST,
     CauseProgress,
     Diagnosis,
     _base_fit,

@@ -21,7 +21,13 @@ from piezopress.analysis.diagnosis.judging import (
 from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import POOR_FIT_RATIO, Testability, testability
 from piezopress.analysis.diagnosis.residuals import ResidualStats, judged, noise_floor, residual_stats, rms
-from piezopress.analysis.diagnosis.slow import TELL_DRIFT_FROM_CREEP, wander_untold
+from piezopress.analysis.diagnosis.slow import (
+    SLOW_RIVALS,
+    TELL_DRIFT_FROM_CREEP,
+    rest_movement,
+    wander_untold,
+    wander_untried,
+)
 
 # --------------------------------------------------------------------------- the diagnosis
 
@@ -198,6 +204,38 @@ def _together(ctx: Context, tried: list[Finding], failed: dict[str, str]) -> lis
     return [first, second]
 
 
+#: The kind of :func:`_moves_at_rest`'s signature (``next-plan.toml`` asks for the runs that tell it).
+MOVES_AT_REST = "moves_at_rest"
+
+
+def _moves_at_rest(ctx: Context, checks: dict[str, Testability], named: set[str]) -> dict[str, Any] | None:
+    """Where a drift of the reading was tried with one rate for every run only (no two rests far
+    apart on a recorded clock: :func:`~piezopress.analysis.diagnosis.slow.wander_untried`) and
+    neither it nor a log creep was named, a rest run that moves beyond the model's creep and a kept
+    stroke's (:func:`~piezopress.analysis.diagnosis.slow.rest_movement`) is said: a wander of the
+    reading over the session, or creep the model lacks, which one rest cannot tell apart (the third
+    test press's thermal wander, seeds 5 and 9: nothing named, nothing asked for). None otherwise."""
+    drift = checks.get("sensor_offset_drift")
+    if drift is None or not drift.testable or SLOW_RIVALS & named or not wander_untried(ctx):
+        return None
+    mv = rest_movement(ctx)
+    if mv is None or not mv.moves:
+        return None
+    u, k = units.label(ctx.model.unit), units.key(ctx.model.unit)
+    kept = f" and that of a stroke of {mv.kept:.3g} {u} kept at rest" if mv.kept else ""
+    return {
+        "kind": MOVES_AT_REST,
+        "run": mv.run,
+        f"swing_{k}": mv.swing,
+        f"floor_{k}": mv.floor,
+        "text": f"at rest ({mv.run}, {mv.duration_s:.0f} s) the reading moves {mv.swing:.3g} {u} "
+        f"({mv.swing / mv.floor:.0f} times the noise of its 5 s averages) beyond the model's creep{kept}: "
+        "a drift of the reading that wanders "
+        f"over the session (tried with one rate for every run only) or creep the model lacks; one rest cannot tell "
+        f"them apart ({TELL_DRIFT_FROM_CREEP})",
+    }
+
+
 def diagnose(
     base: Model,
     runs: Sequence[RunData],
@@ -330,6 +368,9 @@ def diagnose(
         for f in last_try.values()
         if f.signature and f.cause not in found
     ]
+    moving = _moves_at_rest(ctx, checks, set(found))
+    if moving is not None:
+        signatures.append(moving)
     tested: list[dict[str, Any]] = []
     for cid in asked:
         if not checks[cid].testable:

@@ -1,0 +1,166 @@
+"""Issue 20, the unknown said: a rest that moves where nothing slow was named, and a drift of the
+reading judged against the creep of a stroke the stack keeps at rest.
+
+The runs: a slow triangle, a held step, a lower triangle and one rest at the end (the default
+plan's one rest), two minutes each on one session clock. The stack creeps with equal weights per
+decade from 1 to 3000 s; the model's creep is three Kelvin-Voigt elements (3, 30 and 300 s) fitted
+to the held step's two minutes, as ``fit --base`` fits them, so it draws the stack's creep only
+nearly. The stack keeps a stroke at rest whose creep rises from every run's start (the third test
+press's remanence: 35 N there), and the reading may wander on the session's clock, two slow sines
+(the third press's thermal wander moved its one rest by 0.26 N, seed 5), which the drift's one rate
+for every run does not draw either.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.creep import CreepModel
+from piezopress.analysis.diagnosis import search
+from piezopress.analysis.diagnosis.causes.sensor_offset_drift import cause_sensor_offset_drift
+from piezopress.analysis.diagnosis.slow import REST_SWING_TO_FLOOR, TELL_DRIFT_FROM_CREEP, rest_movement
+from piezopress.analysis.hysteresis import PIModel
+from piezopress.pipelines import next_plan as NP
+
+FS = 100.0  # the default plan samples its rest at 100 Hz
+NOISE_N = 0.05
+KEPT_N = 35.0
+#: The stack's creep: equal weights per decade, 1 to 3000 s (3.6 % of the step in all).
+STACK_CREEP = CreepModel("kv", 1.0, tuple(np.geomspace(1.0, 3000.0, 8)), (0.0045,) * 8)
+LOOP = PIModel((0.0,), (1.0,), (0.0,), (2.0,), y0=0.0)
+STACK = dg.Model(LOOP, creep=STACK_CREEP)
+
+
+def _fitted_creep() -> CreepModel:
+    """Three elements (3, 30, 300 s) fitted by least squares to the stack's creep over a two-minute hold."""
+    taus = (3.0, 30.0, 300.0)
+    held = STACK_CREEP.step_creep(int(121 * FS), FS)
+    t = np.arange(1, held.size + 1) / FS
+    gains, *_ = np.linalg.lstsq(-np.expm1(-t[:, None] / np.array(taus)), held, rcond=None)
+    return CreepModel("kv", 1.0, taus, tuple(float(g) for g in gains))
+
+
+MODEL = dg.Model(LOOP, creep=_fitted_creep())
+
+
+def _wander(clock_s: np.ndarray, amplitude_n: float, phase: float = 4.0) -> np.ndarray:
+    """A thermal wander of the reading: two slow sines, 17 and 41 min (the first's phase ``phase``)."""
+    return amplitude_n * (np.sin(2 * np.pi * clock_s / 1020.0 + phase) + 0.6 * np.sin(2 * np.pi * clock_s / 2460.0))
+
+
+def _runs(
+    wander_n: float, kept_n: float = KEPT_N, rests_before: int = 0, seed: int = 0, phase: float = 4.0
+) -> dg.Context:
+    """The runs of the module's docstring (``rests_before`` more rests first, as a next plan's),
+    each starting 5 s after the one before ended and recording its start time; the reading wanders
+    by ``wander_n`` (:func:`_wander`, of ``phase``) on the session's clock and the stack keeps ``kept_n`` at rest."""
+    t = np.arange(0.0, 120.0, 1.0 / FS)
+    tri = 2.0 * np.abs(((t * 0.1) % 1.0) - 0.5)
+    drives = [(f"rest-{i}", "rest", np.zeros_like(t)) for i in range(rests_before)] + [
+        ("triangle", "triangle", 150.0 * tri),
+        ("hold", "creep", np.where(t >= 1.0, 150.0, 0.0)),
+        ("triangle-low", "triangle", 10.0 + 40.0 * tri),
+        ("rest", "rest", np.zeros_like(t)),
+    ]
+    rng = np.random.default_rng(seed)
+    t0 = datetime(2026, 12, 3, 8, 0, tzinfo=UTC)
+    runs = []
+    for i, (name, kind, x) in enumerate(drives):
+        c0 = 125.0 * i
+        run = dg.RunData(
+            name, kind, t, x, np.zeros_like(t), FS, meta={"started_utc": (t0 + timedelta(seconds=c0)).isoformat()}
+        )
+        y = STACK.predict(run) + kept_n * STACK_CREEP.step_creep(t.size, FS) + _wander(c0 + t, wander_n, phase)
+        runs.append(dataclasses.replace(run, y=y + rng.normal(0.0, NOISE_N, t.size)))
+    return dg.Context(runs, MODEL, frozenset(), {r.name: dg.noise_floor(r.y) for r in runs})
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_rest_that_only_a_kept_stroke_moves_does_not_move_beyond_it(seed):
+    """The kept stroke's creep moves the rest far beyond the bar against the model's creep alone
+    (what a rest that moves would read without it), and not beyond it once it is taken; the model
+    draws the kept stroke's rise over the rest within 15 %."""
+    from piezopress.analysis.diagnosis.slow import _slow_residual
+
+    ctx = _runs(0.0, seed=seed)
+    mv = rest_movement(ctx)
+    assert mv is not None and not mv.moves, mv
+    rest = ctx.runs[-1]
+    rise = KEPT_N * STACK_CREEP.step_creep(rest.t_s.size, FS)
+    drawn = mv.kept * MODEL.creep_transient(rest)
+    assert drawn[-1] - drawn[0] == pytest.approx(rise[-1] - rise[0], rel=0.15)
+    _, averaged = _slow_residual(rest, rest.y - MODEL.predict(rest), 5.0)
+    assert np.ptp(averaged) > 5 * REST_SWING_TO_FLOOR * mv.floor  # the kept stroke alone would have read as moving
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_rest_the_reading_drifts_through_moves_beyond_the_kept_stroke(seed):
+    """A wander of 0.4 N moves the two-minute rest 0.3 N, as the third press's wander moved
+    its rest: the kept stroke's saturating creep cannot draw that steady rise, and the rest moves;
+    without the kept stroke too."""
+    for kept in (KEPT_N, 0.0):
+        mv = rest_movement(_runs(0.4, kept_n=kept, seed=seed))
+        assert mv is not None and mv.moves, (kept, mv)
+
+
+def _nothing_named() -> dict[str, dg.Cause]:
+    """The two slow causes with the catalogue's ids and needs, neither finding anything (the third
+    press's drift seeds 5 and 9: one rate for every run predicts worse than none)."""
+    return {
+        c: dataclasses.replace(dg.CAUSES[c], run=lambda ctx: None) for c in ("logarithmic_creep", "sensor_offset_drift")
+    }
+
+
+def test_a_rest_that_moves_where_nothing_slow_is_named_is_said_and_the_next_plan_tells_it(monkeypatch, tmp_path):
+    """Nothing named, one rest that moves: the summary says so with the experiment that tells a
+    wander of the reading from creep, and ``next-plan.toml`` holds it (a rest, the drive held, a
+    rest again); where only the kept stroke moves the rest, neither."""
+    monkeypatch.setattr(search, "CAUSES", _nothing_named())
+    causes = list(search.CAUSES)
+    moving = _runs(0.4)
+    result = search.diagnose(MODEL, moving.runs, causes=causes)
+    assert result.findings == []
+    (sig,) = [s for s in result.signatures if s["kind"] == dg.MOVES_AT_REST]
+    assert sig["run"] == "rest" and "at rest (rest, 120 s) the reading moves" in result.summary
+    assert TELL_DRIFT_FROM_CREEP in sig["text"]
+    info = NP.next_plan([], moving, result, tmp_path, ["runs/"])
+    assert info is not None and info["tells_apart"] == [NP.MOVES_AT_REST_PAIR]
+    assert [g["protocols"] for g in info["groups"]] == [["rest-before-drive", "hold-150v", "rest-after-drive"]]
+
+    still = _runs(0.0)
+    quiet = search.diagnose(MODEL, still.runs, causes=causes)
+    assert not [s for s in quiet.signatures if s["kind"] == dg.MOVES_AT_REST]
+    assert NP.next_plan([], still, quiet, tmp_path / "still", ["runs/"]) is None  # nothing written
+
+
+def test_a_rest_that_moves_is_not_said_where_two_rests_on_the_clock_tried_the_wander(monkeypatch):
+    """With a rest before the drive as well (more than 300 s before the last), the drift's wander
+    was tried: a rest that moves is then no question the runs leave open."""
+    monkeypatch.setattr(search, "CAUSES", _nothing_named())
+    result = search.diagnose(MODEL, _runs(0.4, rests_before=1).runs, causes=list(search.CAUSES))
+    assert not [s for s in result.signatures if s["kind"] == dg.MOVES_AT_REST]
+
+
+@pytest.mark.parametrize("rests_before", [0, 2])
+def test_a_kept_stroke_creeping_from_every_runs_start_is_no_drift_of_the_reading(monkeypatch, rests_before):
+    """The kept stroke's creep rises from every run's start, as a warm-up of the reading would
+    (with the next plan's two rests beside the first runs' one too). Judged against the model's
+    creep alone, a warm-up takes it up at 10-18 % held out (the third test press, clean, after the
+    next plan: 20.9 %, named); judged against the kept stroke's creep as well, it predicts worse than
+    none. A wander of the reading beside the kept stroke is still named, and says what it was
+    judged against."""
+    from piezopress.analysis.diagnosis.causes import sensor_offset_drift as S
+
+    still = cause_sensor_offset_drift(_runs(0.0, rests_before=rests_before))
+    assert still is not None and still.gain_pct <= 0.0, still.gain_pct
+    drifting = cause_sensor_offset_drift(_runs(2.0, rests_before=2, phase=2.0))
+    assert drifting is not None and drifting.accepted and drifting.model.drift_clock is not None, drifting
+    assert "kept at rest" in drifting.evidence
+    monkeypatch.setattr(S, "kept_stroke_model", lambda ctx: ctx)  # the drift judged as before
+    unkept = cause_sensor_offset_drift(_runs(0.0, rests_before=rests_before))
+    assert unkept.gain_pct >= 8.0 and "at the start of a run" in unkept.evidence, unkept.gain_pct
