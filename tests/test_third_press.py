@@ -455,3 +455,34 @@ def test_a_wander_taken_for_a_log_creep_is_told_apart_by_the_next_plan(tmp_path)
     assert [f.cause for f in both.findings] == ["sensor_offset_drift"], both.summary
     assert "the test's clock" in both.findings[0].evidence and both.findings[0].gain_pct >= 30.0
     assert not (D.next_plan_info(tmp_path / "diag-2") or {}).get("tells_apart")
+
+
+@pytest.mark.slow
+def test_a_wander_nothing_was_named_for_is_said_and_named_after_the_next_plan(tmp_path):
+    """The third press's thermal wander (the draw of ``bench_diagnose --rig third``, seed 5), the
+    default plan's one rest: nothing is named (one rate for every run predicts worse than none) and
+    before, nothing was asked for either. The rest moves beyond the model's creep and the stroke kept
+    at rest: that is said, and the next plan holds the rests around the drive; played on the same
+    press right after the first runs and diagnosed with them, the drift is named alone."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+    from piezopress.pipelines import next_plan as NP
+
+    press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([5, 97]))
+    char.characterize(tmp_path / "char", backend=press)
+    B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
+    first, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
+    assert first.findings == [] and "at rest (rest-120s, 120 s) the reading moves" in first.summary, first.summary
+    plan = D.next_plan_info(tmp_path / "diag")
+    assert NP.MOVES_AT_REST_PAIR in plan["tells_apart"]
+    char.characterize(tmp_path / "more", backend=press, plan_path=plan["file"])
+    dirs = [tmp_path / "char", tmp_path / "more"]
+    base = tmp_path / "base.json"
+    if plan["refit_for"]:
+        base = tmp_path / "base-2.json"
+        B.write_document(F.fit_bundle(dirs, base=True).doc, base)
+    both, _ = D.diagnose(dirs, base, tmp_path / "diag-2")
+    assert [f.cause for f in both.findings] == ["sensor_offset_drift"], both.summary
+    assert "the test's clock" in both.findings[0].evidence and both.findings[0].gain_pct >= 30.0
