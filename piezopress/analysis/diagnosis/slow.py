@@ -317,6 +317,12 @@ def _drift_fit(
 KEPT_STROKE_MIN_TO_FLOOR = 5.0
 
 
+def long_rests(ctx: Context) -> list[RunData]:
+    """The runs at rest of 10 s or more: where the creep of a stroke kept at rest, or a drift of the
+    reading, shows with the drive doing nothing."""
+    return [r for r in ctx.rests() if r.t_s[-1] >= 10.0]
+
+
 def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
     """The stroke kept at rest whose creep from every run's start (:attr:`Model.creep_bias`,
     output unit) best predicts the first 60 % of the rest runs of 10 s or more (cycle-averaged
@@ -330,7 +336,7 @@ def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
         return 0.0
     m0 = replace(model, creep_bias=0.0)
     R, C, fit_m, floors = [], [], [], []
-    for r in (r for r in ctx.rests() if r.t_s[-1] >= 10.0):
+    for r in long_rests(ctx):
         t, res = _slow_residual(r, r.y - m0.predict(r), 5.0)
         _, tr = _slow_residual(r, m0.creep_transient(r), 5.0)
         R.append(res)
@@ -391,7 +397,7 @@ def rest_movement(ctx: Context) -> RestMove | None:
     kept stroke's; a thermal wander of the reading (seeds 0 and 5, 0.52 and 0.26 N over that rest)
     leaves 0.19 and 0.30 N (74 and 123 times the floor): the kept stroke's saturating creep cannot draw
     a wander's steady rise."""
-    rests = [r for r in ctx.rests() if r.t_s[-1] >= 10.0]
+    rests = long_rests(ctx)
     if not rests:
         return None
     kept = kept_stroke_model(ctx)

@@ -20,6 +20,7 @@ from piezopress.analysis.diagnosis.slow import (
     WANDER_UNTRIED,
     _drift_fit,
     kept_stroke_model,
+    long_rests,
     wander_untried,
 )
 
@@ -45,8 +46,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     # named on seeds 0 and 3 of 0-3). One rest cannot tell that creep from a drift through it: the
     # stroke read on it takes the drift's rise (the thermal wander, seeds 1 and 2 of the default
     # plan: 53 and 49 % held out against the model's creep, 25 and -3 % against the stroke)
-    rests = [r for r in ctx.rests() if r.t_s[-1] >= 10.0]
-    kept = kept_stroke_model(ctx) if len(rests) >= 2 else ctx
+    kept = kept_stroke_model(ctx) if len(long_rests(ctx)) >= 2 else ctx
     bias = kept.model.creep_bias if kept is not ctx else 0.0
     ctx = kept
     d = _drift_fit(ctx, clock=run_starts(ctx.runs) or None)
