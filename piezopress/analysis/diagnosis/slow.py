@@ -357,14 +357,13 @@ def _rest_creep_bias(ctx: Context, model: Model, most: float) -> float:
 
 def kept_stroke_model(ctx: Context) -> Context:
     """``ctx`` with the creep of a stroke kept at rest in its model (:func:`_rest_creep_bias`, at most
-    the largest static stroke of the creep holds, or of any run without one) where its model has no
-    kept stroke nor drift of the reading yet (a drift found takes the rests' rise its own way);
-    ``ctx`` itself where the rest runs evidence none."""
+    the largest static stroke any run is driven to, read from the drives, not from the runs' recorded
+    kinds) where its model has no kept stroke nor drift of the reading yet (a drift found takes the
+    rests' rise its own way); ``ctx`` itself where the rest runs evidence none."""
     m = ctx.model
     if m.creep is None or m.creep_bias or m.drift_per_s or m.drift_warmup or m.drift_clock:
         return ctx
-    held = [r for r in ctx.runs if r.kind == "creep"] or ctx.runs
-    kept = _rest_creep_bias(ctx, m, max(float(np.ptp(m.static(r))) for r in held))
+    kept = _rest_creep_bias(ctx, m, max(float(np.ptp(m.static(r))) for r in ctx.runs))
     return Context(ctx.runs, replace(m, creep_bias=kept), ctx.fitted_runs, ctx.floor) if kept else ctx
 
 
