@@ -536,6 +536,7 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
                 f"    {u_['run']}: {u_[f'rms_{k}']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at "
                 f"{u_['where_s']:.4g} s, "
                 + (f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz" if u_["dominant_freq_hz"] else "no tone")
+                + (f": it {u_['signature_text']}" if u_.get("signature_text") else "")
             )
     if plan:
         lines.append("")

@@ -387,6 +387,7 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
                     "largest at "
                     f"{u['where_s']:.4g} s, "
                     + (f"dominant frequency {u['dominant_freq_hz']:.4g} Hz" if u["dominant_freq_hz"] else "no tone")
+                    + (f": it {u['signature_text']}" if u.get("signature_text") else "")
                     for u in d["unexplained"]
                 )
             )

@@ -124,6 +124,9 @@ def test_unexplained_structure_is_listed_not_named():
     assert result.findings == []
     assert result.unexplained and result.unexplained[0]["run"] == "tone"
     assert result.unexplained[0]["dominant_freq_hz"] == pytest.approx(37.0, abs=0.5)
+    # ... and said by its signature: a line the drive (0.5 Hz) does not have
+    assert result.unexplained[0]["signature"] == "line"
+    assert "tone it is a line at 37 Hz the drive does not have" in result.summary, result.summary
 
 
 def test_cli_diagnose_json_progress_and_simulate(tmp_path):

@@ -135,3 +135,184 @@ def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> Residual
         float(f[k]) if k else 0.0,
         float(t[int(np.argmax(np.abs(r)))]),
     )
+
+
+# --------------------------------------------------------------------------- what unexplained structure looks like
+
+#: A share of the residual's variance at least this large names the structure's signature.
+SIGNATURE_MIN_SHARE = 0.5
+#: A step's transient: the residual within this long after a step (s; a 1 kHz mode damped 3 %
+#: rings out within 20 ms) ...
+TRANSIENT_S = 0.02
+#: ... holding at least :data:`SIGNATURE_MIN_SHARE` of its energy and this many times the share
+#: of the run's time it takes.
+TRANSIENT_CONCENTRATION = 2.0
+#: A direction of the drive counts as a branch of the loop where the drive moves that way over at
+#: least this share of the run (a step's edge is no branch: one column on a few points fits anything).
+BRANCH_MIN_SHARE = 0.1
+#: The residual and drive are averaged over blocks to at most this many points before the
+#: signatures' regressions (the level's and branches' shapes are much slower than the samples).
+SIGNATURE_POINTS = 20000
+
+#: Each signature of a residual no cause explains: (key, what it says).
+SIGNATURES = {
+    "level": "follows the drive's level (the static map drawn wrong there)",
+    "loop": "follows the drive's level and direction (the loop's branches drawn wrong)",
+    "transient": "sits in the first moments after each step (the step's transient: the chain's or a mode's dynamics)",
+    "after_step": "settles in log time after each step or the run's start (creep or settling the model lacks)",
+    "drive_line": "repeats at a frequency the drive holds, in a shape neither its level nor its direction "
+    "draws (the loop's shape, a lag or a rate effect)",
+    "line": "is a line the drive does not have",
+    "slow": "moves slowly through the run, with no line, level, branch or step's settling to it",
+    "none": "has no simple signature",
+}
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Which signature a run's residual shows (:data:`SIGNATURES`), with the share of its
+    variance each regression explains (the level, the level and direction, the settling after
+    steps) and the line it holds (Hz, 0 without one)."""
+
+    kind: str
+    level: float
+    loop: float
+    after_step: float
+    transient: float
+    line_hz: float
+
+    @property
+    def share(self) -> float | None:
+        """The share of the variance (of the energy, for a transient) its signature explains; else None."""
+        return {"level": self.level, "loop": self.loop, "after_step": self.after_step, "transient": self.transient}.get(
+            self.kind
+        )
+
+    def text(self) -> str:
+        return _said(self.kind, [self.line_hz] if self.line_hz else [], [] if self.share is None else [self.share], [])
+
+
+def _blocks(a: np.ndarray, m: int) -> np.ndarray:
+    n = a.size // m * m
+    return a[:n].reshape(-1, m).mean(axis=1) if m > 1 else a
+
+
+def _share(r: np.ndarray, cols: list[np.ndarray]) -> float:
+    """The share of ``r``'s variance (about its mean) a least-squares fit on ``cols`` (and an offset) explains."""
+    A = np.column_stack([np.ones_like(r), *cols])
+    coef, *_ = np.linalg.lstsq(A, r, rcond=None)
+    v = float(np.var(r))
+    return max(0.0, 1.0 - float(np.var(r - A @ coef)) / v) if v > 0 else 0.0
+
+
+#: The drive holds a frequency where its spectrum there stands this many times over its median ...
+DRIVE_LINE_OVER_MEDIAN = 1e3
+#: ... and reaches this share of its peak (a triangle's 9th harmonic 1.5e-4, its 51st 1.5e-7; a
+#: 16-bit command's floor about 1e-10; a cosine holds no harmonic, the Hann window's leak at 2 Hz
+#: from a 5 Hz triangle's 7th harmonic is 1e-30).
+DRIVE_LINE_OF_PEAK = 1e-8
+
+
+def drive_holds(x: np.ndarray, fs: float, hz: float) -> bool:
+    """Whether the drive ``x`` itself holds a line at ``hz`` (within a bin): its Hann-windowed
+    periodogram there at least :data:`DRIVE_LINE_OVER_MEDIAN` times its median and
+    :data:`DRIVE_LINE_OF_PEAK` of its peak."""
+    if x.size < 8 or np.ptp(x) == 0 or not hz:
+        return False
+    f, p = signal.periodogram(x - np.mean(x), fs, window="hann")
+    k = int(np.argmin(np.abs(f - hz)))
+    near = float(p[max(k - 1, 0) : k + 2].max())
+    return near > DRIVE_LINE_OVER_MEDIAN * float(np.median(p[1:])) and near >= DRIVE_LINE_OF_PEAK * float(p.max())
+
+
+def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats) -> Structure:
+    """What a run's residual looks like where no cause explains it: the share of its variance
+    that a cubic in the drive's level explains (a static map drawn wrong), the share of its
+    energy within :data:`TRANSIENT_S` of a step where it gathers there (the step's transient:
+    :data:`TRANSIENT_CONCENTRATION` times the share of time), the share the cubic on
+    each branch of the drive's direction explains (a loop drawn wrong), the share a logarithm of
+    the time since the last step (or the run's start) explains (creep or a settling), or its line
+    (:attr:`ResidualStats.dominant_freq_hz`): one the drive holds too (:func:`drive_holds`), or not.
+    Decided from the drive and the residual, never from what the run's metadata says it is."""
+    r0, x0, t0 = judged(run, residual), judged(run, run.x), judged(run, run.t_s)
+    span = max(float(np.ptp(x0)), 1e-12)
+    big = np.abs(np.diff(x0, prepend=x0[0])) > 0.05 * span
+    since0 = t0 - t0[np.maximum.accumulate(np.where(big, np.arange(x0.size), 0))]
+    near = big.any() & (since0 < TRANSIENT_S)
+    e0 = np.square(r0 - np.mean(r0))
+    transient = float(e0[near].sum() / e0.sum()) if near.any() and e0.sum() > 0 else 0.0
+    if transient < TRANSIENT_CONCENTRATION * float(near.mean()):
+        transient = 0.0  # spread over the run as evenly as over the steps' moments: no transient
+    m = max(1, r0.size // SIGNATURE_POINTS)
+    r, x, since = _blocks(r0, m), _blocks(x0, m), _blocks(since0, m)
+    u = (x - np.mean(x)) / span
+    d = np.sign(np.gradient(x)) if x.size > 1 else np.zeros_like(x)
+    level = [u, u**2, u**3]
+    branches = min(float(np.mean(d > 0)), float(np.mean(d < 0))) >= BRANCH_MIN_SHARE
+    moves = np.ptp(x0) > 0
+    shares = {
+        "level": _share(r, level) if moves else 0.0,
+        "loop": _share(r, level + [d, d * u, d * u**2]) if moves and branches else 0.0,
+        "after_step": _share(r, [np.log1p(since * 1e3)]),
+    }
+    line = stats.dominant_freq_hz
+    harmonic = drive_holds(x0, run.fs_hz, line)
+    if shares["level"] >= SIGNATURE_MIN_SHARE:
+        kind = "level"
+    elif transient >= SIGNATURE_MIN_SHARE:
+        kind = "transient"
+    elif shares["loop"] >= SIGNATURE_MIN_SHARE:
+        kind = "loop"
+    elif shares["after_step"] >= SIGNATURE_MIN_SHARE:
+        kind = "after_step"
+    elif line:
+        kind = "drive_line" if harmonic else "line"
+    else:
+        kind = "slow" if stats.lag1_autocorr >= 0.8 else "none"
+    return Structure(kind, shares["level"], shares["loop"], shares["after_step"], transient, float(line))
+
+
+def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") -> str:
+    """The unexplained runs said by their signature (``entries``: each with ``run``, ``signature``
+    (a :data:`SIGNATURES` key), ``share`` (of the variance its signature explains, or None),
+    ``line_hz`` and the ratio to the noise floor), runs of one signature together: "in A, B it
+    follows the drive's level (the static map drawn wrong there; 77-96 % of the variance, 90-259 x
+    the noise)"."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for e in entries:
+        groups.setdefault(e["signature"], []).append(e)
+    return "; ".join(
+        f"in {', '.join(e['run'] for e in es)} it "
+        + _said(
+            kind,
+            [float(e["line_hz"]) for e in es if e.get("line_hz")],
+            [float(e["share"]) for e in es if e.get("share") is not None],
+            [float(e[ratio_key]) for e in es if e.get(ratio_key) is not None],
+        )
+        for kind, es in groups.items()
+    )
+
+
+def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float]) -> str:
+    """What a signature says (:data:`SIGNATURES`), its lines named, with the figures in its parentheses."""
+    what = SIGNATURES[kind]
+    hz = " or ".join(sorted({f"{v:.0f}" if v >= 100 else f"{v:.3g}" for v in lines}, key=float))
+    if kind == "line":
+        what = f"is a line at {hz} Hz the drive does not have"
+    elif kind == "transient" and hz:
+        what = f"rings at {hz} Hz in the first moments after each step (a mode's or the chain's dynamics)"
+    figs = ", ".join(
+        f for f in (_span([100 * v for v in shares], " % of the variance"), _span(ratios, " x the noise")) if f
+    )
+    if not figs:
+        return what
+    return f"{what[:-1]}; {figs})" if what.endswith(")") else f"{what} ({figs})"
+
+
+def _span(values: list[float], unit: str) -> str:
+    """'a-b unit' (or 'a unit' for one value, '' for none), values as whole numbers where they are large."""
+    if not values:
+        return ""
+    lo, hi = min(values), max(values)
+    fmt = (lambda v: f"{v:.0f}") if lo >= 10 else (lambda v: f"{v:.2g}")
+    return f"{fmt(lo)}{unit}" if fmt(lo) == fmt(hi) else f"{fmt(lo)}-{fmt(hi)}{unit}"

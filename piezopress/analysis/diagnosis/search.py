@@ -20,7 +20,15 @@ from piezopress.analysis.diagnosis.judging import (
 )
 from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import POOR_FIT_RATIO, Testability, testability
-from piezopress.analysis.diagnosis.residuals import ResidualStats, judged, noise_floor, residual_stats, rms
+from piezopress.analysis.diagnosis.residuals import (
+    ResidualStats,
+    judged,
+    noise_floor,
+    residual_stats,
+    rms,
+    structure_signature,
+    unexplained_text,
+)
 from piezopress.analysis.diagnosis.slow import (
     SLOW_RIVALS,
     TELL_DRIFT_FROM_CREEP,
@@ -332,18 +340,27 @@ def diagnose(
     findings.sort(key=lambda f: -f.gain_pct)
     after = [residual_stats(r, r.y - ctx.pred(r), floor[r.name]) for r in runs]
     k, u = units.key(base.unit), units.label(base.unit)
-    unexplained = [
-        {
-            "run": s.run,
-            f"rms_{k}": s.rms,
-            f"noise_floor_{k}": s.floor,
-            "ratio": s.ratio,
-            "where_s": s.t_max_s,
-            "dominant_freq_hz": s.dominant_freq_hz,
-        }
-        for s in after
-        if s.ratio > UNEXPLAINED_RATIO
-    ]
+    by_name = {r.name: r for r in runs}
+    unexplained = []
+    for s in after:
+        if s.ratio <= UNEXPLAINED_RATIO:
+            continue
+        run = by_name[s.run]
+        shape = structure_signature(run, run.y - ctx.pred(run), s)
+        unexplained.append(
+            {
+                "run": s.run,
+                f"rms_{k}": s.rms,
+                f"noise_floor_{k}": s.floor,
+                "ratio": s.ratio,
+                "where_s": s.t_max_s,
+                "dominant_freq_hz": s.dominant_freq_hz,
+                "signature": shape.kind,
+                "signature_text": shape.text(),
+                "share": shape.share,
+                "line_hz": shape.line_hz,
+            }
+        )
     from piezopress.analysis.signatures import drive_independent_lines
 
     lines = drive_independent_lines(
@@ -438,7 +455,9 @@ def diagnose(
     if weak:  # how sure: a finding backed by one held-out run, or not by a third of them, is said to be
         head += "; weak evidence for " + ", ".join(f"{f.cause} ({f.strength_text().split(': ', 1)[1]})" for f in weak)
     if unexplained:
-        head += "; unexplained structure in " + ", ".join(u_["run"] for u_ in unexplained)
+        head += f"; unexplained structure in {len(unexplained)} run{'s' if len(unexplained) > 1 else ''}: " + (
+            unexplained_text(unexplained)
+        )
     for sig in signatures:
         head += f"; {sig['text']}"
     if not_tested:

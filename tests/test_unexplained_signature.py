@@ -1,0 +1,116 @@
+"""What unexplained structure looks like (``residuals.structure_signature``): each signature hidden
+in a residual drawn in its own form (a power law in the level, a play operator's branches, a
+ring after the step, a log-time settling, lines), never in the regressions' own columns."""
+
+import numpy as np
+import pytest
+
+from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.diagnosis.residuals import (
+    SIGNATURE_MIN_SHARE,
+    residual_stats,
+    structure_signature,
+    unexplained_text,
+)
+
+FS = 2000.0
+
+
+def _triangle(f_hz: float, seconds: float, fs: float = FS, amp: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(int(seconds * fs)) / fs
+    return t, amp * (1.0 - np.abs(((t * f_hz) % 1.0) * 2.0 - 1.0))
+
+
+def _steps(seconds: float, fs: float = FS) -> tuple[np.ndarray, np.ndarray]:
+    """Up to 20, 50, 120, 80 V and back to 0, each held a fifth of the run."""
+    t = np.arange(int(seconds * fs)) / fs
+    return t, np.array([20.0, 50.0, 120.0, 80.0, 0.0])[np.minimum((5 * t / seconds).astype(int), 4)]
+
+
+def _play(x: np.ndarray, r: float) -> np.ndarray:
+    """A play operator of radius ``r`` (the loop's branches: up and down differ by ~2r)."""
+    out = np.empty_like(x)
+    z = x[0]
+    for i, v in enumerate(x):
+        z = min(max(z, v - r), v + r)
+        out[i] = z
+    return out
+
+
+def _shape(t, x, residual, fs=FS, noise=0.02, seed=0):
+    rng = np.random.default_rng(seed)
+    res = residual + rng.normal(0.0, noise, t.size)
+    run = dg.RunData("r", "custom", t, x, res, fs)
+    return structure_signature(run, res, residual_stats(run, res, noise))
+
+
+def test_a_static_map_drawn_wrong_follows_the_level():
+    t, x = _steps(20.0)
+    s = _shape(t, x, 0.4 * (x / 100.0) ** 1.4)
+    assert s.kind == "level" and s.level >= 0.9, s
+
+
+def test_a_loop_drawn_wrong_follows_level_and_direction():
+    # the press's loop is wider than the model's: the residual is a play's lag behind the drive
+    for f in (0.5, 3.0):
+        t, x = _triangle(f, 8.0 / f)
+        s = _shape(t, x, 0.05 * (_play(x, 8.0) - x))
+        assert s.kind == "loop" and s.loop >= 0.8, (f, s)
+        assert s.level < SIGNATURE_MIN_SHARE, s  # the level alone does not draw a loop
+
+
+def test_a_ring_after_each_step_is_a_transient():
+    t, x = _steps(20.0)
+    edges = t[np.flatnonzero(np.diff(x)) + 1]
+    ring = sum(np.exp(-np.clip(t - e, 0.0, None) / 0.004) * np.sin(2 * np.pi * 700 * (t - e)) * (t >= e) for e in edges)
+    s = _shape(t, x, 5.0 * ring, noise=0.005)
+    assert s.kind == "transient" and s.transient >= 0.8, s
+    assert s.text().startswith("rings at 70"), s.text()  # the ring's peak is a bin or two wide
+    assert "Hz in the first moments after each step" in s.text(), s.text()
+
+
+def test_a_settling_at_rest_is_after_the_step():
+    t = np.arange(int(120 * FS)) / FS
+    x = np.zeros_like(t)
+    s = _shape(t, x, -0.3 * np.log10(1.0 + t / 2.0), noise=0.01)
+    assert s.kind == "after_step" and s.after_step >= 0.8, s
+
+
+@pytest.mark.parametrize("hz,kind", [(37.0, "line"), (45.0, "drive_line")])
+def test_lines_are_told_from_the_drives_harmonics(hz, kind):
+    # on a 5 Hz triangle: 45 Hz is its 9th harmonic, which the drive holds (locked to it, a shape
+    # the cubic per branch cannot draw), 37 Hz is none of them
+    t, x = _triangle(5.0, 6.0)
+    s = _shape(t, x, 0.5 * np.sin(2 * np.pi * hz * t + 0.3))
+    assert s.kind == kind and s.line_hz == pytest.approx(hz, abs=0.3), s
+
+
+def test_the_signature_does_not_depend_on_how_finely_the_run_is_sampled():
+    # the regressions run on block averages; the same physics sampled 10x finer reads the same
+    shapes = []
+    for fs in (FS, 10 * FS):
+        t, x = _triangle(1.0, 8.0, fs=fs)
+        shapes.append(_shape(t, x, 0.05 * (_play(x, 8.0) - x), fs=fs))
+    assert [s.kind for s in shapes] == ["loop", "loop"], shapes
+    assert shapes[1].loop == pytest.approx(shapes[0].loop, abs=0.02), shapes
+    assert shapes[1].level == pytest.approx(shapes[0].level, abs=0.02), shapes
+
+
+def test_the_summary_groups_runs_by_signature_with_their_figures():
+    entries = [
+        {"run": "step-20v", "signature": "level", "share": 0.77, "line_hz": 0.0, "ratio": 90.0},
+        {"run": "step-50v", "signature": "level", "share": 0.95, "line_hz": 0.0, "ratio": 259.0},
+        {"run": "hum", "signature": "line", "share": None, "line_hz": 50.0, "ratio": 4.0},
+    ]
+    text = unexplained_text(entries)
+    assert text.startswith("in step-20v, step-50v it follows the drive's level"), text
+    assert "77-95 % of the variance, 90-259 x the noise)" in text, text
+    assert "in hum it is a line at 50 Hz the drive does not have (4 x the noise)" in text, text
+
+
+def test_a_line_on_a_multiple_of_a_smooth_drives_frequency_is_not_the_drives():
+    # a 0.5 Hz cosine holds no harmonics: a 37 Hz line (74 times its frequency) is not the drive's
+    t = np.arange(int(8 * FS)) / FS
+    x = 75.0 * (1.0 - np.cos(2 * np.pi * 0.5 * t))
+    s = _shape(t, x, 0.5 * np.sin(2 * np.pi * 37.0 * t))
+    assert s.kind == "line", s
