@@ -183,7 +183,7 @@ class Structure:
 
     @property
     def share(self) -> float | None:
-        """The share of the variance (of the energy, for a transient) its signature explains; else None."""
+        """The share of the structure (the energy, for a transient) its signature explains; else None."""
         return {"level": self.level, "loop": self.loop, "after_step": self.after_step, "transient": self.transient}.get(
             self.kind
         )
@@ -197,12 +197,28 @@ def _blocks(a: np.ndarray, m: int) -> np.ndarray:
     return a[:n].reshape(-1, m).mean(axis=1) if m > 1 else a
 
 
-def _share(r: np.ndarray, cols: list[np.ndarray]) -> float:
-    """The share of ``r``'s variance (about its mean) a least-squares fit on ``cols`` (and an offset) explains."""
+def _share(r: np.ndarray, cols: list[np.ndarray], noise: float = 0.0) -> float:
+    """The share of ``r``'s structure (its variance about its mean, less ``noise`` squared: the
+    noise is no structure) a least-squares fit on ``cols`` (and an offset) explains, in [0, 1]."""
     A = np.column_stack([np.ones_like(r), *cols])
     coef, *_ = np.linalg.lstsq(A, r, rcond=None)
-    v = float(np.var(r))
-    return max(0.0, 1.0 - float(np.var(r - A @ coef)) / v) if v > 0 else 0.0
+    v = float(np.var(r)) - noise**2
+    return min(1.0, max(0.0, (float(np.var(r)) - float(np.var(r - A @ coef))) / v)) if v > 0 else 0.0
+
+
+def _fundamental(x: np.ndarray, fs: float) -> float:
+    """The drive's strongest frequency (Hz; 0 where it does not move)."""
+    if x.size < 8 or np.ptp(x) == 0:
+        return 0.0
+    f, p = signal.periodogram(x - np.mean(x), fs, window="hann")
+    return float(f[int(np.argmax(p[1:])) + 1])
+
+
+#: A line within a few bins of one of the drive's first this many harmonics is the drive's, whether
+#: or not the drive holds it: a loop's nonlinearity makes them from the fundamental alone (the
+#: Aye-Ang record's 1 Hz sine leaves a 2 Hz residual). Beyond them (a 37 Hz line on a 0.5 Hz
+#: cosine is its 74th) only a line the drive holds is.
+DRIVE_HARMONICS = 10
 
 
 #: The drive holds a frequency where its spectrum there stands this many times over its median ...
@@ -226,13 +242,14 @@ def drive_holds(x: np.ndarray, fs: float, hz: float) -> bool:
 
 
 def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats) -> Structure:
-    """What a run's residual looks like where no cause explains it: the share of its variance
-    that a cubic in the drive's level explains (a static map drawn wrong), the share of its
-    energy within :data:`TRANSIENT_S` of a step where it gathers there (the step's transient:
-    :data:`TRANSIENT_CONCENTRATION` times the share of time), the share the cubic on
-    each branch of the drive's direction explains (a loop drawn wrong), the share a logarithm of
+    """What a run's residual looks like where no cause explains it: the share of its structure
+    (its variance less the noise floor's) that a cubic in the drive's level explains (a static map
+    drawn wrong), the share of its energy within :data:`TRANSIENT_S` of a step where it gathers
+    there (the step's transient: :data:`TRANSIENT_CONCENTRATION` times the share of time), the
+    share the cubic on each branch of the drive's direction explains (a loop drawn wrong), the share a logarithm of
     the time since the last step (or the run's start) explains (creep or a settling), or its line
-    (:attr:`ResidualStats.dominant_freq_hz`): one the drive holds too (:func:`drive_holds`), or not.
+    (:attr:`ResidualStats.dominant_freq_hz`): one of the drive's first :data:`DRIVE_HARMONICS`
+    harmonics or one it holds (:func:`drive_holds`), or not.
     Decided from the drive and the residual, never from what the run's metadata says it is."""
     r0, x0, t0 = judged(run, residual), judged(run, run.x), judged(run, run.t_s)
     span = max(float(np.ptp(x0)), 1e-12)
@@ -244,6 +261,7 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
     if transient < TRANSIENT_CONCENTRATION * float(near.mean()):
         transient = 0.0  # spread over the run as evenly as over the steps' moments: no transient
     m = max(1, r0.size // SIGNATURE_POINTS)
+    noise = stats.floor / math.sqrt(m)  # the noise left in averages of m samples
     r, x, since = _blocks(r0, m), _blocks(x0, m), _blocks(since0, m)
     u = (x - np.mean(x)) / span
     d = np.sign(np.gradient(x)) if x.size > 1 else np.zeros_like(x)
@@ -251,12 +269,15 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
     branches = min(float(np.mean(d > 0)), float(np.mean(d < 0))) >= BRANCH_MIN_SHARE
     moves = np.ptp(x0) > 0
     shares = {
-        "level": _share(r, level) if moves else 0.0,
-        "loop": _share(r, level + [d, d * u, d * u**2]) if moves and branches else 0.0,
-        "after_step": _share(r, [np.log1p(since * 1e3)]),
+        "level": _share(r, level, noise) if moves else 0.0,
+        "loop": _share(r, level + [d, d * u, d * u**2], noise) if moves and branches else 0.0,
+        "after_step": _share(r, [np.log1p(since * 1e3)], noise),
     }
     line = stats.dominant_freq_hz
-    harmonic = drive_holds(x0, run.fs_hz, line)
+    f0 = _fundamental(x0, run.fs_hz)
+    k = round(line / f0) if line and f0 else 0
+    bins = 3.0 / max(float(t0[-1] - t0[0]), 1e-9)
+    harmonic = (1 <= k <= DRIVE_HARMONICS and abs(line - k * f0) <= bins) or drive_holds(x0, run.fs_hz, line)
     if shares["level"] >= SIGNATURE_MIN_SHARE:
         kind = "level"
     elif transient >= SIGNATURE_MIN_SHARE:
@@ -274,9 +295,9 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
 
 def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") -> str:
     """The unexplained runs said by their signature (``entries``: each with ``run``, ``signature``
-    (a :data:`SIGNATURES` key), ``share`` (of the variance its signature explains, or None),
+    (a :data:`SIGNATURES` key), ``share`` (of the structure its signature explains, or None),
     ``line_hz`` and the ratio to the noise floor), runs of one signature together: "in A, B it
-    follows the drive's level (the static map drawn wrong there; 77-96 % of the variance, 90-259 x
+    follows the drive's level (the static map drawn wrong there; 77-96 % of the structure, 90-259 x
     the noise)"."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for e in entries:
@@ -302,7 +323,7 @@ def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float
     elif kind == "transient" and hz:
         what = f"rings at {hz} Hz in the first moments after each step (a mode's or the chain's dynamics)"
     figs = ", ".join(
-        f for f in (_span([100 * v for v in shares], " % of the variance"), _span(ratios, " x the noise")) if f
+        f for f in (_span([100 * v for v in shares], " % of the structure"), _span(ratios, " x the noise")) if f
     )
     if not figs:
         return what
