@@ -17,6 +17,7 @@ from piezopress.analysis.bundle import (
     creep_for_compensator,  # noqa: F401 (moved there)
     extend_document,
 )
+from piezopress.analysis.diagnosis.residuals import unexplained_groups
 from piezopress.errors import PiezopressError
 from piezopress.pipelines import next_plan
 from piezopress.pipelines.bundle import collect_runs, read_bundle, read_document, write_document  # noqa: F401 (read_document: for callers)
@@ -531,13 +532,16 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
         lines.append(
             f"Unexplained ({'no cause tried' if result.not_tested else 'no cause in the catalogue'} accounts for it):"
         )
-        for u_ in result.unexplained:
-            lines.append(
-                f"    {u_['run']}: {u_[f'rms_{k}']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at "
-                f"{u_['where_s']:.4g} s, "
-                + (f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz" if u_["dominant_freq_hz"] else "no tone")
-                + (f": it {u_['signature_text']}" if u_.get("signature_text") else "")
-            )
+        by_run = {u_["run"]: u_ for u_ in result.unexplained}
+        for runs, said in unexplained_groups(result.unexplained):  # runs of one signature together
+            lines.append(f"    it {said}:")
+            for name in runs:
+                u_ = by_run[name]
+                lines.append(
+                    f"        {name}: {u_[f'rms_{k}']:.3g} {u} RMS = {u_['ratio']:.1f} x the noise floor, largest at "
+                    f"{u_['where_s']:.4g} s, "
+                    + (f"dominant frequency {u_['dominant_freq_hz']:.4g} Hz" if u_["dominant_freq_hz"] else "no tone")
+                )
     if plan:
         lines.append("")
         if plan.get("file"):

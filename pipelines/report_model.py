@@ -11,6 +11,7 @@ import pandas as pd
 
 from piezopress import units
 from piezopress.analysis import diagnosis as dg
+from piezopress.analysis.diagnosis.residuals import unexplained_groups
 from piezopress.pipelines.report_doc import Block, Bullets, FigureBlock, Heading, Para, Table
 from piezopress.pipelines.report_tables import _finite, _num
 
@@ -380,15 +381,18 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
             Bullets(tuple(f"Signature (no catalogue cause): {sig.get('text', '?')}" for sig in d["signatures"]))
         )
     if d.get("unexplained"):
+        groups = unexplained_groups(d["unexplained"])
+        grouped = {name for runs, _ in groups for name in runs}
         blocks.append(
             Bullets(
-                tuple(
+                tuple(f"Unexplained in {', '.join(runs)}: it {text}" for runs, text in groups)
+                + tuple(  # a diagnosis written before signatures: each run with its figures
                     f"Unexplained: {u['run']}, {u[f'rms_{k}']:.3g} {un} RMS ({u['ratio']:.1f} x the noise floor), "
                     "largest at "
                     f"{u['where_s']:.4g} s, "
                     + (f"dominant frequency {u['dominant_freq_hz']:.4g} Hz" if u["dominant_freq_hz"] else "no tone")
-                    + (f": it {u['signature_text']}" if u.get("signature_text") else "")
                     for u in d["unexplained"]
+                    if u["run"] not in grouped
                 )
             )
         )

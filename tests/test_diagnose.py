@@ -127,6 +127,11 @@ def test_unexplained_structure_is_listed_not_named():
     # ... and said by its signature: a line the drive (0.5 Hz) does not have
     assert result.unexplained[0]["signature"] == "line"
     assert "tone it is a line at 37 Hz the drive does not have" in result.summary, result.summary
+    from piezopress.pipelines.diagnose import format_summary
+
+    lines = format_summary(result).splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("    it is a line at 37 Hz"))
+    assert lines[at + 1].startswith("        tone: "), lines[at : at + 2]
 
 
 def test_cli_diagnose_json_progress_and_simulate(tmp_path):

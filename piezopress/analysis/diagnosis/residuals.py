@@ -293,25 +293,34 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
     return Structure(kind, shares["level"], shares["loop"], shares["after_step"], transient, float(line))
 
 
-def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") -> str:
-    """The unexplained runs said by their signature (``entries``: each with ``run``, ``signature``
-    (a :data:`SIGNATURES` key), ``share`` (of the structure its signature explains, or None),
-    ``line_hz`` and the ratio to the noise floor), runs of one signature together: "in A, B it
-    follows the drive's level (the static map drawn wrong there; 77-96 % of the structure, 90-259 x
-    the noise)"."""
+def unexplained_groups(entries: list[dict[str, Any]], ratio_key: str = "ratio") -> list[tuple[list[str], str]]:
+    """The unexplained runs grouped by their signature (``entries``: each with ``run``,
+    ``signature`` (a :data:`SIGNATURES` key), ``share`` (of the structure its signature explains,
+    or None), ``line_hz`` and the ratio to the noise floor), in the order first met: (the runs,
+    what the signature says with the group's figures, "follows the drive's level (the static map
+    drawn wrong there; 77-96 % of the structure, 90-259 x the noise)"). Entries without a
+    signature (a diagnosis written before there were any) are left out."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for e in entries:
-        groups.setdefault(e["signature"], []).append(e)
-    return "; ".join(
-        f"in {', '.join(e['run'] for e in es)} it "
-        + _said(
-            kind,
-            [float(e["line_hz"]) for e in es if e.get("line_hz")],
-            [float(e["share"]) for e in es if e.get("share") is not None],
-            [float(e[ratio_key]) for e in es if e.get(ratio_key) is not None],
+        if e.get("signature") in SIGNATURES:
+            groups.setdefault(e["signature"], []).append(e)
+    return [
+        (
+            [e["run"] for e in es],
+            _said(
+                kind,
+                [float(e["line_hz"]) for e in es if e.get("line_hz")],
+                [float(e["share"]) for e in es if e.get("share") is not None],
+                [float(e[ratio_key]) for e in es if e.get(ratio_key) is not None],
+            ),
         )
         for kind, es in groups.items()
-    )
+    ]
+
+
+def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") -> str:
+    """:func:`unexplained_groups` in one sentence: "in A, B it follows the drive's level (...); in C it ..."."""
+    return "; ".join(f"in {', '.join(runs)} it {said}" for runs, said in unexplained_groups(entries, ratio_key))
 
 
 def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float]) -> str:
