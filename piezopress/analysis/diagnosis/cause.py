@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from piezopress.analysis.diagnosis.judging import Context, Finding
+from piezopress.analysis.diagnosis.model import Model
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 
 
@@ -43,6 +44,10 @@ class Cause:
     #: rate read as a slow, heavily damped mode): the extended bundle's shaper and lead are
     #: then designed for the diagnosis model's mode (:func:`piezopress.analysis.bundle.extend_document`).
     refits_mode: bool = False
+    #: What the base model already holds of the cause (the drive chain's delay and low-pass for a
+    #: delay, its slew for a slew limit), said beside "not found": the cause is looked for beyond
+    #: it, and a user reading "not found" should know the press's own part was drawn, not missed.
+    held: Callable[[Model], str] | None = None
 
     @property
     def in_compensator(self) -> bool:

@@ -410,6 +410,10 @@ def diagnose(
             if cid in earlier
             else "not found (no sign of it to fit)",
         }
+        holds = CAUSES[cid].held(base) if CAUSES[cid].held and cid not in found else ""
+        if holds:  # the press's own part of it the base draws: looked for beyond that, not missed
+            entry["result"] += f"; beyond what the base holds: {holds}"
+            entry["held_by_base"] = holds
         if f is not None:
             entry.update(
                 gain_pct=f.gain_pct, parameters={k_: float(v) for k_, v in f.parameters.items()}, heldout=f.heldout

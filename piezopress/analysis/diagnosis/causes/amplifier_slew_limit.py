@@ -151,6 +151,15 @@ def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
 
 
 #: The catalogue's entry for this cause (read by every place that names causes).
+def held_slew(model: Model) -> str:
+    """The slew the base's drive chain already holds ('' where none)."""
+    return (
+        f"the drive chain's slew of {model.slew_v_per_s / 1e3:.3g} V/ms, identified on the steps"
+        if model.slew_v_per_s
+        else ""
+    )
+
+
 CAUSE = Cause(
     "amplifier_slew_limit",
     "the amplifier's current limit into the stack's capacitance caps dV/dt at I/C",
@@ -159,4 +168,5 @@ CAUSE = Cause(
     needs=(Need((_FAST_STEPS,), 2),),
     extend=_bundle.extend_slew_limit,
     targets=("overshoot", "hysteresis_50hz"),
+    held=held_slew,
 )

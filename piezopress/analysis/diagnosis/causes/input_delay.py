@@ -25,6 +25,7 @@ from piezopress.analysis.diagnosis.judging import (
     _refit_mode,
     _search,
 )
+from piezopress.analysis.diagnosis.model import Model
 from piezopress.analysis.diagnosis.needs import Need, RunSpec, lag_visible
 
 #: The delay on slow sweeps refits the operators a dozen times: on at most this many samples.
@@ -354,6 +355,24 @@ def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[flo
 
 
 #: The catalogue's entry for this cause (read by every place that names causes).
+def held_by_chain(model: Model) -> str:
+    """The drive chain the base holds, the lag a delay is looked for beyond ('' where it holds none)."""
+    parts = []
+    if model.drive_lowpass is not None:
+        wn, z = model.drive_lowpass
+        parts.append(f"a {wn / (2 * np.pi) / 1e3:.3g} kHz low-pass (damping {z:.2g})")
+    if model.drive_tau_s > 0:
+        parts.append(f"a first-order lag of {model.drive_tau_s * 1e3:.3g} ms")
+    if model.drive_delay_s > 0:
+        at = (
+            f" ({model.drive_delay_samples:.3g} samples at {model.drive_delay_rate_hz / 1e3:.3g} kHz)"
+            if model.drive_delay_samples and model.drive_delay_rate_hz
+            else ""
+        )
+        parts.append(f"a delay of {model.drive_delay_s * 1e3:.3g} ms{at}")
+    return f"the drive chain identified on the steps, {' and '.join(parts)}" if parts else ""
+
+
 CAUSE = Cause(
     "input_delay",
     "a pure delay between command and response (board latency, filters)",
@@ -366,4 +385,5 @@ CAUSE = Cause(
     extend=_bundle.extend_input_delay,
     targets=("tracking_random", "hysteresis_50hz"),
     refits_mode=True,
+    held=held_by_chain,
 )
