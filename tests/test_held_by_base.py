@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from test_delay_beside_slew import _runs  # the steps and triangles of 0-150 V at 20 kHz
 
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.diagnosis.causes.amplifier_slew_limit import held_slew
@@ -38,19 +39,6 @@ def test_the_chain_the_base_holds_is_said_with_its_figures():
         held_slew(replace(CHAINED, slew_v_per_s=11e3)) == "the drive chain's slew of 11 V/ms, identified on the steps"
     )
     assert held_slew(CHAINED) == ""
-
-
-def _runs() -> list[dg.RunData]:
-    out = []
-    for h in (50.0, 100.0, 150.0):
-        t = np.arange(int(0.2 * FS)) / FS
-        x = np.where((t >= 0.01) & (t < 0.11), h, 0.0)
-        out.append(dg.RunData(f"step-{h:g}v", "step", t, x, np.zeros_like(x), FS))
-    for f in (5.0, 50.0):
-        t = np.arange(int(max(1.0, 10.0 / f) * FS)) / FS
-        x = 75.0 - 75.0 * (2.0 / np.pi) * np.arcsin(np.cos(2 * np.pi * f * t))
-        out.append(dg.RunData(f"triangle-{f:g}hz", "triangle", t, x, np.zeros_like(x), FS))
-    return out
 
 
 def test_a_press_lagging_by_its_own_chain_reads_not_found_beyond_what_the_base_holds():
