@@ -169,3 +169,33 @@ def test_a_kept_stroke_creeping_from_every_runs_start_is_no_drift_of_the_reading
     # one rest: judged as before, and no stroke said
     assert one_rest.gain_pct == pytest.approx(cause_sensor_offset_drift(_runs(0.0)).gain_pct, abs=1e-9)
     assert "kept at rest" not in one_rest.evidence
+
+
+def _unclocked(ctx: dg.Context) -> dg.Context:
+    """The same runs with no start time recorded (runs from another program: no clock)."""
+    runs = [dataclasses.replace(r, meta={}) for r in ctx.runs]
+    return dg.Context(runs, ctx.model, ctx.fitted_runs, ctx.floor)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_two_rests_on_no_clock_read_a_wander_at_each_rests_own_rate(seed):
+    """Two rests and no start time recorded: a wander of the reading that rises through one rest
+    and falls through the other (the wander's phase puts its turn between them) is named at each
+    rest's own rate, each of the wander's sign there; a kept stroke's creep alone, rising alike in
+    both from their starts, is not a drift. With one rest the wander form is not tried."""
+    from piezopress.analysis.diagnosis.slow import wander_untried
+
+    ctx = _unclocked(_runs(2.0, rests_before=1, seed=seed, phase=2.0))
+    assert not wander_untried(ctx)
+    f = cause_sensor_offset_drift(ctx)
+    assert f is not None and f.accepted, None if f is None else (f.gain_pct, f.evidence)
+    assert "at each rest's own rate, on no recorded clock" in f.evidence, f.evidence
+    rates = {ident: a1 for ident, _, a1, _ in f.model.drift_clock}
+    for r in ctx.runs:
+        if r.kind == "rest":  # the wander's slope at that rest's middle (its start 0 or 500 s on the session's clock)
+            c = (0.0 if r.name == "rest-0" else 500.0) + 60.0
+            slope = (_wander(np.array([c + 1.0]), 2.0, 2.0) - _wander(np.array([c - 1.0]), 2.0, 2.0))[0] / 2.0
+            assert np.sign(rates[r.ident]) == np.sign(slope), (r.name, rates[r.ident], slope)
+    still = cause_sensor_offset_drift(_unclocked(_runs(0.0, rests_before=1, seed=seed)))
+    assert still is None or not still.accepted, still.gain_pct
+    assert wander_untried(_unclocked(_runs(0.0, seed=seed)))

@@ -161,3 +161,12 @@ def test_the_report_groups_runs_by_signature_and_lists_an_older_diagnosis_run_by
         "model lacks; 70 % of the structure, 5 x the noise)",
     ], texts[0]
     assert [t.split(",")[0] for t in texts[1]] == ["Unexplained: step-20v", "Unexplained: rest"], texts[1]
+
+
+def test_a_transient_is_said_to_ring_only_at_a_line_it_can_hold():
+    # a line slower than one cycle in the transient's 20 ms (the hold's slow residual at 1.5 Hz) is not its ring
+    from piezopress.analysis.diagnosis.residuals import Structure
+
+    slow = Structure("transient", 0.0, 0.0, 0.0, 0.98, 1.5)
+    assert slow.text().startswith("sits in the first moments after each step"), slow.text()
+    assert Structure("transient", 0.0, 0.0, 0.0, 0.98, 1025.0).text().startswith("rings at 1025 Hz")

@@ -326,6 +326,8 @@ def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") ->
 def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float]) -> str:
     """What a signature says (:data:`SIGNATURES`), its lines named, with the figures in its parentheses."""
     what = SIGNATURES[kind]
+    if kind == "transient":  # a ring within the transient's moments: a line slower than a cycle there is not its
+        lines = [v for v in lines if v >= 1.0 / TRANSIENT_S]
     hz = " or ".join(sorted({f"{v:.0f}" if v >= 100 else f"{v:.3g}" for v in lines}, key=float))
     if kind == "line":
         what = f"is a line at {hz} Hz the drive does not have"

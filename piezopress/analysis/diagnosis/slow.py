@@ -92,6 +92,9 @@ class _DriftFit:
     windows: tuple[tuple[float, float, float], ...] = ()
     # long runs left out where the wander was tried: longer than a window, the wander turns within them
     left_out: tuple[RunData, ...] = ()
+    # where two rests or more lie on no recorded clock: the wander read as each rest's own rate
+    # (:data:`clock`'s entries (run, 0, rate, 0)), the runs under drive sharing one
+    per_rest: bool = False
 
     @property
     def gain_pct(self) -> float:
@@ -160,26 +163,32 @@ def wander_windows(rests: list[RunData], clock: dict[str, float] | None) -> list
 #: What tells a drift of the reading from creep, said where one slow cause could be the other and
 #: the runs cannot tell them apart (:func:`wander_untold`).
 TELL_DRIFT_FROM_CREEP = (
-    "what would tell them apart: a rest before the first drive as well as one after the last, each run's start "
-    "time recorded (a drift of the reading moves both rests, creep recovers only after the drive)"
+    "what would tell them apart: a rest before the first drive as well as one after the last (a drift of the "
+    "reading moves both rests, creep recovers only after the drive)"
 )
 #: The slow causes one held step and one rest cannot tell apart.
 SLOW_RIVALS = frozenset({"logarithmic_creep", "sensor_offset_drift"})
 
 
 def wander_untried(ctx: Context) -> bool:
-    """Whether the runs hold no two rests far apart on a recorded clock (no :func:`wander_windows`):
-    the wander form of :func:`_drift_fit` is not tried."""
+    """Whether the runs hold no two rests far apart on a recorded clock (no :func:`wander_windows`)
+    nor two long rests at all (:func:`_rest_rows`): no wander form of :func:`_drift_fit` is tried."""
     long = [r for r, _ in _long_runs(ctx)]
-    return not wander_windows(long, run_starts(ctx.runs))
+    return not wander_windows(long, run_starts(ctx.runs)) and len(_rests_of(long)) < 2
+
+
+def _rests_of(runs: list[RunData]) -> list[RunData]:
+    """The runs at rest (a drive that does not move) among ``runs``."""
+    return [r for r in runs if r.x.size and np.ptp(r.x) == 0]
 
 
 #: What :func:`cause_sensor_offset_drift` could not try where :func:`wander_untried`.
 WANDER_UNTRIED = (
     "a wander over the session (the offset's rate changing from run to run, as a thermal one does), "
-    f"which needs two rests {CLOCK_REST_APART_S:g} to {CLOCK_WINDOW_MAX_S:g} s apart on the runs' recorded "
-    "start times (a rest before the first drive as well as one after the last); with one rate for every run a "
-    "wander that turns within the session is missed"
+    "which needs two rests (a rest before the first drive as well as one after the last: "
+    f"{CLOCK_REST_APART_S:g} to {CLOCK_WINDOW_MAX_S:g} s apart on the runs' recorded start times it is drawn on "
+    "the test's clock, else at each rest's own rate); with one rate for every run a wander that turns within the "
+    "session is missed"
 )
 
 
@@ -252,12 +261,30 @@ def _drift_fit(
         others = W_ < 0
         wander_cols += [np.where(others, T, 0.0)] if others.any() else []
 
+    rest_cols: list[np.ndarray] = []
+    if not windows and len(_rests_of([r for r, *_ in rows])) >= 2:
+        # two rests or more on no recorded clock: each its own rate (a wander turns between them, and
+        # where the drive does nothing no misfit of the loop shapes it), the runs under drive one rate
+        idx = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])
+        at_rest = [i for i, (r, *_) in enumerate(rows) if np.ptp(r.x) == 0]
+        rest_cols = [np.where(idx == i, T, 0.0) for i in at_rest]
+        driven = ~np.isin(idx, at_rest)
+        rest_cols += [np.where(driven, T, 0.0)] if driven.any() else []
+
     def solve(warmups, with_tail=False, fitted=fit_m, judged=~fit_m):
         best = None
         for j, tau in enumerate(DRIFT_CREEP_TAUS_S):
             S = np.concatenate([c[j] for _, _, _, c, _ in rows])
             for w in warmups:  # None: no drift; inf: a steady one; "clock": a wander; else it settles over w
-                D = [] if w is None else wander_cols if w == "clock" else [T if np.isinf(w) else -w * np.expm1(-T / w)]
+                D = (
+                    []
+                    if w is None
+                    else wander_cols
+                    if w == "clock"
+                    else rest_cols
+                    if w == "rests"
+                    else [T if np.isinf(w) else -w * np.expm1(-T / w)]
+                )
                 A = np.column_stack([onehot, S] + D + ([tail] if with_tail else []))
                 coef, *_ = np.linalg.lstsq(A[fitted], R[fitted], rcond=None)
                 e = rms(R[fitted] - A[fitted] @ coef)
@@ -286,6 +313,20 @@ def _drift_fit(
                     for ident, (i, c) in sorted(at.items(), key=lambda p: (clock.get(p[0], math.inf), p[0]))
                 )
                 spans = [(hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
+    per_rest = False
+    if rest_cols:  # chosen as the wander on a clock is: on rows the fit does not see
+        first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
+        if first.sum() >= n_runs + 2 + len(rest_cols) and (fit_m & ~first).sum() >= 3:
+            choose = {"fitted": first, "judged": fit_m & ~first}
+            if solve(["rests"], **choose)[3] < solve([w], **choose)[3]:
+                _, tau1, coef1, e, w = solve(["rests"])
+                k = n_runs + 1
+                rates = {rows[i][0].ident: float(c) for i, c in zip(at_rest, coef1[k : k + len(at_rest)])}
+                shared = float(coef1[k + len(at_rest)]) if driven.any() else 0.0
+                wander = tuple(
+                    (r.ident, 0.0, rates.get(r.ident, shared), 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident)
+                )
+                per_rest = True
     with_tail = per_decade = None
     if tail is not None:
         _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)
@@ -308,6 +349,7 @@ def _drift_fit(
         wander,
         tuple(spans),
         left_out,
+        per_rest,
     )
 
 

@@ -73,7 +73,19 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     u = ctx.model.unit
     names = sorted(r.name for r in d.runs)
     rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
-    if d.clock is not None:
+    if d.per_rest:
+        lab = units.label(u)
+        by = {ident: a1 for ident, _, a1, _ in d.clock}
+        rests = [r for r in d.runs if np.ptp(r.x) == 0]
+        driven = [r for r in d.runs if np.ptp(r.x) > 0]
+        rate = (
+            "at each rest's own rate, on no recorded clock ("
+            + ", ".join(f"{r.name} {by[r.ident] * 60:.3g} {lab} per minute" for r in rests)
+            + (f"; the runs under drive {by[driven[0].ident] * 60:.3g}" if driven else "")
+            + "): a wander whose rate turns between the rests, which the creep of a stroke kept at rest, rising "
+            "alike from every run's start, cannot draw"
+        )
+    elif d.clock is not None:
         lab = units.label(u)
         each = [
             f"{a1 * 60:.3g} {lab} per minute at the first rest's start, "
@@ -88,7 +100,13 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         rate = f"with the test's clock (a wander{within}, on the runs' recorded start times)"
     elif not steady:
         rate += f" at the start of a run, settling over {d.drift_tau_s:.3g} s (a warm-up)"
-    trend = "follows one wander" if d.clock is not None else "trends at one rate"
+    trend = (
+        "moves at each rest's own rate"
+        if d.per_rest
+        else "follows one wander"
+        if d.clock is not None
+        else "trends at one rate"
+    )
     ev = (
         f"the reading drifts {rate} whatever the drive does: the residual averaged over "
         f"each drive cycle {trend} in {', '.join(names)} (fitted on their first 60 % with an offset each "
@@ -123,7 +141,9 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
                     f"wander_{units.key(u)}_per_s2": d.windows[0][2],
                     "wander_windows": float(len(d.windows)),
                 }
-                if d.clock is not None
+                if d.clock is not None and d.windows
+                else {"wander_rests": float(sum(1 for r in d.runs if np.ptp(r.x) == 0))}
+                if d.per_rest
                 else {}
             ),
         },
