@@ -419,6 +419,47 @@ def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp
 
 
 @pytest.mark.slow
+def test_a_thermal_wander_is_named_at_each_rests_own_rate_where_the_runs_record_no_clock(tmp_path):
+    """The same draw and plan as above, every run cut to the run format's four required fields (no
+    start time, no manifest, as runs from another program arrive): no clock places the rests, and one
+    rate for every run named nothing there (stop 69: 0 of 4 draws). The two rests each at its own rate
+    name the wander alone, each rate of the sign of the press's wander over that rest."""
+    from foreign import foreign_dir
+
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import characterize as char
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    plan = HERE / "plans" / "characterize-rest-first.toml"
+    press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([0, 97]))
+    char.characterize(tmp_path / "char", backend=press, plan_path=plan)
+    from piezopress.analysis.diagnosis.model import run_starts
+
+    timed = D.diagnosis_runs(B.collect_runs([tmp_path / "char"]))
+    starts = {r.name: run_starts(timed)[r.ident] for r in timed}  # the session's clock, before the cut
+    runs = foreign_dir(tmp_path / "char", tmp_path / "runs")
+    B.write_document(F.fit_bundle([runs], base=True).doc, tmp_path / "base.json")
+    result, _ = D.diagnose([runs], tmp_path / "base.json", tmp_path / "diag")
+    named = [(f.cause, f.evidence) for f in result.findings]
+    assert [f.cause for f in result.findings] == ["sensor_offset_drift"], named
+    found = result.findings[0]
+    assert "at each rest's own rate, on no recorded clock" in found.evidence and found.gain_pct >= 30.0, named
+    cut = {r.name: r for r in D.diagnosis_runs(B.collect_runs([runs]))}
+    assert not any(r.meta.get("started_utc") for r in cut.values())  # nothing placed them on a clock
+    rates = {e[0]: e[2] for e in found.model.drift_clock}
+    a, (p0, p1) = press.thermal_drift_n, press._phase
+
+    def wander(c):  # the press's own, on its clock (its first run at 0)
+        return a * (np.sin(2 * np.pi * c / 1020.0 + p0) + 0.6 * np.sin(2 * np.pi * c / 2460.0 + p1))
+
+    for name in ("rest-before-120s", "rest-120s"):
+        run, c0 = cut[name], starts[name]
+        moved = wander(c0 + run.t_s[-1]) - wander(c0)
+        assert abs(moved) > 0.3 and np.sign(rates[run.ident]) == np.sign(moved), (name, c0, moved, rates[run.ident])
+
+
+@pytest.mark.slow
 def test_a_wander_taken_for_a_log_creep_is_told_apart_by_the_next_plan(tmp_path):
     """The loop a technician runs (issue 20: where the runs cannot tell two causes apart, the
     experiment that would goes into next-plan.toml). The third press's thermal wander (the draw
