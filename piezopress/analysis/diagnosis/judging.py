@@ -32,6 +32,11 @@ UNEXPLAINED_RATIO = 2.5
 Segment = tuple[RunData, slice]
 
 
+def at_rest(runs: list[RunData]) -> list[RunData]:
+    """The runs at rest among ``runs``: a drive that does not move (decided from the drive, never the recorded kind)."""
+    return [r for r in runs if r.x.size and np.ptp(r.x) == 0]
+
+
 @dataclass
 class Context:
     """The runs, which of them the base model was fitted on, and the current model."""
@@ -83,7 +88,7 @@ class Context:
         ]
 
     def rests(self) -> list[RunData]:
-        return [r for r in self.runs if np.ptp(r.x) == 0]
+        return at_rest(self.runs)
 
 
 @dataclass(frozen=True)

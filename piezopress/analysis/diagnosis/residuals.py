@@ -107,15 +107,20 @@ def judged(run: RunData, a: np.ndarray) -> np.ndarray:
     return a[min(run.judged_from, max(a.size - 2, 0)) :]
 
 
+def steps_and_since(x: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the drive ``x`` steps (a sample's move over 5 % of its range) and each sample's time
+    since the last step (or the start)."""
+    big = np.abs(np.diff(x, prepend=x[0])) > 0.05 * max(float(np.ptp(x)), 1e-9)
+    return big, t - t[np.maximum.accumulate(np.where(big, np.arange(x.size), 0))]
+
+
 def residual_stats(run: RunData, residual: np.ndarray, floor: float) -> ResidualStats:
     residual = judged(run, residual)
     r = residual - np.mean(residual)
     x = judged(run, run.x)
     t = judged(run, run.t_s)
     rate = np.gradient(x) * run.fs_hz
-    big = np.abs(np.diff(x, prepend=x[0])) > 0.05 * max(float(np.ptp(x)), 1e-9)
-    idx = np.where(big, np.arange(x.size), 0)
-    since = t - t[np.maximum.accumulate(idx)]
+    _, since = steps_and_since(x, t)
     f, p = signal.periodogram(r, run.fs_hz, window="hann")
     # a tone needs at least two periods in the run (the lowest bins are the run's length, not a
     # frequency) and to stand out of the spectrum (20x its median: white noise's largest bin is ~10x)
@@ -253,8 +258,7 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
     Decided from the drive and the residual, never from what the run's metadata says it is."""
     r0, x0, t0 = judged(run, residual), judged(run, run.x), judged(run, run.t_s)
     span = max(float(np.ptp(x0)), 1e-12)
-    big = np.abs(np.diff(x0, prepend=x0[0])) > 0.05 * span
-    since0 = t0 - t0[np.maximum.accumulate(np.where(big, np.arange(x0.size), 0))]
+    big, since0 = steps_and_since(x0, t0)
     near = big.any() & (since0 < TRANSIENT_S)
     e0 = np.square(r0 - np.mean(r0))
     transient = float(e0[near].sum() / e0.sum()) if near.any() and e0.sum() > 0 else 0.0

@@ -9,7 +9,7 @@ import numpy as np
 from scipy import linalg
 
 from piezopress import signals
-from piezopress.analysis.diagnosis.judging import Context
+from piezopress.analysis.diagnosis.judging import Context, at_rest
 from piezopress.analysis.diagnosis.model import Model, RunData, memo, run_starts
 from piezopress.analysis.diagnosis.residuals import average_floor, rms
 
@@ -172,14 +172,9 @@ SLOW_RIVALS = frozenset({"logarithmic_creep", "sensor_offset_drift"})
 
 def wander_untried(ctx: Context) -> bool:
     """Whether the runs hold no two rests far apart on a recorded clock (no :func:`wander_windows`)
-    nor two long rests at all (:func:`_rest_rows`): no wander form of :func:`_drift_fit` is tried."""
+    nor two long rests at all: no wander form of :func:`_drift_fit` is tried."""
     long = [r for r, _ in _long_runs(ctx)]
-    return not wander_windows(long, run_starts(ctx.runs)) and len(_rests_of(long)) < 2
-
-
-def _rests_of(runs: list[RunData]) -> list[RunData]:
-    """The runs at rest (a drive that does not move) among ``runs``."""
-    return [r for r in runs if r.x.size and np.ptp(r.x) == 0]
+    return not wander_windows(long, run_starts(ctx.runs)) and len(at_rest(long)) < 2
 
 
 #: What :func:`cause_sensor_offset_drift` could not try where :func:`wander_untried`.
@@ -262,13 +257,13 @@ def _drift_fit(
         wander_cols += [np.where(others, T, 0.0)] if others.any() else []
 
     rest_cols: list[np.ndarray] = []
-    if not windows and len(_rests_of([r for r, *_ in rows])) >= 2:
+    if not windows and len(at_rest([r for r, *_ in rows])) >= 2:
         # two rests or more on no recorded clock: each its own rate (a wander turns between them, and
         # where the drive does nothing no misfit of the loop shapes it), the runs under drive one rate
         idx = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])
-        at_rest = [i for i, (r, *_) in enumerate(rows) if np.ptp(r.x) == 0]
-        rest_cols = [np.where(idx == i, T, 0.0) for i in at_rest]
-        driven = ~np.isin(idx, at_rest)
+        at_rest_rows = [i for i, (r, *_) in enumerate(rows) if at_rest([r])]
+        rest_cols = [np.where(idx == i, T, 0.0) for i in at_rest_rows]
+        driven = ~np.isin(idx, at_rest_rows)
         rest_cols += [np.where(driven, T, 0.0)] if driven.any() else []
 
     def solve(warmups, with_tail=False, fitted=fit_m, judged=~fit_m):
@@ -296,37 +291,37 @@ def _drift_fit(
     _, _, _, b, _ = solve([None])
     _, tau1, coef1, e, w = solve(warmups)
     wander, spans = None, []
-    if windows:
-        first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
-        if first.sum() >= n_runs + 2 + len(wander_cols) and (fit_m & ~first).sum() >= 3:
-            choose = {"fitted": first, "judged": fit_m & ~first}
-            if solve(["clock"], **choose)[3] < solve([w], **choose)[3]:
-                _, tau1, coef1, e, w = solve(["clock"])
-                k = n_runs + 1
-                per = [
-                    (float(coef1[k + 2 * i]) / CLOCK_UNIT_S, float(coef1[k + 2 * i + 1]) / CLOCK_UNIT_S**2)
-                    for i in range(len(windows))
-                ]
-                steady = float(coef1[k + 2 * len(windows)]) if others.any() else 0.0
-                wander = tuple(  # every run, a short one too, those without a start time last
-                    (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0)
-                    for ident, (i, c) in sorted(at.items(), key=lambda p: (clock.get(p[0], math.inf), p[0]))
-                )
-                spans = [(hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
-    per_rest = False
-    if rest_cols:  # chosen as the wander on a clock is: on rows the fit does not see
-        first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
-        if first.sum() >= n_runs + 2 + len(rest_cols) and (fit_m & ~first).sum() >= 3:
-            choose = {"fitted": first, "judged": fit_m & ~first}
-            if solve(["rests"], **choose)[3] < solve([w], **choose)[3]:
-                _, tau1, coef1, e, w = solve(["rests"])
-                k = n_runs + 1
-                rates = {rows[i][0].ident: float(c) for i, c in zip(at_rest, coef1[k : k + len(at_rest)])}
-                shared = float(coef1[k + len(at_rest)]) if driven.any() else 0.0
-                wander = tuple(
-                    (r.ident, 0.0, rates.get(r.ident, shared), 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident)
-                )
-                per_rest = True
+    first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
+
+    def beats(form: str, n_cols: int) -> bool:
+        """Whether the wander ``form`` (``n_cols`` columns more), every form fitted on each run's first
+        :data:`CLOCK_CHOICE_SPLIT`, predicts the rows from there to 60 % better than the best other form."""
+        if first.sum() < n_runs + 2 + n_cols or (fit_m & ~first).sum() < 3:
+            return False
+        choose = {"fitted": first, "judged": fit_m & ~first}
+        return solve([form], **choose)[3] < solve([w], **choose)[3]
+
+    if windows and beats("clock", len(wander_cols)):
+        _, tau1, coef1, e, w = solve(["clock"])
+        k = n_runs + 1
+        per = [
+            (float(coef1[k + 2 * i]) / CLOCK_UNIT_S, float(coef1[k + 2 * i + 1]) / CLOCK_UNIT_S**2)
+            for i in range(len(windows))
+        ]
+        steady = float(coef1[k + 2 * len(windows)]) if others.any() else 0.0
+        wander = tuple(  # every run, a short one too, those without a start time last
+            (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0)
+            for ident, (i, c) in sorted(at.items(), key=lambda p: (clock.get(p[0], math.inf), p[0]))
+        )
+        spans = [(hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
+    # two rests on no clock (no windows, so never beside the clock's form): chosen as it is
+    per_rest = bool(rest_cols) and beats("rests", len(rest_cols))
+    if per_rest:
+        _, tau1, coef1, e, w = solve(["rests"])
+        k = n_runs + 1
+        rates = {rows[i][0].ident: float(c) for i, c in zip(at_rest_rows, coef1[k : k + len(at_rest_rows)])}
+        shared = float(coef1[k + len(at_rest_rows)]) if driven.any() else 0.0
+        wander = tuple((r.ident, 0.0, rates.get(r.ident, shared), 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident))
     with_tail = per_decade = None
     if tail is not None:
         _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)

@@ -11,7 +11,7 @@ import numpy as np
 from piezopress import units
 from piezopress.analysis import creep as creep_mod
 from piezopress.analysis.diagnosis.cause import Cause
-from piezopress.analysis.diagnosis.judging import Context, Finding
+from piezopress.analysis.diagnosis.judging import Context, Finding, at_rest
 from piezopress.analysis.diagnosis.model import run_starts
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.slow import (
@@ -76,7 +76,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     if d.per_rest:
         lab = units.label(u)
         by = {ident: a1 for ident, _, a1, _ in d.clock}
-        rests = [r for r in d.runs if np.ptp(r.x) == 0]
+        rests = at_rest(d.runs)
         driven = [r for r in d.runs if np.ptp(r.x) > 0]
         rate = (
             "at each rest's own rate, on no recorded clock ("
@@ -142,7 +142,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
                     "wander_windows": float(len(d.windows)),
                 }
                 if d.clock is not None and d.windows
-                else {"wander_rests": float(sum(1 for r in d.runs if np.ptp(r.x) == 0))}
+                else {"wander_rests": float(len(at_rest(d.runs)))}
                 if d.per_rest
                 else {}
             ),
