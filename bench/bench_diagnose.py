@@ -21,14 +21,13 @@ as a DAQ program stamps them): the runs must read as the same runs from 0, and t
 session's clock (``run_starts``: where no run records a start time).
 
 ``--plan FILE`` characterizes with FILE where a case would use the default plan (to judge a
-change of the plan on the same draws before making it the default): with
-``tests/plans/characterize-rest-first.toml`` (the default plan with a 120 s rest before the first
-drive, so that two rests pin a wander of the offset on the runs' start times), the third press's
-wander, seeds 0-7, was named alone on 7 of 8 (5 with the default plan), but with the metadata cut
-to the required fields (no start times) on 0 of seeds 0-3 (3 with the default plan): one rate for
-every run cannot draw the rests' opposite trends, so the default plan keeps its one rest.
-``tests/plans/characterize-thesis-only.toml`` (the default plan less the three runs it adds to the
-thesis's: the sweep below rest, the 50 kHz step, the rest) and ``characterize-foreign-forms.toml``
+change of the plan on the same draws before making it the default): the default plan rests before
+its first drive since stop 76, where ``tests/plans/characterize-rest-first.toml`` measured it (the
+third press's wander, seeds 0-9: named alone on 9 of 10 with the runs' start times, 8 of 10 with
+the metadata cut to the required fields, against 6 of 10 with one rest);
+``tests/plans/characterize-one-rest.toml`` is the plan before, the baseline it is judged against.
+``tests/plans/characterize-thesis-only.toml`` (the default plan less the four runs it adds to the
+thesis's: the two rests, the sweep below rest, the 50 kHz step) and ``characterize-foreign-forms.toml``
 (sines at other rates, the rest first, a 90 s hold at 120 V that returns to rest, steps at one
 rate) judge diagnose on forms it was not written beside; with ``--minimal`` on the third press,
 seed 0 (stop 69), no traceback in either. Thesis-only: 7 of 10 rows alone (clean nothing; slew and
@@ -391,7 +390,7 @@ def main() -> None:
         default=None,
         help="characterize with this plan where a case would use the default plan (a case with a plan of its "
         "own keeps it: the drifting sensitivity's repeat, the second press's drift without a rest), e.g. "
-        "tests/plans/characterize-rest-first.toml",
+        "tests/plans/characterize-one-rest.toml (the default plan before stop 76)",
     )
     ap.add_argument(
         "--minimal",

@@ -447,8 +447,8 @@ DETECTABLE: dict[str, dict[str, tuple[float, float]]] = {
     "sensitivity_drift": {"gain_settle": (0.02, 0.05)},
 }
 
-#: The default characterization plan without its rest run (``protocols/characterize.toml``
-#: less ``rest-120s``): a drift has to be found inside the other runs.
+#: The default characterization plan without its rest runs (``protocols/characterize.toml``
+#: less ``rest-before-120s`` and ``rest-120s``): a drift has to be found inside the other runs.
 PLAN_WITHOUT_REST = Path(__file__).resolve().parent / "plans" / "characterize-no-rest.toml"
 
 

@@ -32,27 +32,32 @@ def test_default_plan_covers_thesis_tests():
     assert all(p.preload_n == 50.0 for p in plan.protocols)
 
 
-def test_the_rest_first_plan_is_the_default_plan_with_a_rest_that_pins_a_wander():
-    """``tests/plans/characterize-rest-first.toml`` (``bench_diagnose --plan``, the third press's
-    wander test) is the default plan with a 120 s rest before the first drive, the two rests' starts
-    far enough apart (and no further) for diagnose to fit a wander of the offset between them,
-    whether the rig plays the runs back to back or pauses between them as the virtual rig does."""
+def test_the_default_plan_rests_before_its_first_drive_and_after_its_last_to_pin_a_wander():
+    """The default plan (stop 76) rests 120 s before the first drive as well as after the last: the two
+    rests' starts far enough apart (and no further) for diagnose to fit a wander of the offset between
+    them, whether the rig plays the runs back to back or pauses between them as the virtual rig does.
+    ``tests/plans/characterize-one-rest.toml`` (``bench_diagnose --plan``: the baseline it is measured
+    against) is the plan before, the same less the first rest."""
     import tomllib
 
     from piezopress.acquisition.virtual_rig import PAUSE_S
     from piezopress.analysis.diagnosis.slow import CLOCK_REST_APART_S, CLOCK_WINDOW_MAX_S
 
-    path = ROOT / "tests" / "plans" / "characterize-rest-first.toml"
-    default = tomllib.loads((ROOT / "protocols" / "characterize.toml").read_text(encoding="utf-8"))
-    rest_first = tomllib.loads(path.read_text(encoding="utf-8"))
-    assert rest_first["plan"] == default["plan"] and rest_first["protocol"][1:] == default["protocol"]
+    path = ROOT / "protocols" / "characterize.toml"
     plan = load_plan(path, LIMITS)
     for rest in (plan.protocols[0], plan.protocols[-1]):
         _, v = rest.waveform()
         assert rest.kind == "custom" and not np.any(v) and rest.duration_s >= 120.0, rest.name
+    assert not any(p.kind == "custom" for p in plan.protocols[1:-1])
     apart = sum(p.duration_s for p in plan.protocols[:-1])
     pauses = PAUSE_S * (len(plan.protocols) - 1)
     assert CLOCK_REST_APART_S <= apart and apart + pauses <= CLOCK_WINDOW_MAX_S, (apart, pauses)
+    default = tomllib.loads(path.read_text(encoding="utf-8"))
+    one_rest = tomllib.loads((ROOT / "tests" / "plans" / "characterize-one-rest.toml").read_text(encoding="utf-8"))
+    assert one_rest["protocol"] == default["protocol"][1:]
+    assert {k: v for k, v in one_rest["plan"].items() if k != "description"} == {
+        k: v for k, v in default["plan"].items() if k != "description"
+    }
 
 
 def test_triangle_waveform_reaches_peaks_and_is_deterministic():
@@ -186,20 +191,20 @@ def test_rig_keys_template_writes_an_editable_rig_file(tmp_path, backend, source
     assert res.exit_code != 0 and "already exists" in res.output
 
 
-def test_the_thesis_only_plan_is_the_default_plan_without_its_three_additions():
+def test_the_thesis_only_plan_is_the_default_plan_without_its_four_additions():
     """``tests/plans/characterize-thesis-only.toml`` (``bench_diagnose --plan``: the runs a lab with the
     thesis's own protocol brings) is the default plan less the sweep below rest, the 50 kHz step and the
-    rest, every other protocol as the default plan has it (in step with it)."""
+    two rests, every other protocol as the default plan has it (in step with it)."""
     import tomllib
 
     default = tomllib.loads((ROOT / "protocols" / "characterize.toml").read_text(encoding="utf-8"))
     path = ROOT / "tests" / "plans" / "characterize-thesis-only.toml"
     thesis = tomllib.loads(path.read_text(encoding="utf-8"))
-    added = {"triangle-below-rest-0.1hz", "step-50v-50khz", "rest-120s"}
+    added = {"rest-before-120s", "triangle-below-rest-0.1hz", "step-50v-50khz", "rest-120s"}
     assert added <= {p["name"] for p in default["protocol"]}
     assert thesis["protocol"] == [p for p in default["protocol"] if p["name"] not in added]
     plan = load_plan(path, LIMITS)
-    assert len(plan.protocols) == len(default["protocol"]) - 3
+    assert len(plan.protocols) == len(default["protocol"]) - 4
     assert not any(p.kind in ("below_rest", "custom") for p in plan.protocols)
 
 

@@ -386,8 +386,8 @@ def test_a_drifting_sensitivity_is_named_alone_and_keeps_the_fast_sweeps(tmp_pat
 @pytest.mark.slow
 def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp_path):
     """The third press's thermal wander of the offset (17 and 41 min sines), the draw of
-    ``bench_diagnose --rig third``, seed 0, characterized with the default plan and a 120 s rest
-    before the first drive. Its rate changes sign between the two rests: one rate for every run
+    ``bench_diagnose --rig third``, seed 0, characterized with the default plan, which rests 120 s
+    before the first drive since stop 76. Its rate changes sign between the two rests: one rate for every run
     named nothing (before the wander form: 0 of 8 draws, seeds 0-7); the wander on the session's clock,
     pinned by the two rests, is named alone, and its rate is of the press's sign at both rests."""
     from piezopress.pipelines import bundle as B
@@ -395,9 +395,8 @@ def test_a_thermal_wander_is_named_where_a_rest_opens_and_closes_the_session(tmp
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    plan = HERE / "plans" / "characterize-rest-first.toml"  # the default plan with a rest first
     press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([0, 97]))
-    char.characterize(tmp_path / "char", backend=press, plan_path=plan)
+    char.characterize(tmp_path / "char", backend=press)  # the default plan: a rest first and last
     B.write_document(F.fit_bundle([tmp_path / "char"], base=True).doc, tmp_path / "base.json")
     result, _ = D.diagnose([tmp_path / "char"], tmp_path / "base.json", tmp_path / "diag")
     named = [(f.cause, f.evidence) for f in result.findings]
@@ -431,9 +430,8 @@ def test_a_thermal_wander_is_named_at_each_rests_own_rate_where_the_runs_record_
     from piezopress.pipelines import diagnose as D
     from piezopress.pipelines import fit as F
 
-    plan = HERE / "plans" / "characterize-rest-first.toml"
     press = tp.hidden_press("sensor_offset_drift", np.random.default_rng([0, 97]))
-    char.characterize(tmp_path / "char", backend=press, plan_path=plan)
+    char.characterize(tmp_path / "char", backend=press)
     from piezopress.analysis.diagnosis.model import run_starts
 
     timed = D.diagnosis_runs(B.collect_runs([tmp_path / "char"]))
