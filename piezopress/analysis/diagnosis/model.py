@@ -239,10 +239,11 @@ class Model:
     drift_warmup: tuple[float, float] | None = None
     # ... or a wander on the test's clock (where the runs record their start times): in each window
     # of the clock two rests pin (:func:`~piezopress.analysis.diagnosis.slow.wander_windows`) the
-    # offset a quadratic in the window's clock, ``a1 c + a2 c^2`` (a1 per second, a2 per second
-    # squared); per run by its identity: (identity, its start on its window's clock, a1, a2), read
-    # from the run's start. A run in no window has one rate: (identity, 0, rate, 0)
-    drift_clock: tuple[tuple[str, float, float, float], ...] | None = None
+    # offset a polynomial in the window's clock, ``a1 c + a2 c^2 + a3 c^3`` (a1 per second, a2 per
+    # second squared, a3 per second cubed; a3 0 for a quadratic); per run by its identity: (identity,
+    # its start on its window's clock, a1, a2, a3), read from the run's start. A run in no window has
+    # one rate: (identity, 0, rate, 0, 0)
+    drift_clock: tuple[tuple[str, float, float, float, float], ...] | None = None
     # sensitivity_drift: the reading's gain drifts on the test's clock: (rate per second, the clock
     # at which the base model's gain holds, per run by its identity: its start on the clock, and
     # whether the drift goes on inside it: not inside the hold the base model's creep was fitted
@@ -501,9 +502,9 @@ class Model:
         at = next((e[1:] for e in self.drift_clock if e[0] == run.ident), None)
         if at is None:
             return 0.0
-        c0, a1, a2 = at
-        t = run.t_s
-        return a1 * t + a2 * t * (2.0 * c0 + t)
+        c0, a1, a2, a3 = at
+        c = c0 + run.t_s
+        return a1 * run.t_s + a2 * (c * c - c0 * c0) + a3 * (c**3 - c0**3)
 
     def predict(self, run: RunData) -> np.ndarray:
         return self.reading(run, self.force(run, self.static(run)))

@@ -49,13 +49,13 @@ DRIFT_MAX_OF_RANGE = 0.2
 #: Time constants of the slow creep element a drift is judged against (creep that the base
 #: model's creep got wrong, in proportion to the drive, is not drift).
 DRIFT_CREEP_TAUS_S = (10.0, 30.0, 100.0, 300.0, 1000.0)
-#: The wander form's clock unit (s): the quadratic's columns are the clock in this unit and its
-#: square, so that both are of order one over a session.
+#: The wander form's clock unit (s): the polynomial's columns are the clock in this unit and its
+#: powers, so that all are of order one over a session.
 CLOCK_UNIT_S = 1000.0
 #: The wander form is tried only where two runs at rest lie at least this far apart on the clock
 #: (s): where the drive does nothing they pin the wander at both ends; between them the sweeps'
-#: cycle-averaged misfit would otherwise shape the quadratic (the third test press, the default
-#: plan's one rest, seed 3: the wander's rate read -3.2 N/min at the first run where the press
+#: cycle-averaged misfit would otherwise shape the quadratic (the third test press, the one rest of
+#: the default plan until stop 76, seed 3: the wander's rate read -3.2 N/min at the first run where the press
 #: wandered +1 N/min, and the held-out ends 5 % worse than none, where one rate read them 61 % better).
 CLOCK_REST_APART_S = 300.0
 #: Two rests further apart than this on the clock (s) pin no wander between them: a quadratic draws
@@ -67,6 +67,19 @@ CLOCK_WINDOW_MAX_S = 900.0
 #: Share of each run the forms are fitted on when the wander form competes with the others (the
 #: next share, up to the held-out end, chooses): held-out rows never choose the form.
 CLOCK_CHOICE_SPLIT = 0.4
+#: The degrees of the wander's polynomial in a window's clock, each a form of its own, chosen as the
+#: wander is (on rows the fit does not see). A quadratic's rate changes at one pace over the window; a
+#: thermal wander of 17 min turns twice in the 10 min between the default plan's rests, slow at both
+#: and fast between them, which only a cubic draws (the third test press, seed 12: the offset rose
+#: 0.36 N over the first rest, fell 8.5 N under the drive between the rests, fell 0.60 N over the
+#: last; the quadratic gained 11 % on the held-out ends, nothing named, the cubic 47 %).
+CLOCK_DEGREES = (2, 3)
+
+
+def wander_rate(a1: float, a2: float, a3: float, c: float) -> float:
+    """The rate of the wander ``a1 c + a2 c^2 + a3 c^3`` (:attr:`Model.drift_clock`'s form) at ``c``
+    on its window's clock (per second)."""
+    return a1 + 2.0 * a2 * c + 3.0 * a3 * c * c
 
 
 @dataclass(frozen=True)
@@ -86,15 +99,18 @@ class _DriftFit:
     with_tail: float | None = None
     tail_per_decade: float | None = None
     # the wander on the test's clock where it won (:attr:`Model.drift_clock`'s form), else None
-    clock: tuple[tuple[str, float, float, float], ...] | None = None
+    clock: tuple[tuple[str, float, float, float, float], ...] | None = None
     # the windows the wander was fitted in (:func:`wander_windows`): (the last rest's start on the
-    # window's clock, whose 0 is the first rest's start; a1, a2), in the clock's order
-    windows: tuple[tuple[float, float, float], ...] = ()
+    # window's clock, whose 0 is the first rest's start; a1, a2, a3), in the clock's order
+    windows: tuple[tuple[float, float, float, float], ...] = ()
     # long runs left out where the wander was tried: longer than a window, the wander turns within them
     left_out: tuple[RunData, ...] = ()
     # where two rests or more lie on no recorded clock: the wander read as each rest's own rate
-    # (:data:`clock`'s entries (run, 0, rate, 0)), the runs under drive sharing one
+    # (:data:`clock`'s entries (run, 0, rate, 0, 0)), the runs under drive sharing one
     per_rest: bool = False
+    # with ``kept``: the change to the kept stroke (:attr:`Model.creep_bias`, output unit) fitted with the
+    # form that won, its creep's shape free beside the drift's
+    kept_change: float = 0.0
 
     @property
     def gain_pct(self) -> float:
@@ -195,7 +211,7 @@ def wander_untold(ctx: Context, causes: set[str]) -> bool:
 
 
 def _drift_fit(
-    ctx: Context, tail_taus: np.ndarray | None = None, clock: dict[str, float] | None = None
+    ctx: Context, tail_taus: np.ndarray | None = None, clock: dict[str, float] | None = None, kept: bool = False
 ) -> _DriftFit | None:
     """See :func:`cause_sensor_offset_drift`. With ``tail_taus`` (a log creep's elements, equal
     gains per half decade: :func:`creep.log_taus`), the drift is fitted again with a log-time
@@ -206,13 +222,20 @@ def _drift_fit(
     With ``clock`` (each run's start on the test's clock, :func:`~piezopress.analysis.diagnosis.model.run_starts`)
     and two rest runs on it :data:`CLOCK_REST_APART_S` to :data:`CLOCK_WINDOW_MAX_S` apart (a rest
     before the first drive and one after the last, say: :func:`wander_windows`), a wander competes
-    too: in each such window of the clock the offset a quadratic in the window's clock, so its rate
-    changes over the window (a thermal wander of minutes, rising in one run and falling in a later
-    one, where one rate for every run fits neither); the runs in no window (or without a start
-    time: runs from elsewhere beside the next plan's) share one rate. It has a parameter more than the
-    other forms, so it is chosen on rows the fit does not see: every form fitted on each run's
+    too: in each such window of the clock the offset a polynomial in the window's clock (a quadratic
+    or a cubic, :data:`CLOCK_DEGREES`), so its rate changes over the window (a thermal wander of
+    minutes, rising in one run and falling in a later one, where one rate for every run fits
+    neither); the runs in no window (or without a start time: runs from elsewhere beside the next
+    plan's) share one rate. It has parameters more than the other forms, so it is chosen on rows
+    the fit does not see: every form fitted on each run's
     first :data:`CLOCK_CHOICE_SPLIT`, the one that predicts the rows from there to 60 % best is
-    fitted on the first 60 % and judged on the rest, as the others are."""
+    fitted on the first 60 % and judged on the rest, as the others are.
+
+    With ``kept`` (the model holds a stroke kept at rest, :func:`kept_stroke_model`), that stroke's
+    creep from every run's start is a column of every form, its size free: read on the rests alone it
+    takes as much of a drift through them as its shape can, and a drift judged against it fixed is
+    judged against part of itself (the virtual rig's drift of the reading from each run's start, the
+    default plan's two rests: 13 % held out against the fixed stroke, nothing named; 80 % without one)."""
     long = _long_runs(ctx)
     windows = wander_windows([r for r, _ in long], clock)
     too_long = [bool(windows) and r.duration_s > CLOCK_WINDOW_MAX_S for r, _ in long]
@@ -223,6 +246,7 @@ def _drift_fit(
     # 38 % without it, lost to a warm-up that read 7 % worse than none)
     left_out = tuple(r for (r, _), out in zip(long, too_long) if out)
     rows = []  # (run, t, slow residual, slow creep responses per tau (the tail's last), floor of the averages)
+    strokes = []  # with ``kept``: the kept stroke's creep per row, cycle-averaged as the residual is
     for r, window in (p for p, out in zip(long, too_long) if not out):
         t, res = _slow_residual(r, r.y - ctx.pred(r), window)
         h = ctx.model.static(r)
@@ -231,6 +255,7 @@ def _drift_fit(
             tail = 0.5 * sum(signals.first_order(h, float(tau), r.fs_hz) for tau in tail_taus)
             creeps.append(_slow_residual(r, tail, window)[1])
         rows.append((r, t, res, creeps, _average_floor(ctx, r, window)))
+        strokes += [_slow_residual(r, ctx.model.creep_transient(r), window)[1]] if kept else []
     if not rows:
         return None
     n_runs = len(rows)
@@ -238,11 +263,13 @@ def _drift_fit(
     onehot = _run_offsets([t.size for _, t, _, _, _ in rows])
     T = np.concatenate([t for _, t, _, _, _ in rows])
     R = np.concatenate([res for _, _, res, _, _ in rows])
-    if fit_m.sum() < n_runs + 3 or (~fit_m).sum() < 3:
+    if fit_m.sum() < n_runs + 3 + int(kept) or (~fit_m).sum() < 3:
         return None
     tail = np.concatenate([c[-1] for _, _, _, c, _ in rows]) if tail_taus is not None else None
+    stroke = [np.concatenate(strokes)] if kept else []
 
-    if windows:  # a quadratic on its own clock in each window two rests pin; one rate for the runs in none
+    wander_cols: dict[str, list[np.ndarray]] = {}
+    if windows:  # a polynomial on its own clock in each window two rests pin; one rate for the runs in none
 
         def window_of(ident: str) -> tuple[int, float]:
             """(window index, start on its clock); (-1, 0) in none, or without a start time."""
@@ -252,9 +279,10 @@ def _drift_fit(
         at = {r.ident: window_of(r.ident) for r in ctx.runs}
         W_ = np.concatenate([np.full(t.size, at[r.ident][0]) for r, t, *_ in rows])
         C_ = np.concatenate([at[r.ident][1] + t for r, t, *_ in rows]) / CLOCK_UNIT_S
-        wander_cols = [np.where(W_ == i, C_**k, 0.0) for i in range(len(windows)) for k in (1, 2)]
         others = W_ < 0
-        wander_cols += [np.where(others, T, 0.0)] if others.any() else []
+        for deg in CLOCK_DEGREES:
+            cols = [np.where(W_ == i, C_**k, 0.0) for i in range(len(windows)) for k in range(1, deg + 1)]
+            wander_cols[f"clock{deg}"] = cols + ([np.where(others, T, 0.0)] if others.any() else [])
 
     rest_cols: list[np.ndarray] = []
     if not windows and len(at_rest([r for r, *_ in rows])) >= 2:
@@ -274,13 +302,13 @@ def _drift_fit(
                 D = (
                     []
                     if w is None
-                    else wander_cols
-                    if w == "clock"
+                    else wander_cols[w]
+                    if w in wander_cols
                     else rest_cols
                     if w == "rests"
                     else [T if np.isinf(w) else -w * np.expm1(-T / w)]
                 )
-                A = np.column_stack([onehot, S] + D + ([tail] if with_tail else []))
+                A = np.column_stack([onehot, S] + D + stroke + ([tail] if with_tail else []))
                 coef, *_ = np.linalg.lstsq(A[fitted], R[fitted], rcond=None)
                 e = rms(R[fitted] - A[fitted] @ coef)
                 if best is None or e < best[0]:
@@ -293,48 +321,55 @@ def _drift_fit(
     wander, spans = None, []
     first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
 
-    def beats(form: str, n_cols: int) -> bool:
-        """Whether the wander ``form`` (``n_cols`` columns more), every form fitted on each run's first
-        :data:`CLOCK_CHOICE_SPLIT`, predicts the rows from there to 60 % better than the best other form."""
-        if first.sum() < n_runs + 2 + n_cols or (fit_m & ~first).sum() < 3:
-            return False
+    def chosen(forms: dict[str, list[np.ndarray]]) -> str | None:
+        """The wander form of ``forms`` (each with its columns) that, every form fitted on each run's first
+        :data:`CLOCK_CHOICE_SPLIT`, predicts the rows from there to 60 % best, where it does so better than
+        the best other form; None where none does (or the rows are too few for its columns)."""
+        if (fit_m & ~first).sum() < 3:
+            return None
         choose = {"fitted": first, "judged": fit_m & ~first}
-        return solve([form], **choose)[3] < solve([w], **choose)[3]
+        least = n_runs + 2 + len(stroke)
+        held = {f: solve([f], **choose)[3] for f, cols in forms.items() if first.sum() >= least + len(cols)}
+        best = min(held, key=held.get, default=None)
+        return best if best is not None and held[best] < solve([w], **choose)[3] else None
 
-    if windows and beats("clock", len(wander_cols)):
-        _, tau1, coef1, e, w = solve(["clock"])
-        k = n_runs + 1
+    form = chosen(wander_cols) if windows else None
+    if form is not None:
+        _, tau1, coef1, e, w = solve([form])
+        k, deg = n_runs + 1, int(form.removeprefix("clock"))
         per = [
-            (float(coef1[k + 2 * i]) / CLOCK_UNIT_S, float(coef1[k + 2 * i + 1]) / CLOCK_UNIT_S**2)
+            tuple(float(coef1[k + deg * i + j]) / CLOCK_UNIT_S ** (j + 1) for j in range(deg)) + (0.0,) * (3 - deg)
             for i in range(len(windows))
         ]
-        steady = float(coef1[k + 2 * len(windows)]) if others.any() else 0.0
+        steady = float(coef1[k + deg * len(windows)]) if others.any() else 0.0
         wander = tuple(  # every run, a short one too, those without a start time last
-            (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0)
+            (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0, 0.0)
             for ident, (i, c) in sorted(at.items(), key=lambda p: (clock.get(p[0], math.inf), p[0]))
         )
         spans = [(hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
     # two rests on no clock (no windows, so never beside the clock's form): chosen as it is
-    per_rest = bool(rest_cols) and beats("rests", len(rest_cols))
+    per_rest = bool(rest_cols) and chosen({"rests": rest_cols}) is not None
     if per_rest:
         _, tau1, coef1, e, w = solve(["rests"])
         k = n_runs + 1
         rates = {rows[i][0].ident: float(c) for i, c in zip(at_rest_rows, coef1[k : k + len(at_rest_rows)])}
         shared = float(coef1[k + len(at_rest_rows)]) if driven.any() else 0.0
-        wander = tuple((r.ident, 0.0, rates.get(r.ident, shared), 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident))
+        wander = tuple(
+            (r.ident, 0.0, rates.get(r.ident, shared), 0.0, 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident)
+        )
     with_tail = per_decade = None
     if tail is not None:
         _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)
         per_decade = float(coef2[-1])
     if wander is not None:  # the fastest the wander moves over the long runs, and no settling
-        per_run = {ident: (c0, a1, a2) for ident, c0, a1, a2 in wander}
-        rates = [a1 + 2.0 * a2 * c for r, *_ in rows for c0, a1, a2 in [per_run[r.ident]] for c in (c0, c0 + r.t_s[-1])]
+        per_run = {ident: coefs for ident, *coefs in wander}
+        rates = [wander_rate(*a, c) for r, *_ in rows for c0, *a in [per_run[r.ident]] for c in (c0, c0 + r.t_s[-1])]
         rate = max(rates, key=abs)
     return _DriftFit(
         [r for r, _, _, _, _ in rows],
         b,
         e,
-        float(coef1[-1]) if wander is None else float(rate),
+        float(coef1[n_runs + 1]) if wander is None else float(rate),
         w if wander is None else math.inf,
         tau1,
         float(coef1[n_runs]),
@@ -345,6 +380,7 @@ def _drift_fit(
         tuple(spans),
         left_out,
         per_rest,
+        float(coef1[-1]) if kept else 0.0,
     )
 
 
@@ -428,7 +464,8 @@ class RestMove:
 def rest_movement(ctx: Context) -> RestMove | None:
     """The rest run (10 s or more) whose averages over 5 s of the residual swing most against their
     floor, under ``ctx.model`` with the creep of a stroke kept at rest (:func:`kept_stroke_model`);
-    None without such a run. Measured on the third test press, default plan (one rest, 120 s):
+    None without such a run. Measured on the third test press, the plan of one rest (120 s; the
+    default until stop 76):
     clean seed 0 swings 0.50 N with the model's creep alone and 0.054 N (22 times the floor) with the
     kept stroke's; a thermal wander of the reading (seeds 0 and 5, 0.52 and 0.26 N over that rest)
     leaves 0.19 and 0.30 N (74 and 123 times the floor): the kept stroke's saturating creep cannot draw

@@ -21,6 +21,7 @@ from piezopress.analysis.diagnosis.slow import (
     _drift_fit,
     kept_stroke_model,
     long_rests,
+    wander_rate,
     wander_untried,
 )
 
@@ -37,8 +38,9 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     Where the runs record their start times, the drift may also be a wander on the test's clock
     (its rate changing over the session, :func:`~piezopress.analysis.diagnosis.slow._drift_fit`):
     measured on the third test press's thermal wander (17 and 41 min sines), the default plan with
-    a rest run before the first drive as well as the one after the last, seeds 0-7: with one rate
-    for every run nothing was named on any seed, with the wander it is named alone on 7 of 8."""
+    a rest run before the first drive as well as the one after the last (the default since stop 76),
+    seeds 0-7: with one rate for every run nothing was named on any seed, with the wander (then a
+    quadratic) it is named alone on 7 of 8."""
     # the creep of a stroke kept at rest rises in every run from its start, where the drive does
     # nothing too: where two rests or more show it, a drift is judged against it, as a log creep is
     # (the third test press, clean, with the next plan's two rests beside the first runs' one: its
@@ -49,7 +51,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     kept = kept_stroke_model(ctx) if len(long_rests(ctx)) >= 2 else ctx
     bias = kept.model.creep_bias if kept is not ctx else 0.0
     ctx = kept
-    d = _drift_fit(ctx, clock=run_starts(ctx.runs) or None)
+    d = _drift_fit(ctx, clock=run_starts(ctx.runs) or None, kept=bool(bias))
     if d is None:
         return None
     span = max(float(np.ptp(r.y)) for r in d.runs)
@@ -61,21 +63,23 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         "kv", creep.static_gain, tuple(creep.taus_s) + (d.creep_tau_s,), tuple(creep.gains) + (d.creep_gain,)
     )
     steady = math.isinf(d.drift_tau_s)
+    stroke = bias + d.kept_change  # the kept stroke, its size fitted beside the drift
     if d.clock is not None:  # a wander on the test's clock
-        ext = replace(ctx.model, drift_clock=d.clock, creep=creep)
+        ext = replace(ctx.model, drift_clock=d.clock, creep=creep, creep_bias=stroke)
     else:
         ext = replace(
             ctx.model,
             drift_per_s=d.drift_per_s if steady else 0.0,
             drift_warmup=None if steady else (d.drift_per_s, d.drift_tau_s),
             creep=creep,
+            creep_bias=stroke,
         )
     u = ctx.model.unit
     names = sorted(r.name for r in d.runs)
     rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
     if d.per_rest:
         lab = units.label(u)
-        by = {ident: a1 for ident, _, a1, _ in d.clock}
+        by = {ident: a1 for ident, _, a1, *_ in d.clock}
         rests = at_rest(d.runs)
         driven = [r for r in d.runs if np.ptp(r.x) > 0]
         rate = (
@@ -89,8 +93,10 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         lab = units.label(u)
         each = [
             f"{a1 * 60:.3g} {lab} per minute at the first rest's start, "
-            f"{(a1 + 2 * a2 * last) * 60:.3g} at the last one's, {last:.0f} s later"
-            for last, a1, a2 in d.windows
+            f"{wander_rate(a1, a2, a3, last) * 60:.3g} at the last one's, {last:.0f} s later"
+            + (f", fastest {wander_rate(a1, a2, a3, mid) * 60:.3g} between them" if a3 and 0 < mid < last else "")
+            for last, a1, a2, a3 in d.windows
+            for mid in [-a2 / (3 * a3) if a3 else math.nan]
         ]
         within = (
             f" in each of the {len(each)} windows of the clock two rests pin: " + "; ".join(each)
@@ -115,8 +121,9 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     )
     if bias:
         ev += (
-            f"; judged against the creep of a stroke of {bias:.3g} {units.label(u)} kept at rest, which rises from "
-            "every run's start where the drive does nothing too"
+            f"; judged against the creep of a stroke kept at rest, which rises from every run's start where the "
+            f"drive does nothing too (its size fitted beside the drift: {stroke:.3g} {units.label(u)}; "
+            f"{bias:.3g} on the rests alone)"
         )
     if d.left_out:
         ev += (
@@ -139,6 +146,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
                 {
                     f"wander_{units.key(u)}_per_s": d.windows[0][1],
                     f"wander_{units.key(u)}_per_s2": d.windows[0][2],
+                    f"wander_{units.key(u)}_per_s3": d.windows[0][3],
                     "wander_windows": float(len(d.windows)),
                 }
                 if d.clock is not None and d.windows
