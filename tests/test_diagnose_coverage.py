@@ -668,7 +668,7 @@ def test_a_wander_slow_at_both_rests_and_fast_between_them_is_drawn_by_a_cubic_o
     between them): its rate is near zero at both ends of the window and fastest in the middle, which a
     quadratic's rate, changing at one pace, cannot draw. A cubic in the window's clock is chosen on
     rows the fit does not see, names the wander at least 35 % better on the held-out ends, and reads
-    its fastest fall between the rests; the quadratic alone reads the same runs at least 15 points worse."""
+    where its rate turns between the rests; the quadratic alone reads the same runs at least 15 points worse."""
     from piezopress.analysis.diagnosis import slow
     from piezopress.analysis.diagnosis.causes.sensor_offset_drift import cause_sensor_offset_drift
 
@@ -680,7 +680,7 @@ def test_a_wander_slow_at_both_rests_and_fast_between_them_is_drawn_by_a_cubic_o
     assert abs(moved["rest-before"]) < 0.2 and abs(moved["rest"]) < 0.2 and moved["hold"] < -2.5, moved
     found = cause_sensor_offset_drift(ctx)
     assert found is not None and found.accepted and found.gain_pct >= 35.0, found and found.gain_pct
-    assert "the test's clock" in found.evidence and "fastest" in found.evidence
+    assert "the test's clock" in found.evidence and "where its rate turns between them" in found.evidence
     a3 = {e[4] for e in found.model.drift_clock if e[2] or e[3]}
     assert a3 and 0.0 not in a3  # the cubic was chosen
     hold = next(r for r in ctx.runs if r.name == "hold")

@@ -94,7 +94,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         each = [
             f"{a1 * 60:.3g} {lab} per minute at the first rest's start, "
             f"{wander_rate(a1, a2, a3, last) * 60:.3g} at the last one's, {last:.0f} s later"
-            + (f", fastest {wander_rate(a1, a2, a3, mid) * 60:.3g} between them" if a3 and 0 < mid < last else "")
+            + (f", {wander_rate(a1, a2, a3, mid) * 60:.3g} where its rate turns between them" if 0 < mid < last else "")
             for last, a1, a2, a3 in d.windows
             for mid in [-a2 / (3 * a3) if a3 else math.nan]
         ]
