@@ -69,6 +69,7 @@ import argparse
 import copy
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -328,6 +329,17 @@ def _follow(tmp: Path, backend, runs: Path, minimal: bool | str, effect: str) ->
     }
 
 
+def kept_case(keep: Path, rig: str, effect: str, seed: int, minimal: bool | str) -> Path:
+    """Where ``--keep`` keeps one case's runs and base (``runs``: the path of the runs diagnosed;
+    ``base.json``), by press, effect, seed, metadata and plan: a later bench with ``--keep`` diagnoses
+    the same runs and base again (code changed in the diagnosis alone, measured on the very same runs)."""
+    plan = Path(os.environ[PLAN_ENV]).stem if os.environ.get(PLAN_ENV) else "default"
+    cut = "-stamped" if minimal == "stamped" else "-minimal" if minimal else ""
+    case = keep / f"{rig}-{effect}-{seed}{cut}-{plan}"
+    case.mkdir(parents=True, exist_ok=True)
+    return case
+
+
 def one(args: tuple) -> tuple[str, tuple[str, ...], float, str | None, dict | None]:
     """One case start to end: characterize, ``fit --base``, ``diagnose`` (and with ``follow``, the
     next plan played: :func:`_follow`). Returns (effect, named, gain, base creep, followed)."""
@@ -337,12 +349,20 @@ def one(args: tuple) -> tuple[str, tuple[str, ...], float, str | None, dict | No
 
     rig, effect, seed, minimal, *rest = args
     follow = bool(rest and rest[0])
+    keep = kept_case(Path(rest[1]), rig, effect, seed, minimal) if len(rest) > 1 and rest[1] else None
     followed = None
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         try:
-            runs, backend = _characterized_on(tmp / "char", rig, effect, seed, minimal)
-            B.write_document(F.fit_bundle([runs], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
+            if keep is not None and (keep / "base.json").is_file():  # --keep: the case's runs and base as kept
+                runs = Path((keep / "runs").read_text(encoding="utf-8").strip())
+                shutil.copy(keep / "base.json", tmp / "base.json")
+            else:
+                runs, backend = _characterized_on((keep or tmp) / "char", rig, effect, seed, minimal)
+                B.write_document(F.fit_bundle([runs], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
+                if keep is not None:  # the base last: a case stopped part way is characterized again
+                    (keep / "runs").write_text(str(runs), encoding="utf-8")
+                    shutil.copy(tmp / "base.json", keep / "base.json")
             base_creep = _base_creep(tmp / "base.json")
             result, _ = D.diagnose([runs], tmp / "base.json", tmp / "diag")
         except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
@@ -414,6 +434,13 @@ def main() -> None:
         "--record", type=Path, default=None, help="append every diagnosis to this JSON-lines file as it ends"
     )
     ap.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        help="keep each case's runs and base under this directory, and diagnose those kept by an earlier bench "
+        "instead of characterizing and fitting again (the same runs diagnosed by changed code; with --no-batch)",
+    )
+    ap.add_argument(
         "--matrix-from",
         type=Path,
         default=None,
@@ -449,6 +476,8 @@ def main() -> None:
         a.minimal = "stamped"
         if a.follow:
             raise SystemExit("--follow with --stamped: the next plan's runs would be stamped on the first runs' clock")
+    if a.keep is not None and (a.follow or a.gain or not a.no_batch):
+        raise SystemExit("--keep diagnoses kept runs again: with --no-batch, not with --follow or --gain")
     if a.follow and a.gain:
         raise SystemExit("--follow plays the next plan after each diagnosis: not with --gain")
     if a.fitted and not (a.gain and a.rig != "ours"):
@@ -488,7 +517,8 @@ def main() -> None:
             print("Dask is not installed: one process pool instead (pip install 'piezopress[fleet]')", file=sys.stderr)
         results = []
         with ProcessPoolExecutor(a.workers) as pool:
-            for k, (job, r) in enumerate(zip(jobs, pool.map(one, [(*j, a.minimal, a.follow) for j in jobs])), 1):
+            cases = [(*j, a.minimal, a.follow, a.keep) for j in jobs]
+            for k, (job, r) in enumerate(zip(jobs, pool.map(one, cases)), 1):
                 results.append(r[:3])
                 # with --follow a first diagnosis that failed has nothing to follow: it counts as it stands
                 f = r[4] if r[4] is not None or not a.follow else {"played": None}

@@ -129,3 +129,42 @@ def test_follow_plays_the_next_plan_on_the_same_press_and_refits_only_where_aske
     monkeypatch.setattr(D, "next_plan_info", lambda d: {"file": None})
     assert bd._follow(tmp_path, press, tmp_path / "char", False, "x") == {"played": None}
     assert len(calls["played"]) == 2  # no plan: nothing played
+
+
+def test_keep_diagnoses_the_kept_runs_and_base_again_without_characterizing_or_fitting(tmp_path, monkeypatch):
+    """``--keep``: the first bench characterizes and fits into the kept case; a later one (changed
+    diagnosis code) diagnoses those very runs against that very base, and names what the first did.
+    Each case is kept apart by its press, effect, seed, cut metadata and plan."""
+    from piezopress.pipelines import fit as F
+
+    bd = _bench()
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for n in ("triangle-0.1hz", "creep-150v"):
+        shutil.copy(ROOT / "sample_runs" / "characterization" / f"{n}.parquet", runs / f"{n}.parquet")
+    characterized = []
+
+    def played(out, rig, effect, seed, minimal):
+        characterized.append(out)
+        return runs, None
+
+    monkeypatch.setattr(bd, "_characterized_on", played)
+    case = ("ours", "none", 3, False, False, str(tmp_path / "keep"))
+    first = bd.one(case)
+    assert len(characterized) == 1 and not first[1][0].startswith("error"), first
+    kept = bd.kept_case(tmp_path / "keep", "ours", "none", 3, False)
+    assert (kept / "base.json").is_file() and (kept / "runs").read_text(encoding="utf-8") == str(runs)
+
+    def refit(*a, **k):
+        raise AssertionError("a kept case is not fitted again")
+
+    monkeypatch.setattr(F, "fit_bundle", refit)
+    again = bd.one(case)
+    assert len(characterized) == 1 and again[:2] == first[:2] and again[3] == first[3]
+    cases = {bd.kept_case(tmp_path / "keep", "ours", "none", 3, m) for m in (False, True, "stamped")} | {
+        bd.kept_case(tmp_path / "keep", "ours", "none", 4, False),
+        bd.kept_case(tmp_path / "keep", "second", "none", 3, False),
+    }
+    monkeypatch.setenv(bd.PLAN_ENV, str(ROOT / "tests" / "plans" / "characterize-one-rest.toml"))
+    cases.add(bd.kept_case(tmp_path / "keep", "ours", "none", 3, False))
+    assert len(cases) == 6

@@ -150,8 +150,8 @@ def test_a_rest_that_moves_is_not_said_where_two_rests_on_the_clock_tried_the_wa
 def test_a_kept_stroke_creeping_from_every_runs_start_is_no_drift_of_the_reading(monkeypatch, rests_before):
     """The kept stroke's creep rises from every run's start, as a warm-up of the reading would;
     with a rest before the drive as well (the next plan's, beside the first runs' one) it shows in
-    two rests or more. Judged against the model's creep alone, a warm-up takes it up at 10-18 % held
-    out (the third test press, clean, after the next plan: 20.9 %, named); judged against the kept
+    two rests or more. Judged against the model's creep alone, a warm-up or a wander takes part of it
+    up (the third test press, clean, after the next plan: 20.9 %, named); judged against the kept
     stroke's creep as well, it predicts worse than none. A wander of the reading beside the kept
     stroke is still named, and says what it was judged against. With one rest the stroke is not
     read for the drift (that rest's rise may be the drift's own): the drift is judged as before."""
@@ -165,7 +165,10 @@ def test_a_kept_stroke_creeping_from_every_runs_start_is_no_drift_of_the_reading
     one_rest = cause_sensor_offset_drift(_runs(0.0))
     monkeypatch.setattr(S, "kept_stroke_model", lambda ctx: ctx)  # the drift judged as before
     unkept = cause_sensor_offset_drift(_runs(0.0, rests_before=rests_before))
-    assert unkept.gain_pct >= 8.0 and "at the start of a run" in unkept.evidence, unkept.gain_pct
+    # judged against the model's creep alone the stroke's rise reads as a drift (a warm-up or a wander:
+    # 17 and 2 % held out on the witnesses of a drift, stop 77; 14-15 % on every long run before), far
+    # better than against the stroke
+    assert unkept.gain_pct >= still.gain_pct + 40.0, (unkept.gain_pct, still.gain_pct)
     # one rest: judged as before, and no stroke said
     assert one_rest.gain_pct == pytest.approx(cause_sensor_offset_drift(_runs(0.0)).gain_pct, abs=1e-9)
     assert "kept at rest" not in one_rest.evidence

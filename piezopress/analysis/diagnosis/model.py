@@ -60,10 +60,16 @@ class RunData:
         return self.key or self.name
 
     @functools.cached_property
+    def drive_profile(self) -> profile.RunProfile:
+        """The drive's shape measured from its signal (a rest, a held step, a sweep...); what the
+        run's metadata records is never used for a decision."""
+        return profile.profile_signals(self.t_s, self.x)
+
+    @property
     def freq_hz(self) -> float | None:
         """The sweep frequency measured from the drive's reversals (None: the drive is no
-        regular sweep); what the run's metadata records is never used for a decision."""
-        p = profile.profile_signals(self.t_s, self.x)
+        regular sweep)."""
+        p = self.drive_profile
         return p.freq_hz if p.is_sweep else None
 
     @property

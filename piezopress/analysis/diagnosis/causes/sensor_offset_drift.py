@@ -40,7 +40,11 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     measured on the third test press's thermal wander (17 and 41 min sines), the default plan with
     a rest run before the first drive as well as the one after the last (the default since stop 76),
     seeds 0-7: with one rate for every run nothing was named on any seed, with the wander (then a
-    quadratic) it is named alone on 7 of 8."""
+    quadratic) it is named alone on 7 of 8.
+
+    Beside two rests the drift is read on its witnesses (:func:`~piezopress.analysis.diagnosis.slow.drift_witnesses`):
+    the rests and the runs whose trend nothing else the model draws shapes; a sweep of changing amplitude
+    and a held step (where the base model's creep took part of the drift) are left out, and said."""
     # the creep of a stroke kept at rest rises in every run from its start, where the drive does
     # nothing too: where two rests or more show it, a drift is judged against it, as a log creep is
     # (the third test press, clean, with the next plan's two rests beside the first runs' one: its
@@ -51,7 +55,7 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     kept = kept_stroke_model(ctx) if len(long_rests(ctx)) >= 2 else ctx
     bias = kept.model.creep_bias if kept is not ctx else 0.0
     ctx = kept
-    d = _drift_fit(ctx, clock=run_starts(ctx.runs) or None, kept=bool(bias))
+    d = _drift_fit(ctx, clock=run_starts(ctx.runs) or None, kept=bool(bias), witnesses=True)
     if d is None:
         return None
     span = max(float(np.ptp(r.y)) for r in d.runs)
@@ -82,10 +86,13 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
         by = {ident: a1 for ident, _, a1, *_ in d.clock}
         rests = at_rest(d.runs)
         driven = [r for r in d.runs if np.ptp(r.x) > 0]
+        own = [r.name for r in driven if by.get(r.ident)]
+        short = [r.name for r in driven if not by.get(r.ident)]
         rate = (
             "at each rest's own rate, on no recorded clock ("
             + ", ".join(f"{r.name} {by[r.ident] * 60:.3g} {lab} per minute" for r in rests)
-            + (f"; the runs under drive {by[driven[0].ident] * 60:.3g}" if driven else "")
+            + (f"; {', '.join(own)} each at its own rate too" if own else "")
+            + (f"; {', '.join(short)} an offset only (too few cycles to read a rate from)" if short else "")
             + "): a wander whose rate turns between the rests, which the creep of a stroke kept at rest, rising "
             "alike from every run's start, cannot draw"
         )
@@ -125,6 +132,8 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
             f"drive does nothing too (its size fitted beside the drift: {stroke:.3g} {units.label(u)}; "
             f"{bias:.3g} on the rests alone)"
         )
+    if d.unwitnessed:
+        ev += "; no witness of a drift beside two rests: " + "; ".join(f"{r.name} ({why})" for r, why in d.unwitnessed)
     if d.left_out:
         ev += (
             "; left out: "
