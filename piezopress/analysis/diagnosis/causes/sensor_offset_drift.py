@@ -133,7 +133,12 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
             f"{bias:.3g} on the rests alone)"
         )
     if d.unwitnessed:
-        ev += "; no witness of a drift beside two rests: " + "; ".join(f"{r.name} ({why})" for r, why in d.unwitnessed)
+        by_why: dict[str, list[str]] = {}
+        for r, why in d.unwitnessed:
+            by_why.setdefault(why, []).append(r.name)
+        ev += "; no witness of a drift beside two rests: " + "; ".join(
+            f"{', '.join(sorted(names))} ({why})" for why, names in by_why.items()
+        )
     if d.left_out:
         ev += (
             "; left out: "
