@@ -498,6 +498,13 @@ def main() -> None:
     hidden = a.effects or (list(PAIRS) if a.pairs else list(EFFECTS) + ["none"])
     if a.rig == "ours" and any("+" in h for h in hidden):
         raise SystemExit("pairs run on the test presses (--rig second or third); the virtual rig hides one effect")
+    known = set(EFFECTS if a.rig == "ours" else _press_effects(a.rig))
+    unknown = sorted({p for h in hidden for p in h.split("+") if p not in known | {"none"}})
+    if unknown:
+        raise SystemExit(
+            f"--effects: {', '.join(unknown)} not hidden by --rig {a.rig} (expected none or one of: "
+            f"{', '.join(sorted(known))}; two joined by +)"
+        )
     if a.matrix_from:  # the matrix of results recorded earlier (a run stopped part way, or several joined)
         results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig and r[5] == a.minimal]
         if a.follow:  # the matrix after the next plan, of the cases recorded with --follow

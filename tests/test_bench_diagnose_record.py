@@ -168,3 +168,24 @@ def test_keep_diagnoses_the_kept_runs_and_base_again_without_characterizing_or_f
     monkeypatch.setenv(bd.PLAN_ENV, str(ROOT / "tests" / "plans" / "characterize-one-rest.toml"))
     cases.add(bd.kept_case(tmp_path / "keep", "ours", "none", 3, False))
     assert len(cases) == 6
+
+
+def test_an_effect_the_press_cannot_hide_is_refused_before_any_case_runs(monkeypatch, capsys):
+    """A misspelt ``--effects`` stops the bench at once, naming the value and the press's
+    catalogue, instead of recording an error for every seed after minutes of characterizing."""
+    import pytest
+
+    bd = _bench()
+    ran = []
+    monkeypatch.setattr(bd, "one", lambda args: ran.append(args))
+    argv = ["bench_diagnose.py", "--rig", "third", "--no-batch", "--effects"]
+    monkeypatch.setattr("sys.argv", [*argv, "sensor_input_delay+drive_coupled_interference"])
+    with pytest.raises(SystemExit) as stop:
+        bd.main()
+    said = str(stop.value)
+    assert "sensor_input_delay not hidden by --rig third" in said and "input_delay" in said
+    assert "mains_pickup" in said and not ran  # the third press's own catalogue, and nothing run
+    monkeypatch.setattr("sys.argv", ["bench_diagnose.py", "--rig", "ours", "--no-batch", "--effects", "none", "hum"])
+    with pytest.raises(SystemExit, match="hum not hidden by --rig ours"):
+        bd.main()
+    assert not ran
