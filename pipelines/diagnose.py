@@ -343,8 +343,8 @@ def _diagnose_into(
     if left_out:
         result = replace(
             result,
-            summary=result.summary
-            + f" Left out: {', '.join(r.name for r in left_out)} (below the rest drive the other sweeps keep to: "
+            summary=result.summary.rstrip(".")  # the analysis's summary is one sentence without its stop
+            + f". Left out: {', '.join(r.name for r in left_out)} (below the rest drive the other sweeps keep to: "
             "measured for the compensator; the base model is judged on the range it was fitted on).",
         )
     ctx = dg.Context(runs, base, frozenset(fitted), {r.name: dg.noise_floor(r.y) for r in runs})

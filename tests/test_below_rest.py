@@ -337,7 +337,7 @@ def test_base_and_diagnose_keep_to_the_range_the_thesis_model_was_fitted_on(thir
     assert "triangle-below-rest-0.1hz" not in [r["name"] for r in doc["hysteresis"]["runs"]]
     B.write_document(doc, tmp_path / "base.json")
     result, _ = D.diagnose([char_dir], tmp_path / "base.json", tmp_path / "diag", causes=["input_delay"])
-    assert "Left out: triangle-below-rest-0.1hz" in result.summary, result.summary
+    assert ". Left out: triangle-below-rest-0.1hz" in result.summary, result.summary  # a sentence of its own
     full = F.fit_bundle([char_dir]).doc
     assert "triangle-below-rest-0.1hz" in full["hysteresis"]["fit"]["below_rest"]
 

@@ -170,3 +170,32 @@ def test_a_transient_is_said_to_ring_only_at_a_line_it_can_hold():
     slow = Structure("transient", 0.0, 0.0, 0.0, 0.98, 1.5)
     assert slow.text().startswith("sits in the first moments after each step"), slow.text()
     assert Structure("transient", 0.0, 0.0, 0.0, 0.98, 1025.0).text().startswith("rings at 1025 Hz")
+
+
+def test_a_rest_read_apart_from_the_model_by_a_constant_is_an_offset_not_a_slow_movement():
+    """The third press's rest before its first drive reads 6 N under the model throughout (its
+    virgin state at that drive, or the reading's zero): the residual hardly moves about that
+    constant, so it is said as an offset with its size, not as something that "moves slowly". A
+    wander of the same energy about zero is not an offset, and a settling is still a settling."""
+    t = np.arange(int(120 * 100)) / 100.0
+    x = np.zeros_like(t)
+    wander = 0.3 * np.sin(2 * np.pi * t / 300.0 + 0.4) + 0.1 * np.sin(2 * np.pi * t / 47.0)
+    s = _shape(t, x, -6.1 + wander, fs=100.0, noise=0.05)
+    assert s.kind == "offset" and s.offset == pytest.approx(-6.0, abs=0.2) and s.offset_share >= 0.95, s
+    assert s.text().startswith(f"sits apart from the model by a constant {s.offset:+.2g} N ("), s.text()
+    moving = _shape(t, x, 6.0 * np.sin(2 * np.pi * t / 120.0), fs=100.0, noise=0.05)
+    assert moving.kind == "slow" and moving.offset_share < SIGNATURE_MIN_SHARE, moving
+    settling = _shape(t, x, -2.0 - 0.6 * np.log10(1.0 + t / 2.0), fs=100.0, noise=0.01)
+    assert settling.kind == "after_step", settling  # its mean is most of it, but the settling draws how it moves
+
+
+def test_offsets_are_grouped_with_their_signs_in_the_runs_unit():
+    entries = [
+        {"run": "rest-before", "signature": "offset", "share": 0.98, "line_hz": 0.0, "ratio": 112.0},
+        {"run": "rest", "signature": "offset", "share": 0.9, "line_hz": 0.0, "ratio": 55.0},
+    ]
+    entries[0] |= {"rms_um": 6.1, "offset_um": -6.1}
+    entries[1] |= {"rms_um": 3.0, "offset_um": 2.9}
+    text = unexplained_text(entries)
+    assert text.startswith("in rest-before, rest it sits apart from the model by a constant -6.1 to +2.9 µm"), text
+    assert "90-98 % of the structure, 55-112 x the noise)" in text, text

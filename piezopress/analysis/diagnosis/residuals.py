@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, special
 
+from piezopress import units
 from piezopress.analysis.diagnosis.model import RunData
 from piezopress.signals import noise_floor, quantum  # noqa: F401 - the residuals' floor, used here and by the causes
 
@@ -161,6 +162,8 @@ SIGNATURE_POINTS = 20000
 
 #: Each signature of a residual no cause explains: (key, what it says).
 SIGNATURES = {
+    "offset": "sits apart from the model by a constant (the model's level at that drive drawn wrong, or the "
+    "reading's zero moved)",
     "level": "follows the drive's level (the static map drawn wrong there)",
     "loop": "follows the drive's level and direction (the loop's branches drawn wrong)",
     "transient": "sits in the first moments after each step (the step's transient: the chain's or a mode's dynamics)",
@@ -185,16 +188,31 @@ class Structure:
     after_step: float
     transient: float
     line_hz: float
+    #: The residual's mean (the run's unit) and the share of its structure (its mean square less
+    #: the noise floor's) that constant holds.
+    offset: float = 0.0
+    offset_share: float = 0.0
 
     @property
     def share(self) -> float | None:
         """The share of the structure (the energy, for a transient) its signature explains; else None."""
-        return {"level": self.level, "loop": self.loop, "after_step": self.after_step, "transient": self.transient}.get(
-            self.kind
-        )
+        return {
+            "offset": self.offset_share,
+            "level": self.level,
+            "loop": self.loop,
+            "after_step": self.after_step,
+            "transient": self.transient,
+        }.get(self.kind)
 
-    def text(self) -> str:
-        return _said(self.kind, [self.line_hz] if self.line_hz else [], [] if self.share is None else [self.share], [])
+    def text(self, unit: str = "N") -> str:
+        return _said(
+            self.kind,
+            [self.line_hz] if self.line_hz else [],
+            [] if self.share is None else [self.share],
+            [],
+            [self.offset] if self.kind == "offset" else [],
+            unit,
+        )
 
 
 def _blocks(a: np.ndarray, m: int) -> np.ndarray:
@@ -254,9 +272,14 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
     share the cubic on each branch of the drive's direction explains (a loop drawn wrong), the share a logarithm of
     the time since the last step (or the run's start) explains (creep or a settling), or its line
     (:attr:`ResidualStats.dominant_freq_hz`): one of the drive's first :data:`DRIVE_HARMONICS`
-    harmonics or one it holds (:func:`drive_holds`), or not.
+    harmonics or one it holds (:func:`drive_holds`), or not. Where nothing draws how it moves, the
+    share of its mean square (less the noise floor's) its mean holds: a constant apart from the model
+    (its level at that drive, or the reading's zero), said before a line of lesser energy.
     Decided from the drive and the residual, never from what the run's metadata says it is."""
     r0, x0, t0 = judged(run, residual), judged(run, run.x), judged(run, run.t_s)
+    mean = float(np.mean(r0))
+    structure = float(np.mean(np.square(r0))) - stats.floor**2  # the noise is no structure
+    offset_share = min(1.0, mean**2 / structure) if structure > 0 else 0.0
     span = max(float(np.ptp(x0)), 1e-12)
     big, since0 = steps_and_since(x0, t0)
     near = big.any() & (since0 < TRANSIENT_S)
@@ -290,17 +313,22 @@ def structure_signature(run: RunData, residual: np.ndarray, stats: ResidualStats
         kind = "loop"
     elif shares["after_step"] >= SIGNATURE_MIN_SHARE:
         kind = "after_step"
+    elif offset_share >= SIGNATURE_MIN_SHARE:  # nothing draws how it moves, and a constant holds most of it
+        kind = "offset"
     elif line:
         kind = "drive_line" if harmonic else "line"
     else:
         kind = "slow" if stats.lag1_autocorr >= 0.8 else "none"
-    return Structure(kind, shares["level"], shares["loop"], shares["after_step"], transient, float(line))
+    return Structure(
+        kind, shares["level"], shares["loop"], shares["after_step"], transient, float(line), mean, offset_share
+    )
 
 
 def unexplained_groups(entries: list[dict[str, Any]], ratio_key: str = "ratio") -> list[tuple[list[str], str]]:
     """The unexplained runs grouped by their signature (``entries``: each with ``run``,
     ``signature`` (a :data:`SIGNATURES` key), ``share`` (of the structure its signature explains,
-    or None), ``line_hz`` and the ratio to the noise floor), in the order first met: (the runs,
+    or None), ``line_hz``, ``offset_<unit>`` (its mean, for an offset) and the ratio to the noise
+    floor), in the order first met: (the runs,
     what the signature says with the group's figures, "follows the drive's level (the static map
     drawn wrong there; 77-96 % of the structure, 90-259 x the noise)"). Entries without a
     signature (a diagnosis written before there were any) are left out."""
@@ -308,6 +336,7 @@ def unexplained_groups(entries: list[dict[str, Any]], ratio_key: str = "ratio") 
     for e in entries:
         if e.get("signature") in SIGNATURES:
             groups.setdefault(e["signature"], []).append(e)
+    unit = next((k.removeprefix("rms_") for e in entries for k in e if k.startswith("rms_")), "n")
     return [
         (
             [e["run"] for e in es],
@@ -316,6 +345,8 @@ def unexplained_groups(entries: list[dict[str, Any]], ratio_key: str = "ratio") 
                 [float(e["line_hz"]) for e in es if e.get("line_hz")],
                 [float(e["share"]) for e in es if e.get("share") is not None],
                 [float(e[ratio_key]) for e in es if e.get(ratio_key) is not None],
+                [float(v) for e in es if (v := e.get(f"offset_{unit}")) is not None],
+                units.label(unit),
             ),
         )
         for kind, es in groups.items()
@@ -327,9 +358,12 @@ def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") ->
     return "; ".join(f"in {', '.join(runs)} it {said}" for runs, said in unexplained_groups(entries, ratio_key))
 
 
-def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float]) -> str:
-    """What a signature says (:data:`SIGNATURES`), its lines named, with the figures in its parentheses."""
+def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float], offsets=(), unit: str = "N") -> str:
+    """What a signature says (:data:`SIGNATURES`), its lines named, its offsets (in ``unit``) said,
+    with the figures in its parentheses."""
     what = SIGNATURES[kind]
+    if kind == "offset" and offsets:
+        what = what.replace("by a constant", f"by a constant {_span(list(offsets), ' ' + unit, signed=True)}", 1)
     if kind == "transient":  # a ring within the transient's moments: a line slower than a cycle there is not its
         lines = [v for v in lines if v >= 1.0 / TRANSIENT_S]
     hz = " or ".join(sorted({f"{v:.0f}" if v >= 100 else f"{v:.3g}" for v in lines}, key=float))
@@ -345,10 +379,14 @@ def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float
     return f"{what[:-1]}; {figs})" if what.endswith(")") else f"{what} ({figs})"
 
 
-def _span(values: list[float], unit: str) -> str:
-    """'a-b unit' (or 'a unit' for one value, '' for none), values as whole numbers where they are large."""
+def _span(values: list[float], unit: str, signed: bool = False) -> str:
+    """'a-b unit' (or 'a unit' for one value, '' for none), values as whole numbers where they are
+    large; ``signed``: each with its sign, 'a to b unit' ("-6.1 to +2.0 N")."""
     if not values:
         return ""
     lo, hi = min(values), max(values)
+    if signed:
+        fmt = (lambda v: f"{v:+.0f}") if min(abs(lo), abs(hi)) >= 10 else (lambda v: f"{v:+.2g}")
+        return f"{fmt(lo)}{unit}" if fmt(lo) == fmt(hi) else f"{fmt(lo)} to {fmt(hi)}{unit}"
     fmt = (lambda v: f"{v:.0f}") if lo >= 10 else (lambda v: f"{v:.2g}")
     return f"{fmt(lo)}{unit}" if fmt(lo) == fmt(hi) else f"{fmt(lo)}-{fmt(hi)}{unit}"

@@ -356,9 +356,10 @@ def diagnose(
                 "where_s": s.t_max_s,
                 "dominant_freq_hz": s.dominant_freq_hz,
                 "signature": shape.kind,
-                "signature_text": shape.text(),
+                "signature_text": shape.text(u),
                 "share": shape.share,
                 "line_hz": shape.line_hz,
+                **({f"offset_{k}": shape.offset} if shape.kind == "offset" else {}),
             }
         )
     from piezopress.analysis.signatures import drive_independent_lines
