@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -358,7 +359,14 @@ def unexplained_text(entries: list[dict[str, Any]], ratio_key: str = "ratio") ->
     return "; ".join(f"in {', '.join(runs)} it {said}" for runs, said in unexplained_groups(entries, ratio_key))
 
 
-def _said(kind: str, lines: list[float], shares: list[float], ratios: list[float], offsets=(), unit: str = "N") -> str:
+def _said(
+    kind: str,
+    lines: list[float],
+    shares: list[float],
+    ratios: list[float],
+    offsets: Sequence[float] = (),
+    unit: str = "N",
+) -> str:
     """What a signature says (:data:`SIGNATURES`), its lines named, its offsets (in ``unit``) said,
     with the figures in its parentheses."""
     what = SIGNATURES[kind]
@@ -386,7 +394,7 @@ def _span(values: list[float], unit: str, signed: bool = False) -> str:
         return ""
     lo, hi = min(values), max(values)
     if signed:
-        fmt = (lambda v: f"{v:+.0f}") if min(abs(lo), abs(hi)) >= 10 else (lambda v: f"{v:+.2g}")
+        fmt = lambda v: f"{v:+.0f}" if abs(v) >= 10 else f"{v:+.2g}"  # noqa: E731 - each value as large as it is
         return f"{fmt(lo)}{unit}" if fmt(lo) == fmt(hi) else f"{fmt(lo)} to {fmt(hi)}{unit}"
     fmt = (lambda v: f"{v:.0f}") if lo >= 10 else (lambda v: f"{v:.2g}")
     return f"{fmt(lo)}{unit}" if fmt(lo) == fmt(hi) else f"{fmt(lo)}-{fmt(hi)}{unit}"
