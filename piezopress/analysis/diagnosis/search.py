@@ -213,20 +213,17 @@ def _together(ctx: Context, tried: list[Finding], failed: dict[str, str]) -> lis
     return [first, second]
 
 
-def _unpinned_rival(tried: Finding, taken: list[str]) -> bool:
-    """Whether a cause tried in an earlier round, with nothing to fit once ``taken`` were named,
-    could be what its slow rival took: a log creep that predicted better but was found too small
-    only against a creep of the model whose elements slower than the hold no run pins (it keeps a
-    held step that tells, ``tell_hold_s``), beside an offset drift named after it (the third test
-    press, log creep seed 13: the hold 84 % better, too small beside the base's spectrum to 1000 s;
-    then a drift of the rests named at 21 %, and the log creep had nothing left to fit)."""
-    return (
-        tried.cause in SLOW_RIVALS
-        and bool((SLOW_RIVALS - {tried.cause}) & set(taken))
-        and bool(tried.too_small)
-        and tried.tell_hold_s > 0.0
-        and tried.gain_pct >= MIN_GAIN_PCT
-    )
+def _unpinned_rival(tried: Finding, taken: list[str]) -> str | None:
+    """The slow rival among ``taken`` whose finding a cause tried in an earlier round, with nothing
+    to fit once ``taken`` were named, could be (None where it could be none): a log creep that
+    predicted better but was found too small only against a creep of the model whose elements slower
+    than the hold no run pins (it keeps a held step that tells, ``tell_hold_s``), beside an offset
+    drift named after it (the third test press, log creep seed 13: the hold 84 % better, too small
+    beside the base's spectrum to 1000 s; then a drift of the rests named at 21 %, and the log creep
+    had nothing left to fit)."""
+    unpinned = bool(tried.too_small) and tried.tell_hold_s > 0.0 and tried.gain_pct >= MIN_GAIN_PCT
+    rival = [c for c in taken if c in SLOW_RIVALS and c != tried.cause]
+    return rival[0] if unpinned and tried.cause in SLOW_RIVALS and rival else None
 
 
 #: The kind of :func:`_moves_at_rest`'s signature (``next-plan.toml`` asks for the runs that tell it).
@@ -322,8 +319,10 @@ def diagnose(
                     f"nothing to fit once {' and '.join(taken)} {'was' if len(taken) == 1 else 'were'} in the "
                     f"model; before, held-out gain {gone.gain_pct:.0f} %"
                 )
-                if _unpinned_rival(gone, taken):
+                took = _unpinned_rival(gone, taken)
+                if took is not None:  # what the rival took it could have been (said as a rival is)
                     unpinned[cid] = gone
+                    rivals.setdefault(cid, (took, gone.gain_pct))
             if on_progress:
                 on_progress(
                     CauseProgress(
@@ -356,9 +355,6 @@ def diagnose(
     # a cause that cleared the bar beside a winner and was never named after it: the winner took
     # what it explained, so the finding could be that cause instead (said, with its gain then)
     named = {f.cause for f in findings}
-    for cid, f in unpinned.items():
-        if cid not in named:
-            rivals.setdefault(cid, (next(c for c in SLOW_RIVALS - {cid} if c in named), f.gain_pct))
     findings = [
         replace(f, could_also_be={c: g for c, (w, g) in rivals.items() if w == f.cause and c not in named})
         for f in findings
