@@ -358,6 +358,9 @@ def one(args: tuple) -> tuple[str, tuple[str, ...], float, str | None, dict | No
                 runs = Path((keep / "runs").read_text(encoding="utf-8").strip())
                 shutil.copy(keep / "base.json", tmp / "base.json")
             else:
+                if keep is not None:  # a case stopped part way left its runs without a base: played again
+                    for part in ("char", "char-minimal"):
+                        shutil.rmtree(keep / part, ignore_errors=True)
                 runs, backend = _characterized_on((keep or tmp) / "char", rig, effect, seed, minimal)
                 B.write_document(F.fit_bundle([runs], base=True).doc, tmp / "base.json")  # `piezopress fit --base`
                 if keep is not None:  # the base last: a case stopped part way is characterized again

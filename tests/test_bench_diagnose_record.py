@@ -170,6 +170,30 @@ def test_keep_diagnoses_the_kept_runs_and_base_again_without_characterizing_or_f
     assert len(cases) == 6
 
 
+def test_a_case_stopped_part_way_is_characterized_again_into_a_fresh_directory(tmp_path, monkeypatch):
+    """A bench stopped while a case was characterizing leaves its runs without a base: the next bench
+    with ``--keep`` plays that case again, and ``characterize`` refuses a directory that exists (so the
+    case read ``error: OutputExistsError`` on every later bench). The partial runs are cleared first."""
+    bd = _bench()
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    for n in ("triangle-0.1hz", "creep-150v"):
+        shutil.copy(ROOT / "sample_runs" / "characterization" / f"{n}.parquet", runs / f"{n}.parquet")
+    kept = bd.kept_case(tmp_path / "keep", "ours", "none", 3, True)
+    for part in ("char", "char-minimal"):  # what the stopped bench had written
+        (kept / part).mkdir()
+        (kept / part / "rest-before-120s.parquet").write_bytes(b"cut short")
+
+    def played(out, rig, effect, seed, minimal):
+        assert not out.exists() and not out.with_name(out.name + "-minimal").exists()
+        return runs, None
+
+    monkeypatch.setattr(bd, "_characterized_on", played)
+    result = bd.one(("ours", "none", 3, True, False, str(tmp_path / "keep")))
+    assert not result[1][0].startswith("error"), result
+    assert (kept / "base.json").is_file()
+
+
 def test_an_effect_the_press_cannot_hide_is_refused_before_any_case_runs(monkeypatch, capsys):
     """A misspelt ``--effects`` stops the bench at once, naming the value and the press's
     catalogue, instead of recording an error for every seed after minutes of characterizing."""
