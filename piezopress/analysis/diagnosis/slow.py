@@ -113,6 +113,9 @@ class _DriftFit:
     kept_change: float = 0.0
     # with ``witnesses``: the long runs left out as no witness of a drift, each with why (:data:`NOT_A_WITNESS`)
     unwitnessed: tuple[tuple[RunData, str], ...] = ()
+    # each rest run's held-out gain (%) alone, the form that won against none, and its held-out RMS without
+    # the drift in floors of its averages: (name, gain, RMS to floor), in the rows' order
+    rest_gains: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def gain_pct(self) -> float:
@@ -369,12 +372,12 @@ def _drift_fit(
                 coef, *_ = np.linalg.lstsq(A[fitted], R[fitted], rcond=None)
                 e = rms(R[fitted] - A[fitted] @ coef)
                 if best is None or e < best[0]:
-                    best = (e, tau, coef, rms(R[judged] - A[judged] @ coef), w)
+                    best = (e, tau, coef, rms(R[judged] - A[judged] @ coef), w, R - A @ coef)
         return best
 
     warmups = [math.inf, 1000.0, DRIFT_WARMUP_TAU_S]
-    _, _, _, b, _ = solve([None])
-    _, tau1, coef1, e, w = solve(warmups)
+    *_, b, _, left0 = solve([None])
+    _, tau1, coef1, e, w, left = solve(warmups)
     wander, spans = None, []
     first = np.concatenate([t <= CLOCK_CHOICE_SPLIT * r.t_s[-1] for r, t, *_ in rows])
 
@@ -392,7 +395,7 @@ def _drift_fit(
 
     form = chosen(wander_cols) if windows else None
     if form is not None:
-        _, tau1, coef1, e, w = solve([form])
+        _, tau1, coef1, e, w, left = solve([form])
         k, deg = n_runs + 1, int(form.removeprefix("clock"))
         per = [
             tuple(float(coef1[k + deg * i + j]) / CLOCK_UNIT_S ** (j + 1) for j in range(deg)) + (0.0,) * (3 - deg)
@@ -407,16 +410,25 @@ def _drift_fit(
     # two rests on no clock (no windows, so never beside the clock's form): chosen as it is
     per_rest = bool(rest_cols) and chosen({"rests": rest_cols}) is not None
     if per_rest:
-        _, tau1, coef1, e, w = solve(["rests"])
+        _, tau1, coef1, e, w, left = solve(["rests"])
         k = n_runs + 1
         rates = {rows[i][0].ident: float(c) for i, c in zip(at_rest_rows, coef1[k : k + len(at_rest_rows)])}
         shared = float(coef1[k + len(at_rest_rows)]) if driven.any() else 0.0
         wander = tuple(
             (r.ident, 0.0, rates.get(r.ident, shared), 0.0, 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident)
         )
+    # each rest's own held-out gain (a drift of the reading moves every rest: :attr:`_DriftFit.rest_gains`)
+    row_of = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])
+    rest_gains = []
+    for i, (r, *_, floor_i) in enumerate(rows):
+        held = (row_of == i) & ~fit_m
+        if at_rest([r]) and held.any():
+            none = rms(left0[held])
+            gain_i = 100.0 * (none - rms(left[held])) / none if none > 0 else 0.0
+            rest_gains.append((r.name, gain_i, none / floor_i if floor_i > 0 else math.inf))
     with_tail = per_decade = None
     if tail is not None:
-        _, _, coef2, with_tail, _ = solve(warmups, with_tail=True)
+        _, _, coef2, with_tail, *_ = solve(warmups, with_tail=True)
         per_decade = float(coef2[-1])
     if wander is not None:  # the fastest the wander moves over the long runs, and no settling
         per_run = {ident: coefs for ident, *coefs in wander}
@@ -439,6 +451,7 @@ def _drift_fit(
         per_rest,
         float(coef1[-1]) if kept else 0.0,
         tuple(unwitnessed),
+        tuple(rest_gains),
     )
 
 
