@@ -27,14 +27,15 @@ from piezopress.analysis.diagnosis.slow import (
 
 
 def _one_rest_only(gains: tuple[tuple[str, float, float], ...]) -> str:
-    """Why a drift is refused where two rests or more witness it and one of them does not move with it
+    """Why a drift of one rate for every run (or a warm-up) is refused where two rests or more witness it
+    and one of them does not move with it
     (``gains``: each rest's held-out gain and its held-out RMS without the drift in floors of its averages,
     :attr:`~piezopress.analysis.diagnosis.slow._DriftFit.rest_gains`): the drift predicts that rest less
     than :data:`~piezopress.analysis.diagnosis.judging.MIN_GAIN_PCT` better, or the rest holds no more
     than the noise of its averages to predict (:data:`~piezopress.analysis.diagnosis.judging.MIN_RESIDUAL_TO_FLOOR`
     times their floor, where any gain is the noise's); "" where every rest moves with it.
 
-    A drift of the reading moves the reading at rest whenever it is read; a trend one rest shows and
+    A drift of one rate moves the reading at rest alike whenever it is read; a trend one rest shows and
     another does not is that rest's own: the press settling after it is pressed (the first rest), creep
     recovering after the drive (the last), drawn wrong by the base model. On the third test press with a
     slew limit hidden (seed 7 of 0-13, the default plan), the creep its steps left misdrawn read as a drift
@@ -42,7 +43,9 @@ def _one_rest_only(gains: tuple[tuple[str, float, float], ...]) -> str:
     drift measured is predicted 32 % better or more, at 80 times its floor or more: the third press's thermal
     wander (seeds 0-12 and 15; every run's metadata cut, seeds 0-8: 35 % or more), the virtual rig's (seeds
     0-11), beside a slew limit (seeds 0-4), and a wander turning within both rests
-    (``tests/test_drift_witnesses.py``: 47 % or more at the third press's least documented size)."""
+    (``tests/test_drift_witnesses.py``: 47 % or more at the third press's least documented size). A wander
+    on the test's clock or at each rest's own rate is not judged so: its polynomial may miss a rest it turns
+    in (``_DriftFit.rest_gains`` holds none for it)."""
     short = [(name, g, x) for name, g, x in gains if g < MIN_GAIN_PCT or x < MIN_RESIDUAL_TO_FLOOR]
     if len(gains) < 2 or not short:
         return ""
