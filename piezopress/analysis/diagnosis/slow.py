@@ -342,11 +342,12 @@ def _drift_fit(
             cols = [np.where(W_ == i, C_**k, 0.0) for i in range(len(windows)) for k in range(1, deg + 1)]
             wander_cols[f"clock{deg}"] = cols + ([np.where(others, T, 0.0)] if others.any() else [])
 
+    row_of = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])  # each row's run
     rest_cols: list[np.ndarray] = []
     if not windows and len(at_rest([r for r, *_ in rows])) >= 2:
         # two rests or more on no recorded clock: each its own rate (a wander turns between them, and
         # where the drive does nothing no misfit of the loop shapes it), the runs under drive one rate
-        idx = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])
+        idx = row_of
         at_rest_rows = [i for i, (r, *_) in enumerate(rows) if at_rest([r])]
         if witnesses:  # the runs under drive each at its own rate too, where its rows pin one; else an offset
             at_rest_rows += [i for i, p in enumerate(pinned) if p and i not in at_rest_rows]
@@ -372,8 +373,8 @@ def _drift_fit(
                 coef, *_ = np.linalg.lstsq(A[fitted], R[fitted], rcond=None)
                 e = rms(R[fitted] - A[fitted] @ coef)
                 if best is None or e < best[0]:
-                    best = (e, tau, coef, rms(R[judged] - A[judged] @ coef), w, R - A @ coef)
-        return best
+                    best = (e, tau, coef, rms(R[judged] - A[judged] @ coef), w, A)
+        return (*best[:5], R - best[5] @ best[2])  # the winner's residual on every row, computed once
 
     warmups = [math.inf, 1000.0, DRIFT_WARMUP_TAU_S]
     *_, b, _, left0 = solve([None])
@@ -420,11 +421,10 @@ def _drift_fit(
     # each rest's own held-out gain where one rate (or warm-up) for every run won: that drift predicts the same
     # trend in every rest (:attr:`_DriftFit.rest_gains`); a wander on the clock, drawn by a polynomial, may miss
     # a rest it turns in (a 3 N wander rising through the first rest: -88 % there, 91 % on the last)
-    row_of = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])
     rest_gains = []
-    for i, (r, *_, floor_i) in enumerate(rows):
+    for i, (r, *_, floor_i) in enumerate(rows if wander is None else ()):
         held = (row_of == i) & ~fit_m
-        if wander is None and at_rest([r]) and held.any():
+        if at_rest([r]) and held.any():
             none = rms(left0[held])
             gain_i = 100.0 * (none - rms(left[held])) / none if none > 0 else 0.0
             rest_gains.append((r.name, gain_i, none / floor_i if floor_i > 0 else math.inf))

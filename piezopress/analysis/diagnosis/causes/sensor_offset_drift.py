@@ -40,7 +40,7 @@ def _one_rest_only(gains: tuple[tuple[str, float, float], ...]) -> str:
     recovering after the drive (the last), drawn wrong by the base model. On the third test press with a
     slew limit hidden (seed 7 of 0-13, the default plan), the creep its steps left misdrawn read as a drift
     of -0.12 N/min, 42 % held out: 60 % on the first rest, 8 % on the last. Each rest of every documented
-    drift measured is predicted 32 % better or more, at 80 times its floor or more: the third press's thermal
+    drift measured is predicted 32 % better or more: the third press's thermal
     wander (seeds 0-12 and 15; every run's metadata cut, seeds 0-8: 35 % or more), the virtual rig's (seeds
     0-11), beside a slew limit (seeds 0-4), and a wander turning within both rests
     (``tests/test_drift_witnesses.py``: 47 % or more at the third press's least documented size). A wander
