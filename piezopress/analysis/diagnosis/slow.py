@@ -74,6 +74,14 @@ CLOCK_CHOICE_SPLIT = 0.4
 #: 0.36 N over the first rest, fell 8.5 N under the drive between the rests, fell 0.60 N over the
 #: last; the quadratic gained 11 % on the held-out ends, nothing named, the cubic 47 %).
 CLOCK_DEGREES = (2, 3)
+#: The degrees of each rest's own polynomial in its run's time where two rests lie on no recorded clock
+#: (the per-rest form), each a form of its own, chosen as the wander is. A thermal wander of 17 min
+#: curves by up to 0.3 N within a 120 s rest at the third test press's documented size (its trough or
+#: crest inside the rest), which a rate per rest extrapolates past: the third test press with every
+#: run's metadata cut, seeds 0-9 of the offset drift, 36-91 % held out with a rate per rest, 70-94 %
+#: with the quadratic beside it (seeds 3 and 7: 39 and 36 % -> 92 and 71 %); a wander turning within
+#: each rest (``tests/test_drift_witnesses.py``): -18 to -22 % with a rate, 82-89 % with the quadratic.
+REST_DEGREES = (1, 2)
 
 
 def wander_rate(a1: float, a2: float, a3: float, c: float) -> float:
@@ -105,8 +113,9 @@ class _DriftFit:
     windows: tuple[tuple[float, float, float, float], ...] = ()
     # long runs left out where the wander was tried: longer than a window, the wander turns within them
     left_out: tuple[RunData, ...] = ()
-    # where two rests or more lie on no recorded clock: the wander read as each rest's own rate
-    # (:data:`clock`'s entries (run, 0, rate, 0, 0)), the runs under drive sharing one
+    # where two rests or more lie on no recorded clock: the wander read as each rest's own polynomial in its
+    # run's time (:data:`REST_DEGREES`; :data:`clock`'s entries (run, 0, a1, a2, 0)), the runs under drive
+    # sharing one rate (or each its own, with ``witnesses``)
     per_rest: bool = False
     # with ``kept``: the change to the kept stroke (:attr:`Model.creep_bias`, output unit) fitted with the
     # form that won, its creep's shape free beside the drift's
@@ -289,8 +298,9 @@ def _drift_fit(
 
     With ``witnesses`` (the drift's own fit, :func:`cause_sensor_offset_drift`), the runs are
     :func:`drift_witnesses`: where two rests pin the drift, the runs whose trend the model's loop or
-    creep shapes are left out (:attr:`_DriftFit.unwitnessed`), and in the per-rest form each run under
-    drive has a rate of its own where its averages pin one (:func:`_pins_a_rate`), an offset only
+    creep shapes are left out (:attr:`_DriftFit.unwitnessed`), and in the per-rest form (each rest its own
+    polynomial in its run's time, of a degree of :data:`REST_DEGREES` chosen as the wander is) each run under
+    drive has one of its own too where its averages pin one (:func:`_pins_a_rate`), an offset only
     otherwise, rather than one rate shared with the others (a wander's rate is not one between runs)."""
     long, unwitnessed = drift_witnesses(ctx) if witnesses else (_long_runs(ctx), [])
     windows = wander_windows([r for r, _ in long], clock)
@@ -343,17 +353,19 @@ def _drift_fit(
             wander_cols[f"clock{deg}"] = cols + ([np.where(others, T, 0.0)] if others.any() else [])
 
     row_of = np.concatenate([np.full(t.size, i) for i, (_, t, *_) in enumerate(rows)])  # each row's run
-    rest_cols: list[np.ndarray] = []
+    rest_cols: dict[str, list[np.ndarray]] = {}
     if not windows and len(at_rest([r for r, *_ in rows])) >= 2:
-        # two rests or more on no recorded clock: each its own rate (a wander turns between them, and
-        # where the drive does nothing no misfit of the loop shapes it), the runs under drive one rate
+        # two rests or more on no recorded clock: each its own rate, or its own quadratic (a wander turns
+        # between them, or within one; where the drive does nothing no misfit of the loop shapes it), the
+        # runs under drive one rate
         idx = row_of
         at_rest_rows = [i for i, (r, *_) in enumerate(rows) if at_rest([r])]
         if witnesses:  # the runs under drive each at its own rate too, where its rows pin one; else an offset
             at_rest_rows += [i for i, p in enumerate(pinned) if p and i not in at_rest_rows]
-        rest_cols = [np.where(idx == i, T, 0.0) for i in at_rest_rows]
         driven = ~np.isin(idx, at_rest_rows) & (not witnesses)
-        rest_cols += [np.where(driven, T, 0.0)] if driven.any() else []
+        for deg in REST_DEGREES:  # each rest's polynomial in its run's time, its columns in the clock's unit
+            cols = [np.where(idx == i, (T / CLOCK_UNIT_S) ** k, 0.0) for i in at_rest_rows for k in range(1, deg + 1)]
+            rest_cols[f"rests{deg}"] = cols + ([np.where(driven, T / CLOCK_UNIT_S, 0.0)] if driven.any() else [])
 
     def solve(warmups, with_tail=False, fitted=fit_m, judged=~fit_m):
         best = None
@@ -365,8 +377,8 @@ def _drift_fit(
                     if w is None
                     else wander_cols[w]
                     if w in wander_cols
-                    else rest_cols
-                    if w == "rests"
+                    else rest_cols[w]
+                    if w in rest_cols
                     else [T if np.isinf(w) else -w * np.expm1(-T / w)]
                 )
                 A = np.column_stack([onehot, S] + D + stroke + ([tail] if with_tail else []))
@@ -409,15 +421,18 @@ def _drift_fit(
         )
         spans = [(hi - lo, *per[i]) for i, (lo, hi) in enumerate(windows)]
     # two rests on no clock (no windows, so never beside the clock's form): chosen as it is
-    per_rest = bool(rest_cols) and chosen({"rests": rest_cols}) is not None
+    rest_form = chosen(rest_cols) if rest_cols else None
+    per_rest = rest_form is not None
     if per_rest:
-        _, tau1, coef1, e, w, left = solve(["rests"])
-        k = n_runs + 1
-        rates = {rows[i][0].ident: float(c) for i, c in zip(at_rest_rows, coef1[k : k + len(at_rest_rows)])}
-        shared = float(coef1[k + len(at_rest_rows)]) if driven.any() else 0.0
-        wander = tuple(
-            (r.ident, 0.0, rates.get(r.ident, shared), 0.0, 0.0) for r in sorted(ctx.runs, key=lambda r: r.ident)
-        )
+        _, tau1, coef1, e, w, left = solve([rest_form])
+        k, deg = n_runs + 1, int(rest_form.removeprefix("rests"))
+        polys = {
+            rows[i][0].ident: tuple(float(coef1[k + deg * j + m]) / CLOCK_UNIT_S ** (m + 1) for m in range(deg))
+            + (0.0,) * (3 - deg)
+            for j, i in enumerate(at_rest_rows)
+        }
+        shared = (float(coef1[k + deg * len(at_rest_rows)]) / CLOCK_UNIT_S, 0.0, 0.0) if driven.any() else (0.0,) * 3
+        wander = tuple((r.ident, 0.0, *polys.get(r.ident, shared)) for r in sorted(ctx.runs, key=lambda r: r.ident))
     # each rest's own held-out gain where one rate (or warm-up) for every run won: that drift predicts the same
     # trend in every rest (:attr:`_DriftFit.rest_gains`); a wander on the clock, drawn by a polynomial, may miss
     # a rest it turns in (a 3 N wander rising through the first rest: -88 % there, 91 % on the last)

@@ -121,18 +121,26 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
     rate = f"{d.drift_per_s * 60:.3g} {units.label(u)} per minute"
     if d.per_rest:
         lab = units.label(u)
-        by = {ident: a1 for ident, _, a1, *_ in d.clock}
+        poly = {ident: a for ident, _, *a in d.clock}
+        by = {ident: a[0] for ident, a in poly.items()}
         rests = at_rest(d.runs)
         driven = [r for r in d.runs if np.ptp(r.x) > 0]
         own = [r.name for r in driven if by.get(r.ident)]
         short = [r.name for r in driven if not by.get(r.ident)]
+
+        def each(r) -> str:
+            """A rest's rate at its start, and at its end where its own quadratic turns it."""
+            a1, a2, a3 = poly[r.ident]
+            end = f" at its start, {wander_rate(a1, a2, a3, r.duration_s) * 60:.3g} at its end" if a2 else ""
+            return f"{r.name} {a1 * 60:.3g} {lab} per minute{end}"
+
         rate = (
             "at each rest's own rate, on no recorded clock ("
-            + ", ".join(f"{r.name} {by[r.ident] * 60:.3g} {lab} per minute" for r in rests)
+            + ", ".join(each(r) for r in rests)
             + (f"; {', '.join(own)} each at its own rate too" if own else "")
             + (f"; {', '.join(short)} an offset only (too few cycles to read a rate from)" if short else "")
-            + "): a wander whose rate turns between the rests, which the creep of a stroke kept at rest, rising "
-            "alike from every run's start, cannot draw"
+            + "): a wander whose rate turns between the rests (or within one), which the creep of a stroke kept at "
+            "rest, rising alike from every run's start, cannot draw"
         )
     elif d.clock is not None:
         lab = units.label(u)
