@@ -84,6 +84,12 @@ CLOCK_DEGREES = (2, 3)
 REST_DEGREES = (1, 2)
 
 
+def _polynomial(coef: np.ndarray, first: int, deg: int) -> tuple[float, float, float]:
+    """(a1, a2, a3) per second of a polynomial whose ``deg`` columns, from ``first``, are the clock in
+    :data:`CLOCK_UNIT_S` and its powers (the missing degrees 0)."""
+    return tuple(float(coef[first + j]) / CLOCK_UNIT_S ** (j + 1) for j in range(deg)) + (0.0,) * (3 - deg)
+
+
 def wander_rate(a1: float, a2: float, a3: float, c: float) -> float:
     """The rate of the wander ``a1 c + a2 c^2 + a3 c^3`` (:attr:`Model.drift_clock`'s form) at ``c``
     on its window's clock (per second)."""
@@ -410,10 +416,7 @@ def _drift_fit(
     if form is not None:
         _, tau1, coef1, e, w, left = solve([form])
         k, deg = n_runs + 1, int(form.removeprefix("clock"))
-        per = [
-            tuple(float(coef1[k + deg * i + j]) / CLOCK_UNIT_S ** (j + 1) for j in range(deg)) + (0.0,) * (3 - deg)
-            for i in range(len(windows))
-        ]
+        per = [_polynomial(coef1, k + deg * i, deg) for i in range(len(windows))]
         steady = float(coef1[k + deg * len(windows)]) if others.any() else 0.0
         wander = tuple(  # every run, a short one too, those without a start time last
             (ident, c, *per[i]) if i >= 0 else (ident, 0.0, steady, 0.0, 0.0)
@@ -426,11 +429,7 @@ def _drift_fit(
     if per_rest:
         _, tau1, coef1, e, w, left = solve([rest_form])
         k, deg = n_runs + 1, int(rest_form.removeprefix("rests"))
-        polys = {
-            rows[i][0].ident: tuple(float(coef1[k + deg * j + m]) / CLOCK_UNIT_S ** (m + 1) for m in range(deg))
-            + (0.0,) * (3 - deg)
-            for j, i in enumerate(at_rest_rows)
-        }
+        polys = {rows[i][0].ident: _polynomial(coef1, k + deg * j, deg) for j, i in enumerate(at_rest_rows)}
         shared = (float(coef1[k + deg * len(at_rest_rows)]) / CLOCK_UNIT_S, 0.0, 0.0) if driven.any() else (0.0,) * 3
         wander = tuple((r.ident, 0.0, *polys.get(r.ident, shared)) for r in sorted(ctx.runs, key=lambda r: r.ident))
     # each rest's own held-out gain where one rate (or warm-up) for every run won: that drift predicts the same
