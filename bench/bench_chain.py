@@ -2,7 +2,8 @@
 ``diagnose`` <= 10 s, ``piezopress demo`` <= 35 s), beside the code before issue 23 in the same run.
 
 Each stage runs in a fresh Python process per code version, on the same inputs: ``fit`` and
-``fit --base`` on the default characterization (``sample_runs/characterization``), ``diagnose``
+``fit --base`` on the default characterization (``sample_runs/characterization``, or the runs of
+``--characterization``), ``diagnose``
 of it against the base bundle just fitted, and the whole ``piezopress demo`` (its wall time as a
 user sees it, start-up included). The two versions alternate stage by stage, so that a busy
 machine slows both. The reference is the tree at :data:`BEFORE` (the last commit before issue
@@ -15,6 +16,7 @@ against the reference or, with ``--outputs-against COMMIT``, against that commit
 speed work's own starting point: other issues have changed the outputs since the reference).
 
 Run: .venv/bin/python bench/bench_chain.py [--skip-demo] [--before COMMIT] [--outputs-against COMMIT]
+     [--characterization DIR] [--repeats N]
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import argparse
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 import tarfile
@@ -177,7 +180,27 @@ def main() -> None:
         help=f"the timed reference (default {BEFORE}, the code before issue 23; e.g. a session's start, for "
         "'no slower than today')",
     )
+    ap.add_argument(
+        "--characterization",
+        metavar="DIR",
+        type=Path,
+        default=CHARACTERIZATION,
+        help="the runs the stages read (default: sample_runs/characterization; e.g. a run set the default "
+        "plan characterizes today, `piezopress characterize --out DIR`)",
+    )
+    ap.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="time each stage this many times per version, alternating (printed: the medians and the range of the "
+        "ratios, paired repeat by repeat)",
+    )
     a = ap.parse_args()
+    if a.repeats < 1:
+        raise SystemExit(f"--repeats {a.repeats}: expected 1 or more")
+    runs = a.characterization.resolve()
+    if not runs.is_dir() or not any(runs.glob("*.parquet")):
+        raise SystemExit(f"--characterization {a.characterization}: expected a directory of Parquet runs")
     before = a.before
     with tempfile.TemporaryDirectory(prefix="piezopress-chain-") as tmp:
         work = Path(tmp)
@@ -185,10 +208,10 @@ def main() -> None:
         if tree is None:
             raise SystemExit(f"no git history here: the reference ({before}) cannot be taken; run in a checkout")
         versions = {"before": tree, "now": None}
-        times: dict[str, dict[str, float]] = {"before": {}, "now": {}}
+        times: dict[str, dict[str, list[float]]] = {"before": {}, "now": {}}
         for label in versions:
             (work / label).mkdir()
-        char = str(CHARACTERIZATION)
+        char = str(runs)
         stages = [
             ("fit", lambda d: ["fit", char, "--out", str(d / "bundle.json")]),
             ("fit --base", lambda d: ["fit", char, "--base", "--out", str(d / "base-bundle.json")]),
@@ -197,20 +220,31 @@ def main() -> None:
                 lambda d: ["diagnose", char, "--bundle", str(d / "base-bundle.json"), "--out", str(d / "diagnosis")],
             ),
         ]
-        where = CHARACTERIZATION.relative_to(ROOT)
+        where = runs.relative_to(ROOT) if runs.is_relative_to(ROOT) else runs
         print(f"chain stages on {where}, before ({before}) beside now, {os.cpu_count()} cores")
-        for name, args in stages:
-            for label, code in versions.items():
-                times[label][name] = run_stage(code, args(work / label), cwd=work)
-        if not a.skip_demo:
-            for label, code in versions.items():
-                times[label]["demo"] = run_demo(code, work / label / "demo", cwd=work)
-        print(f"{'stage':<12} {'before':>8} {'now':>8} {'now/before':>11} {'target':>8}")
+        for repeat in range(a.repeats):  # the first repeat's outputs are the ones compared below
+            outs = {label: work / label / (f"r{repeat}" if repeat else "") for label in versions}
+            for out in outs.values():
+                out.mkdir(parents=True, exist_ok=True)
+            for name, args in stages:
+                for label, code in versions.items():
+                    times[label].setdefault(name, []).append(run_stage(code, args(outs[label]), cwd=work))
+            if not a.skip_demo:
+                for label, code in versions.items():
+                    took = run_demo(code, outs[label] / "demo", cwd=work)
+                    times[label].setdefault("demo", []).append(took)
+        spread = a.repeats > 1
+        head = f"{'stage':<12} {'before':>8} {'now':>8} {'now/before':>11} {'target':>8}"
+        print(head + ("   (medians)" if spread else ""))
         for name in times["now"]:
-            b, n = times["before"][name], times["now"][name]
+            b, n = statistics.median(times["before"][name]), statistics.median(times["now"][name])
             target = TARGETS_S.get(name)
             mark = "" if target is None else (f"<= {target:g} s " + ("met" if n <= target else "NOT MET"))
-            print(f"{name:<12} {b:7.1f}s {n:7.1f}s {n / b:10.2f}x   {mark}")
+            ranges = ""
+            if spread:
+                ratios = [x / y for x, y in zip(times["now"][name], times["before"][name], strict=True)]
+                ranges = f"  ({a.repeats} repeats: now/before {min(ratios):.2f}-{max(ratios):.2f}x)"
+            print(f"{name:<12} {b:7.1f}s {n:7.1f}s {n / b:10.2f}x   {mark}{ranges}")
         ref, label = work / "before", before
         if a.outputs_against:  # the same stages with that commit's code, for their outputs only
             label = a.outputs_against
