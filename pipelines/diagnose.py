@@ -516,12 +516,17 @@ def format_summary(result: dg.Diagnosis, plan: dict[str, Any] | None = None) -> 
             )
             if t.get("untried"):
                 lines.append(f"        not tried: {t['untried']}")
-    if result.not_tested:
-        lines.append("")
-        lines.append(f"Not tested ({len(result.not_tested)}): the runs or the base model do not allow it")
-        for t in result.not_tested:
-            lines.append(f"    {t.cause}: needs {t.needs}")
-            lines.append(f"        have: {t.have}")
+    # the causes tested only where they show weakly (not found there), then those not tested: each
+    # with the runs it needs (its first way, for the former) and what the runs offer
+    for heading, causes in (
+        ("Not ruled out ({n}): tested only on runs that show it weakly", result.partly_tested),
+        ("Not tested ({n}): the runs or the base model do not allow it", result.not_tested),
+    ):
+        if causes:
+            lines += ["", heading.format(n=len(causes))]
+            for t in causes:
+                lines += [f"    {t.cause}: " + (f"judged best on {t.best}" if t.partly else f"needs {t.needs}")]
+                lines += [f"        have: {t.have}"]
     if result.signatures:
         lines.append("")
         lines.append("Structure no cause in the catalogue explains, by its signature:")

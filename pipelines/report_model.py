@@ -359,6 +359,16 @@ def _diagnosis_blocks(path: str | Path, missing: list[str], runs: list | None = 
         untried = [t for t in d["tested"] if t.get("untried")]
         if untried:
             blocks.append(Bullets(tuple(f"Not tried: {t['cause']} as {t['untried']}." for t in untried)))
+    if d.get("partly_tested"):
+        blocks.append(
+            Bullets(
+                tuple(
+                    f"Not ruled out: {t['cause']}, tested only on runs that show it weakly. Judged best on "
+                    f"{t['needs']}; have {t['have']}."
+                    for t in d["partly_tested"]
+                )
+            )
+        )
     if d.get("not_tested"):
         blocks.append(
             Bullets(tuple(f"Not tested: {t['cause']}. Needs {t['needs']}; have {t['have']}." for t in d["not_tested"]))

@@ -14,6 +14,7 @@ for every run does not draw either.
 from __future__ import annotations
 
 import dataclasses
+import json
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -232,3 +233,54 @@ def test_a_drift_from_each_runs_start_is_judged_against_a_kept_stroke_whose_size
     assert kept.model.creep_bias > 1.5 * KEPT_N  # on the rests alone it takes the drift's rise
     fixed = _drift_fit(kept, clock=dg.run_starts(kept.runs))
     assert fixed.gain_pct <= found.gain_pct - 30.0, (fixed.gain_pct, found.gain_pct)
+
+
+def test_without_a_rest_a_drift_not_found_where_the_drive_moves_is_not_ruled_out_and_the_next_plan_rests(
+    monkeypatch, tmp_path
+):
+    """No run rests (the thesis's runs alone): the drift is tested on the runs whose drive moves
+    only (its later way: any run of 25 s or more), where the creep and the loop move the reading
+    too. Not found there, it is not ruled out: the summary and the tested entry say it is judged
+    best on a rest, and ``next-plan.toml`` holds the runs that tell a wander from creep (a rest, the
+    drive held, a rest again: no rest group beside them) and serves the drift with them. With the
+    rest, the drift is tested its first way: nothing of this."""
+    monkeypatch.setattr(search, "CAUSES", _nothing_named())
+    causes = list(search.CAUSES)
+    driven = _runs(0.4)
+    driven = dg.Context(driven.runs[:-1], driven.model, driven.fitted_runs, driven.floor)
+    assert all(r.kind != "rest" for r in driven.runs)
+    result = search.diagnose(MODEL, driven.runs, causes=causes)
+    assert result.findings == [] and not result.not_tested
+    (partly,) = result.partly_tested
+    assert partly.cause == "sensor_offset_drift" and partly.testable and partly.partly
+    assert partly.best.startswith("a rest run") and set(partly.runs) == {"triangle", "hold", "triangle-low"}
+    assert "not ruled out, tested only on runs that show it weakly: sensor_offset_drift (judged best on a rest run" in (
+        result.summary
+    )
+    (entry,) = [t for t in result.tested if t["cause"] == "sensor_offset_drift"]
+    assert "judged best on a rest run" in entry["result"]
+    assert result.as_dict()["partly_tested"][0]["tested_on"] == partly.runs
+    info = NP.next_plan([], driven, result, tmp_path, ["runs/"])
+    assert info is not None and info["tells_apart"] == [NP.NO_REST_PAIR] and info["serves"] == ["sensor_offset_drift"]
+    (group,) = info["groups"]
+    assert group["protocols"] == ["rest-before-drive", "hold-150v", "rest-after-drive"]
+    assert group["serves"] == ["sensor_offset_drift"] and group["tells"] == [NP.NO_REST_PAIR]
+    text = (tmp_path / "next-plan.toml").read_text()
+    assert "sensor_offset_drift: tested only on runs that show it weakly; judged best on a rest run" in text
+    # the report says it too
+    from piezopress.pipelines.report_doc import Bullets
+    from piezopress.pipelines.report_model import _diagnosis_blocks
+
+    doc = {"summary": "s", "output_unit": "N", "partly_tested": result.as_dict()["partly_tested"]}
+    (tmp_path / "report").mkdir()
+    (tmp_path / "report" / "diagnosis.json").write_text(json.dumps(doc))
+    items = [i for b in _diagnosis_blocks(tmp_path / "report", []) if isinstance(b, Bullets) for i in b.items]
+    assert [i.split(". Judged")[0] for i in items if i.startswith("Not ruled out")] == [
+        "Not ruled out: sensor_offset_drift, tested only on runs that show it weakly"
+    ], items
+
+    rested = search.diagnose(MODEL, _runs(0.4).runs, causes=causes)
+    assert not rested.partly_tested and "not ruled out" not in rested.summary
+    (tmp_path / "rested").mkdir()
+    plan = NP.next_plan([], _runs(0.4), rested, tmp_path / "rested", ["runs/"])
+    assert plan is not None and plan["tells_apart"] == [NP.MOVES_AT_REST_PAIR]  # its rest moves: that pair only

@@ -222,15 +222,24 @@ def describe_runs(runs: Sequence[RunData], ctx: Context | None = None, limit: in
 
 @dataclass(frozen=True)
 class Testability:
-    """Whether a cause can be tested on the runs; if not, what it needs and what the runs offer."""
+    """Whether a cause can be tested on the runs; if not, what it needs and what the runs offer.
+
+    ``partly``: testable only by a later way of its needs (a drift of the reading on runs whose
+    drive moves, where no run rests): its first way, the one that shows it best, is ``best``, and
+    ``have`` says what the runs offer against it (a cause not found that way is not ruled out: the
+    next plan provides the first way, as for a cause not tested)."""
 
     cause: str
     testable: bool
     runs: list[str]
     needs: str
     have: str
+    partly: bool = False
+    best: str = ""
 
     def as_dict(self) -> dict[str, Any]:
+        if self.partly:
+            return {"cause": self.cause, "needs": self.best, "have": self.have, "tested_on": self.runs}
         return {"cause": self.cause, "needs": self.needs, "have": self.have}
 
 
@@ -238,14 +247,24 @@ def testability(cause: Cause, ctx: Context) -> Testability:
     """Whether ``cause`` can be tested on ``ctx``'s runs and model: any of its needs met.
 
     ``needs`` says every way to test it ("or"), ``have`` what the runs and the bundle offer
-    against the first way (the one the next plan provides)."""
+    against the first way (the one the next plan provides): where a later way is met and the first
+    is not, the cause is testable ``partly``."""
     needs = "; or ".join(n.text() for n in cause.needs) or "nothing"
-    for n in cause.needs:
+    for i, n in enumerate(cause.needs):
         if n.met(ctx):
-            return Testability(cause.id, True, [r.name for r in n.select(ctx)], needs, "")
+            first = cause.needs[0]
+            if i == 0:
+                return Testability(cause.id, True, [r.name for r in n.select(ctx)], needs, "")
+            return Testability(
+                cause.id, True, [r.name for r in n.select(ctx)], needs, _have(first, ctx), True, first.text()
+            )
     if not cause.needs:
         return Testability(cause.id, True, [r.name for r in ctx.runs], needs, "")
-    first = cause.needs[0]
+    return Testability(cause.id, False, [], needs, _have(cause.needs[0], ctx))
+
+
+def _have(first: Need, ctx: Context) -> str:
+    """What ``ctx``'s runs and model offer against the need ``first`` (which they do not meet)."""
     have = [describe_runs(ctx.runs, ctx)]
     ok = first.select(ctx)
     kinds = [r for r in ctx.runs if any(s.matches(r, ctx) for s in first.runs)]
@@ -258,4 +277,4 @@ def testability(cause: Cause, ctx: Context) -> Testability:
         elif kinds:
             have.append(f"{len(kinds)} of the {first.count} runs needed")
     have += [f"no {m.split(' (')[0].removeprefix('a ')}" for m in first.missing_model(ctx.model)]
-    return Testability(cause.id, False, [], needs, "; ".join(have))
+    return "; ".join(have)

@@ -56,6 +56,8 @@ class Diagnosis:
     not_tested: list[Testability] = field(default_factory=list)  # each with needs and have
     base_fit: dict[str, Any] = field(default_factory=dict)  # the base model on the slow sweeps it was fitted on
     signatures: list[dict[str, Any]] = field(default_factory=list)  # structure no cause explains, in its own terms
+    #: tested only by a later way of its needs and not found: not ruled out (each with its first way and have)
+    partly_tested: list[Testability] = field(default_factory=list)
 
     @property
     def unit(self) -> str:
@@ -73,6 +75,7 @@ class Diagnosis:
             "findings": [f.as_dict() for f in self.findings],
             "tested": self.tested,
             "not_tested": [t.as_dict() for t in self.not_tested],
+            "partly_tested": [t.as_dict() for t in self.partly_tested],
             "unexplained": self.unexplained,
             "signatures": self.signatures,
             "considered_not_found": [f.as_dict() for f in self.considered],
@@ -433,6 +436,8 @@ def diagnose(
             if cid in earlier
             else "not found (no sign of it to fit)",
         }
+        if checks[cid].partly and cid not in found:  # not found where it shows weakly: not ruled out
+            entry["result"] += f"; judged best on {checks[cid].best}, which no run is"
         holds = CAUSES[cid].held(base) if CAUSES[cid].held and cid not in found else ""
         if holds:  # the press's own part of it the base draws: looked for beyond that, not missed
             entry["result"] += f"; beyond what the base holds: {holds}"
@@ -445,6 +450,7 @@ def diagnose(
                 entry["untried"] = f.untried
         tested.append(entry)
     not_tested = [checks[cid] for cid in asked if not checks[cid].testable]
+    partly = [checks[cid] for cid in asked if checks[cid].testable and checks[cid].partly and cid not in found]
     names = [t["cause"] for t in tested]
     numbers = f"{total_rms:.3g} {u} RMS against a noise floor of {total_floor:.3g} {u}"
     if findings:
@@ -487,6 +493,10 @@ def diagnose(
         )
     for sig in signatures:
         head += f"; {sig['text']}"
+    if partly:
+        head += "; not ruled out, tested only on runs that show it weakly: " + ", ".join(
+            f"{t.cause} (judged best on {t.best})" for t in partly
+        )
     if not_tested:
         head += f"; not tested ({len(not_tested)}, the runs or the base model do not allow it): " + ", ".join(
             t.cause for t in not_tested
@@ -511,4 +521,5 @@ def diagnose(
         not_tested,
         base_fit,
         signatures,
+        partly,
     )
