@@ -437,7 +437,7 @@ def diagnose(
             else "not found (no sign of it to fit)",
         }
         if checks[cid].partly and cid not in found:  # not found where it shows weakly: not ruled out
-            entry["result"] += f"; judged best on {checks[cid].best}, which no run is"
+            entry["result"] += f"; judged best on {checks[cid].best}, which the runs do not offer"
         holds = CAUSES[cid].held(base) if CAUSES[cid].held and cid not in found else ""
         if holds:  # the press's own part of it the base draws: looked for beyond that, not missed
             entry["result"] += f"; beyond what the base holds: {holds}"
