@@ -252,12 +252,11 @@ def testability(cause: Cause, ctx: Context) -> Testability:
     needs = "; or ".join(n.text() for n in cause.needs) or "nothing"
     for i, n in enumerate(cause.needs):
         if n.met(ctx):
-            first = cause.needs[0]
+            runs = [r.name for r in n.select(ctx)]
             if i == 0:
-                return Testability(cause.id, True, [r.name for r in n.select(ctx)], needs, "")
-            return Testability(
-                cause.id, True, [r.name for r in n.select(ctx)], needs, _have(first, ctx), True, first.text()
-            )
+                return Testability(cause.id, True, runs, needs, "")
+            first = cause.needs[0]
+            return Testability(cause.id, True, runs, needs, _have(first, ctx), True, first.text())
     if not cause.needs:
         return Testability(cause.id, True, [r.name for r in ctx.runs], needs, "")
     return Testability(cause.id, False, [], needs, _have(cause.needs[0], ctx))

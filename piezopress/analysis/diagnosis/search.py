@@ -414,6 +414,8 @@ def diagnose(
     moving = _moves_at_rest(ctx, checks, set(found))
     if moving is not None:
         signatures.append(moving)
+    # tested only by a later way of their needs and not found: not ruled out
+    partly = {cid: checks[cid] for cid in asked if checks[cid].partly and cid not in found}
     tested: list[dict[str, Any]] = []
     for cid in asked:
         if not checks[cid].testable:
@@ -436,7 +438,7 @@ def diagnose(
             if cid in earlier
             else "not found (no sign of it to fit)",
         }
-        if checks[cid].partly and cid not in found:  # not found where it shows weakly: not ruled out
+        if cid in partly:  # not found where it shows weakly: not ruled out
             entry["result"] += f"; judged best on {checks[cid].best}, which the runs do not offer"
         holds = CAUSES[cid].held(base) if CAUSES[cid].held and cid not in found else ""
         if holds:  # the press's own part of it the base draws: looked for beyond that, not missed
@@ -450,7 +452,6 @@ def diagnose(
                 entry["untried"] = f.untried
         tested.append(entry)
     not_tested = [checks[cid] for cid in asked if not checks[cid].testable]
-    partly = [checks[cid] for cid in asked if checks[cid].testable and checks[cid].partly and cid not in found]
     names = [t["cause"] for t in tested]
     numbers = f"{total_rms:.3g} {u} RMS against a noise floor of {total_floor:.3g} {u}"
     if findings:
@@ -495,7 +496,7 @@ def diagnose(
         head += f"; {sig['text']}"
     if partly:
         head += "; not ruled out, tested only on runs that show it weakly: " + ", ".join(
-            f"{t.cause} (judged best on {t.best})" for t in partly
+            f"{t.cause} (judged best on {t.best})" for t in partly.values()
         )
     if not_tested:
         head += f"; not tested ({len(not_tested)}, the runs or the base model do not allow it): " + ", ".join(
@@ -521,5 +522,5 @@ def diagnose(
         not_tested,
         base_fit,
         signatures,
-        partly,
+        list(partly.values()),
     )
