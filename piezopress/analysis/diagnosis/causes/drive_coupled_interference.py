@@ -4,7 +4,7 @@ on held-out data) and its entry in the catalogue (:data:`CAUSE`)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -22,6 +22,7 @@ from piezopress.analysis.diagnosis.judging import (
     _forces,
     _judge_dynamics,
     _level_free_err,
+    grid_then_refine,
 )
 from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
@@ -143,24 +144,6 @@ STEP_WORSE_PCT = 30.0
 #: 18 % held out and went unnamed (8 of 19 seeds named both).
 DELAY_REFIT_FRACTIONS = (0.5, 0.75, 1.0, 1.25)
 DELAY_REFIT_TOL = 0.01
-
-
-def grid_then_refine(cost: Callable[[float], float], grid: Sequence[float], tol: float) -> float:
-    """The ``x`` of the lowest ``cost`` found: ``cost`` at every point of the (increasing)
-    ``grid``, then a bounded scalar search (Brent's) to within ``tol`` between the best grid
-    point's neighbours (half-way to each). The best of everything evaluated is returned, so a
-    refinement never loses the grid's best."""
-    xs = [float(x) for x in grid]
-    seen = [cost(x) for x in xs]
-    i = int(np.argmin(seen))
-    x0 = xs[i]
-    lo = 0.5 * (xs[i - 1] + x0) if i > 0 else x0
-    hi = 0.5 * (xs[i + 1] + x0) if i + 1 < len(xs) else x0
-    if hi > lo:
-        sol = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": tol})
-        if float(sol.fun) < seen[i]:
-            return float(sol.x)
-    return x0
 
 
 #: A held-out sweep on which the interference draws an artefact at least this share of the
