@@ -94,6 +94,9 @@ def test_what_steps_at_two_rates_told_or_runs_no_faster_than_the_steps_leave_it_
     # steps at two rates among the runs (a held-out one too): their chain told the samples, or kept
     # them in seconds on purpose (a slew limit's); nothing is fitted
     assert _with_sampled_chain_delay(BASE, _whole(runs), {STEPS_HZ, 50_000.0}) is BASE
+    # a delay counted in samples found already (input_delay's): it split the lag between the rates
+    found = replace(BASE, delay_samples=4.0)
+    assert _with_sampled_chain_delay(found, _whole(runs), ONE_RATE) is found
     # no series chain (a first-order lag, or a monitor recorded): nothing in samples to move
     lag = dg.Model(MODEL, wn=5000.0, zeta=0.08, drive_tau_s=1e-4)
     assert _with_sampled_chain_delay(lag, _whole(runs), ONE_RATE) is lag

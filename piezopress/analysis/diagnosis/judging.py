@@ -469,12 +469,16 @@ def _with_sampled_chain_delay(model: Model, fit: list[Segment], steps_hz: set[fl
     clean, seeds 0-2: a coupling of the drive rate predicted the held-out runs 49-52 % better,
     refused only because the 100 V step read 53-60 % worse; with the samples fitted, 12-20 %).
     ``model`` as it is where steps at two rates told the samples (``drive_delay_rate_hz``), where
-    nothing is sampled faster than the steps, and where the steps are at two rates but the chain
-    kept its delay in seconds (a slew limit's chain: its small-signal delay is read off the slew
-    alone)."""
+    nothing is sampled faster than the steps, where the steps are at two rates but the chain kept
+    its delay in seconds (a slew limit's chain: its small-signal delay is read off the slew alone),
+    and where a delay counted in samples was found already (``delay_samples``, ``input_delay``'s:
+    fitted with the chain's lag in it, it split the lag between the rates; fitted again beside it,
+    the samples moved the coupling found next, and a second mode at 8.5 kHz was named beside the
+    delay and the coupling, third test press, seed 4 of the pair)."""
     from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES
 
-    if model.drive_lowpass is None or model.drive_delay_s <= 0 or model.drive_delay_rate_hz or len(steps_hz) != 1:
+    told = model.drive_delay_rate_hz or model.delay_samples  # by steps at two rates, or by a delay found in samples
+    if model.drive_lowpass is None or model.drive_delay_s <= 0 or told or len(steps_hz) != 1:
         return model
     (fs,) = steps_hz
     faster = [(r, sl) for r, sl in fit if r.fs_hz > fs]
