@@ -13,6 +13,7 @@ from piezopress import signals
 from piezopress.analysis import diagnosis as dg
 from piezopress.analysis.diagnosis.causes import amplifier_slew_limit as slew_cause
 from piezopress.analysis.diagnosis.causes import drive_coupled_interference as ic
+from piezopress.analysis.diagnosis.judging import grid_then_refine
 from piezopress.analysis.diagnosis.residuals import rms
 from piezopress.analysis.hysteresis import PIModel
 
@@ -274,7 +275,7 @@ def test_a_delay_refitted_with_the_interference_is_refined_between_the_grid_poin
         calls.append(f)
         return (f - best) ** 2 + 1.0
 
-    got = ic.grid_then_refine(cost, ic.DELAY_REFIT_FRACTIONS, ic.DELAY_REFIT_TOL)
+    got = grid_then_refine(cost, ic.DELAY_REFIT_FRACTIONS, ic.DELAY_REFIT_TOL)
     assert abs(got - best) <= 2 * ic.DELAY_REFIT_TOL
     assert len(calls) <= len(ic.DELAY_REFIT_FRACTIONS) + 30
     assert ic.DELAY_REFIT_FRACTIONS[0] <= min(calls) and max(calls) <= ic.DELAY_REFIT_FRACTIONS[-1]
@@ -286,7 +287,7 @@ def test_a_refinement_never_loses_the_grid_s_best():
     def cost(f):
         return 0.0 if f == 1.0 else 1.0 + abs(f - 0.8)
 
-    assert ic.grid_then_refine(cost, ic.DELAY_REFIT_FRACTIONS, ic.DELAY_REFIT_TOL) == 1.0
+    assert grid_then_refine(cost, ic.DELAY_REFIT_FRACTIONS, ic.DELAY_REFIT_TOL) == 1.0
 
 
 # --------------------------------------------------------------------------- a coupling, or the chain's lag

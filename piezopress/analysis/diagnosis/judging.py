@@ -11,6 +11,7 @@ from scipy import optimize
 
 from piezopress import units
 from piezopress.analysis import profile
+from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES
 from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.residuals import rms
 from piezopress.analysis.signatures import notched
@@ -475,8 +476,6 @@ def _with_sampled_chain_delay(model: Model, fit: list[Segment], steps_hz: set[fl
     fitted with the chain's lag in it, it split the lag between the rates; fitted again beside it,
     the samples moved the coupling found next, and a second mode at 8.5 kHz was named beside the
     delay and the coupling, third test press, seed 4 of the pair)."""
-    from piezopress.analysis.bundle import SAMPLING_DELAY_SAMPLES
-
     told = model.drive_delay_rate_hz or model.delay_samples  # by steps at two rates, or by a delay found in samples
     if model.drive_lowpass is None or model.drive_delay_s <= 0 or told or len(steps_hz) != 1:
         return model
