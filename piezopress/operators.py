@@ -337,13 +337,12 @@ def kp(
     # chunks overlap by one sample: each chunk starts from the state at its first sample
     for a in range(0, x.size - 1, _KP_CHUNK):
         seg = x[a : a + _KP_CHUNK + 1]
-        lo, hi = kp_bounds(seg, alpha, beta, h)
         starts = monotone_runs(seg)
         if starts.size <= max(8, _SCAN_ABOVE_RUN_FRACTION * seg.size):
-            y = _clamp_runs(seg, lo, hi, out[a], starts)
+            _kp_runs(seg, alpha, beta, h, out[a : a + seg.size], starts)
         else:
-            y = _clamp_scan(lo, hi, out[a])
-        out[a + 1 : a + seg.size] = y[1:]
+            lo, hi = kp_bounds(seg, alpha, beta, h)
+            out[a + 1 : a + seg.size] = _clamp_scan(lo, hi, out[a])[1:]
     return out
 
 
@@ -365,26 +364,29 @@ def _kp_widened(x, alpha, beta, h, s0, widen) -> np.ndarray:
     return out
 
 
-def _clamp_runs(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, start: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    # bounds that rise (fall) with x: on a rising run the state is the running max of lo from
-    # the run's first clamp (lo is monotone, so a plain max), the upper bound never binds
+def _kp_runs(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, y: np.ndarray, starts: np.ndarray) -> None:
+    # bounds that rise (fall) with x: on a rising run the state is the running max of the lower
+    # bound from the run's first clamp (monotone in x, so a plain max), the upper bound never
+    # binds; so each run makes only the bound that binds on it (:func:`kp_bounds`'s, to the bit).
+    # ``y``: the states, row 0 the start (given), rows 1.. written
     n = x.size
-    y = np.empty_like(lo)
-    y[0] = start
-    bounds = np.append(starts, n)
-    prev = start
-    for a, b in zip(bounds[:-1], bounds[1:]):
+    ends = np.append(starts, n)
+    for a, b in zip(ends[:-1], ends[1:]):
         a1 = a if a > 0 else 1
         if a1 >= b:
             continue
-        first = np.minimum(np.maximum(prev, lo[a1]), hi[a1])
-        if x[b - 1] >= x[a1 - 1]:
-            seg = np.maximum(first, lo[a1:b])
+        lo, hi = kp_bounds(x[a1 : a1 + 1], alpha, beta, h)
+        first = np.minimum(np.maximum(y[a1 - 1], lo[0]), hi[0])
+        rising = x[b - 1] >= x[a1 - 1]
+        seg = y[a1:b]
+        np.subtract(x[a1:b, None], alpha if rising else beta, out=seg)
+        np.true_divide(seg, h, out=seg)
+        np.maximum(seg, 0.0, out=seg)
+        np.minimum(seg, 1.0, out=seg)
+        if rising:
+            np.maximum(first, seg, out=seg)
         else:
-            seg = np.minimum(first, hi[a1:b])
-        y[a1:b] = seg
-        prev = seg[-1]
-    return y
+            np.minimum(first, seg, out=seg)
 
 
 def _clamp_scan(lo: np.ndarray, hi: np.ndarray, start: np.ndarray) -> np.ndarray:

@@ -56,6 +56,30 @@ def test_kp_operators_equal_the_per_sample_clamp_loop(kind):
     assert np.all((got >= 0) & (got <= 1))
 
 
+@settings(max_examples=40, deadline=None)
+@given(
+    levels=st.lists(st.floats(-30.0, 180.0), min_size=2, max_size=12),
+    hold=st.integers(1, 40),
+    ring=st.floats(0.0, 0.3),
+    s0=st.floats(0.0, 1.0),
+    seed=st.integers(0, 10_000),
+)
+def test_kp_on_held_and_ringing_drives_equals_the_loop_bit_for_bit(levels, hold, ring, s0, seed):
+    # steps held for a while (flat stretches inside monotone runs), each ringing as a chain's
+    # low-pass makes it: the runs algorithm makes only each run's binding bound, and must give
+    # the per-sample clamp loop's states exactly (to the bit, not to a tolerance)
+    rng = np.random.default_rng(seed)
+    x = np.repeat(np.asarray(levels), hold)
+    k = np.arange(x.size)
+    x = x + ring * np.ptp(levels) * np.sin(0.7 * k) * np.exp(-0.05 * (k % hold))
+    alpha = np.sort(rng.uniform(-20.0, 170.0, 7))
+    beta = alpha - rng.uniform(0.0, 120.0, 7)
+    start = rng.uniform(0.0, 1.0, 7) * s0
+    got = operators.kp(x, alpha, beta, 12.5, start)
+    want = operators.kp_loop(x, alpha, beta, 12.5, start)
+    assert np.array_equal(got, want)
+
+
 def test_kp_chunked_equals_one_shot(monkeypatch):
     x = _signal("walk", 5000, 4)
     alpha, beta = np.array([10.0, 60.0, 100.0]), np.array([0.0, 30.0, 100.0])

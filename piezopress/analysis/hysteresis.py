@@ -292,7 +292,9 @@ class PreisachPlane:
         """The hysterons' states for ``u`` relative to their rest states: 0 at rest, so the
         model's output at rest is its rest output ``y0``. ``widen``: every hysteron's
         thresholds pushed apart by it, sample by sample (rate-dependent hysteresis)."""
-        return self.states(u, state, widen) - self.rest_state()
+        out = self.states(u, state, widen)  # a new array: made relative in place
+        out -= self.rest_state()
+        return out
 
     def _membership(self) -> tuple[np.ndarray, np.ndarray]:
         """Rows: cells sharing a rising ramp (one alpha); and sharing a falling ramp (one beta)."""
