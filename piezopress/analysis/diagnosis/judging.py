@@ -419,6 +419,11 @@ CHAIN_REFIT_RATIO = 2.0
 CHAIN_REFIT_DAMPING = (0.2, 0.99)
 
 
+def with_chain(model: Model, p: Sequence[float]) -> Model:
+    """``model`` with the series drive chain ``p``: its low-pass (corner rad/s, damping) and delay (s)."""
+    return replace(model, drive_lowpass=(float(p[0]), float(p[1])), drive_delay_s=float(p[2]))
+
+
 def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
     """The baseline of the fast causes: the mode refitted on the fitting steps within its
     bounds (:func:`_refit_mode`), with a series drive chain's low-pass and delay (through the
@@ -442,11 +447,7 @@ def _fast_base(ctx: Context, fit: list[Segment]) -> Model:
             (w, z), d = model.drive_lowpass, model.drive_delay_s
             lo = [w / CHAIN_REFIT_RATIO, CHAIN_REFIT_DAMPING[0], 0.0]
             hi = [w * CHAIN_REFIT_RATIO, CHAIN_REFIT_DAMPING[1], d]
-
-            def chain(m: Model, p: Sequence[float]) -> Model:
-                return replace(m, drive_lowpass=(float(p[0]), float(p[1])), drive_delay_s=float(p[2]))
-
-            model = _refit_mode(model, steps_fit, chain, [w, z, d], (lo, hi))
+            model = _refit_mode(model, steps_fit, with_chain, [w, z, d], (lo, hi))
         elif steps_fit:
             model = _refit_mode(model, steps_fit)
         steps_hz = {r.fs_hz for r in ctx.steps()}

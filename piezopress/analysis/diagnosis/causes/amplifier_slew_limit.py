@@ -19,6 +19,7 @@ from piezopress.analysis.diagnosis.judging import (
     _refit_mode,
     _search,
     _split,
+    with_chain,
 )
 from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import Need
@@ -127,14 +128,11 @@ def cause_amplifier_slew_limit(ctx: Context) -> Finding | None:
         both = fit + [seg for seg in _fast_split(ctx)[0] if seg[0].kind != "step"]
         lo_c, hi_c = [0.25 * w, 0.2, 0.0], [4.0 * w, 0.99, max(2.0 * d, CHAIN_LAG_S)]
 
-        def chain(m, p):
-            return replace(m, drive_lowpass=(float(p[0]), float(p[1])), drive_delay_s=float(p[2]))
-
-        base = _refit_mode(ctx.model, both, chain, [w, z, d], (lo_c, hi_c))
+        base = _refit_mode(ctx.model, both, with_chain, [w, z, d], (lo_c, hi_c))
         ext = _refit_mode(
             ctx.model,
             both,
-            lambda m, p: replace(chain(m, p), slew_v_per_s=float(p[3])),
+            lambda m, p: replace(with_chain(m, p), slew_v_per_s=float(p[3])),
             [w, z, d, s],
             (lo_c + [0.5 * s], hi_c + [2.0 * s]),
         )
