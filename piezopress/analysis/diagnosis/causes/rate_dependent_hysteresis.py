@@ -23,6 +23,7 @@ from piezopress.analysis.diagnosis.judging import (
     _judge_dynamics,
     _refit_mode,
     _search,
+    one_widening,
 )
 from piezopress.analysis.diagnosis.model import Model
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
@@ -207,25 +208,10 @@ def cause_rate_dependent_hysteresis(ctx: Context) -> Finding | None:
     # slowest fast sweep's rate takes up: the widening must beat that one on held-out data
     # (by RATE_GATE_PCT: a check of the signature, not the finding's gain) before its gain is
     # judged against the baseline the other fast causes have.
-    slowest = min(
-        (float(np.percentile(signals.rate_envelope(r.x, r.fs_hz, 2e-3), 50)) for r, _ in fit if r.kind != "step"),
-        default=0.0,
-    )
     refused = ""
-    if slowest > 0:
-
-        def constant(k):
-            return replace(
-                base,
-                rate_loss_per_kv_s=k,
-                rate_saturation_v_per_s=0.1 * slowest,
-                rate_tau_s=2e-3,
-                rate_exponent=1.0,
-                rate_floor_v_per_s=0.0,
-            )
-
-        k = _search(lambda k: _cost(fit, constant(k)), 0.0, 2.0 / (0.1 * slowest / 1000.0), 21)
-        gate = _judge_dynamics(ctx, "rate_dependent_hysteresis", "", fit, held, ext, {}, constant(k))
+    constant = one_widening(base, fit)
+    if constant is not None:
+        gate = _judge_dynamics(ctx, "rate_dependent_hysteresis", "", fit, held, ext, {}, constant)
         if (
             gate.gain_pct < RATE_GATE_PCT
             or gate.baseline_rms - gate.extended_rms < MIN_IMPROVEMENT_TO_FLOOR * gate.floor
