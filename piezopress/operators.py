@@ -359,9 +359,48 @@ def _kp_widened(x, alpha, beta, h, s0, widen) -> np.ndarray:
     out[0] = kp_initial_state(x[0], alpha + widen[0], beta - widen[0], h, s0)
     for a in range(0, x.size - 1, _KP_CHUNK):
         sl = slice(a, a + _KP_CHUNK + 1)
-        lo, hi = kp_bounds(x[sl], alpha, beta, h, widen[sl])
-        out[a + 1 : a + lo.shape[0]] = _clamp_scan(lo, hi, out[a])[1:]
+        seg = x[sl]
+        starts = monotone_runs(seg)
+        if starts.size <= max(8, _SCAN_ABOVE_RUN_FRACTION * seg.size):
+            _kp_widened_runs(seg, alpha, beta, h, widen[sl], out[a : a + seg.size], starts)
+        else:
+            lo, hi = kp_bounds(seg, alpha, beta, h, widen[sl])
+            out[a + 1 : a + lo.shape[0]] = _clamp_scan(lo, hi, out[a])[1:]
     return out
+
+
+def _run_spans(starts: np.ndarray, n: int):
+    """``(first, stop)`` of each monotone run of ``n`` samples starting at ``starts``, from sample 1
+    on (sample 0 is the start state, set already); empty runs left out."""
+    ends = np.append(starts, n)
+    for a, b in zip(ends[:-1], ends[1:]):
+        a1 = a if a > 0 else 1
+        if a1 < b:
+            yield int(a1), int(b)
+
+
+def _kp_widened_runs(
+    x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, widen: np.ndarray, y: np.ndarray, starts: np.ndarray
+) -> None:
+    # thresholds that move with time: on a rising run of x the lower bound is no longer monotone
+    # (the widening changes with the rate), so the state is the running maximum of it from the
+    # run's first clamp, where the upper bound never binds; checked, and where it does bind (the
+    # widening shrinking faster than x rises) that run alone is the clamp scan. Both select
+    # values of :func:`kp_bounds`'s bounds: the scan's states to the bit.
+    # ``y``: the states, row 0 the start (given), rows 1.. written
+    for a1, b in _run_spans(starts, x.size):
+        lo, hi = kp_bounds(x[a1:b], alpha, beta, h, widen[a1:b])
+        start = y[a1 - 1]
+        if x[b - 1] >= x[a1 - 1]:
+            seg = np.maximum.accumulate(np.concatenate([np.minimum(np.maximum(start, lo[0]), hi[0])[None], lo[1:]]))
+            held = not np.any(seg > hi)
+        else:
+            seg = np.minimum.accumulate(np.concatenate([np.minimum(np.maximum(start, lo[0]), hi[0])[None], hi[1:]]))
+            held = not np.any(seg < lo)
+        if held:
+            y[a1:b] = seg
+        else:  # the opposite bound binds somewhere on this run: the scan, from the run's start state
+            y[a1:b] = _clamp_scan(np.concatenate([lo[:1], lo]), np.concatenate([hi[:1], hi]), start)[1:]
 
 
 def _kp_runs(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, y: np.ndarray, starts: np.ndarray) -> None:
@@ -369,12 +408,7 @@ def _kp_runs(x: np.ndarray, alpha: np.ndarray, beta: np.ndarray, h: float, y: np
     # bound from the run's first clamp (monotone in x, so a plain max), the upper bound never
     # binds; so each run makes only the bound that binds on it (:func:`kp_bounds`'s, to the bit).
     # ``y``: the states, row 0 the start (given), rows 1.. written
-    n = x.size
-    ends = np.append(starts, n)
-    for a, b in zip(ends[:-1], ends[1:]):
-        a1 = a if a > 0 else 1
-        if a1 >= b:
-            continue
+    for a1, b in _run_spans(starts, x.size):
         lo, hi = kp_bounds(x[a1 : a1 + 1], alpha, beta, h)
         first = np.minimum(np.maximum(y[a1 - 1], lo[0]), hi[0])
         rising = x[b - 1] >= x[a1 - 1]

@@ -115,6 +115,58 @@ def test_widened_kp_equals_the_per_sample_definition(seed, n, scale):
     np.testing.assert_allclose(got, _widened_loop(x, alpha, beta, 15.0, 0.4, widen), atol=1e-12)
 
 
+def _rate_widening(x: np.ndarray, scale: float) -> np.ndarray:
+    # a widening that follows the drive's rate, smoothed (as the rate dependence's envelope is):
+    # it grows on a ramp and decays on a hold
+    w = np.empty(x.size)
+    acc = 0.0
+    for k, d in enumerate(np.abs(np.diff(x, prepend=x[0]))):
+        acc = 0.9 * acc + 0.1 * d
+        w[k] = scale * acc
+    return w
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    levels=st.lists(st.floats(-30.0, 180.0), min_size=2, max_size=10),
+    ramp=st.integers(5, 120),
+    hold=st.integers(0, 60),
+    scale=st.floats(0.0, 8.0),
+    s0=st.floats(0.0, 1.0),
+    seed=st.integers(0, 10_000),
+)
+def test_widened_kp_on_ramps_and_holds_equals_the_definition_bit_for_bit(levels, ramp, hold, scale, s0, seed):
+    # ramps between levels, each held, widened with the rate: few monotone runs, so the runs
+    # algorithm (with the clamp scan on any run whose opposite bound binds) evaluates them, and
+    # must give the per-sample definition's states exactly (to the bit, not to a tolerance)
+    rng = np.random.default_rng(seed)
+    pieces = [np.full(1, levels[0])]
+    for a, b in zip(levels[:-1], levels[1:]):
+        pieces += [np.linspace(a, b, ramp + 1)[1:], np.full(hold, b)]
+    x = np.concatenate(pieces)
+    widen = _rate_widening(x, scale)
+    alpha = np.sort(rng.uniform(-20.0, 170.0, 7))
+    beta = alpha - rng.uniform(0.0, 120.0, 7)
+    start = rng.uniform(0.0, 1.0, 7) * s0
+    got = operators.kp(x, alpha, beta, 12.5, start, widen=widen)
+    assert np.array_equal(got, _widened_loop(x, alpha, beta, 12.5, start, widen))
+
+
+def test_widened_kp_scans_a_run_whose_opposite_bound_binds(monkeypatch):
+    # a fall at a wide widening, then a slow rise while the widening collapses: the upper bound
+    # drops faster than x rises and pulls the state down on a rising run; that run is scanned
+    # (the running maximum would be wrong there) and the states equal the definition's
+    x = np.concatenate([np.linspace(100.0, 50.0, 200), np.linspace(50.0, 55.0, 200)])
+    widen = np.concatenate([np.full(200, 30.0), np.linspace(30.0, 0.0, 200)])
+    alpha, beta = np.array([100.0, 110.0]), np.array([75.0, 70.0])
+    scans = []
+    real = operators._clamp_scan
+    monkeypatch.setattr(operators, "_clamp_scan", lambda *a: scans.append(1) or real(*a))
+    got = operators.kp(x, alpha, beta, 10.0, 1.0, widen=widen)
+    assert scans == [1]  # the rising run only; the falling one is its running minimum
+    assert np.array_equal(got, _widened_loop(x, alpha, beta, 10.0, 1.0, widen))
+
+
 def test_a_constant_widening_is_the_thresholds_pushed_apart_and_none_is_no_widening(monkeypatch):
     x = _signal("walk", 5000, 6)
     alpha, beta = np.array([10.0, 60.0, 100.0]), np.array([0.0, 30.0, 100.0])
