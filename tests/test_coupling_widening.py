@@ -4,7 +4,7 @@ A coupling that lags the output (its signed term against the output's gain) read
 loop drawn wider in proportion to the rate; where the base loop is drawn too narrow at every fast
 rate (a loop fitted at 0.1 Hz on a stack whose domain walls lag a fast field), it takes part of that
 up. On the third test press, a rate dependence beside a log creep (seed 2), such a coupling was named
-at 20 % held out where one widening predicted the same runs 34 % better than it. The press here is
+at 20 % held out where it predicted the same runs 34 % worse than one widening. The press here is
 drawn in forms of its own: its fast sweeps by a loop of plays half as wide again as the model's,
 every run through a viscous lag of the drive in a power of its rate (the project's rate law is not
 used to draw it), and a true coupling through an RC filter simulated on the drive current."""
