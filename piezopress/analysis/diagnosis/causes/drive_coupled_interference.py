@@ -365,8 +365,9 @@ def cause_drive_coupled_interference(ctx: Context) -> Finding | None:
     # the output's gain) reads on a triangle as a loop drawn wider in proportion to the rate, and
     # takes up part of a loop drawn too narrow at every fast rate (a rate dependence its own gate
     # refused, a creep of milliseconds): it must predict the held-out runs better than one
-    # widening of the loop at every fast rate does (:data:`WIDENING_GATE_PCT`)
-    widened = one_widening(base, fit) if found.gain_pct > 0 else None
+    # widening of the loop at every fast rate does (:data:`WIDENING_GATE_PCT`); checked only where
+    # it decides (a coupling that would be named: the widening is fitted, a model run per point)
+    widened = one_widening(base, fit) if found.accepted else None
     if widened is not None:
         gate = _judge_dynamics(ctx, "drive_coupled_interference", "", fit, held, ext, {}, widened)
         if gate.gain_pct < WIDENING_GATE_PCT:
