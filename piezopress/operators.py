@@ -391,11 +391,12 @@ def _kp_widened_runs(
     for a1, b in _run_spans(starts, x.size):
         lo, hi = kp_bounds(x[a1:b], alpha, beta, h, widen[a1:b])
         start = y[a1 - 1]
+        first = np.minimum(np.maximum(start, lo[0]), hi[0])[None]
         if x[b - 1] >= x[a1 - 1]:
-            seg = np.maximum.accumulate(np.concatenate([np.minimum(np.maximum(start, lo[0]), hi[0])[None], lo[1:]]))
+            seg = np.maximum.accumulate(np.concatenate([first, lo[1:]]))
             held = not np.any(seg > hi)
         else:
-            seg = np.minimum.accumulate(np.concatenate([np.minimum(np.maximum(start, lo[0]), hi[0])[None], hi[1:]]))
+            seg = np.minimum.accumulate(np.concatenate([first, hi[1:]]))
             held = not np.any(seg < lo)
         if held:
             y[a1:b] = seg
