@@ -162,6 +162,28 @@ def test_glitches_are_found_where_they_are_and_repaired():
     assert P.find_glitches(clean).size == 0  # noise alone is no glitch
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_a_quantized_reading_flickering_one_step_holds_no_glitch(seed):
+    """A 12-bit reading (0.49 N steps, the virtual rig's) of a 50 N rest whose level creeps
+    towards a step's edge with 0.07 N of noise reads mostly one code, flickering to the next on
+    single samples: one step either way is that reading's noise, never a lost sample (the old
+    rule took every flicker for a glitch and "repaired" up to 1,883 of a rest's 12,001
+    samples, pulling its mean onto one code; 150 or more here). A sample read as 0 among them
+    still is one."""
+    rng = np.random.default_rng(seed)
+    q = 1000.0 / 2**11
+    edge = (np.floor(50.0 / q) + 0.5) * q
+    level = edge - 0.2 + 0.12 * np.linspace(0.0, 1.0, 12_001)  # nears the edge over the run
+    y = np.round((level + rng.normal(0.0, 0.07, level.size)) / q) * q
+    d = np.diff(y)
+    flickers = np.count_nonzero((d[:-1] != 0) & (d[1:] == -d[:-1]))
+    assert np.unique(y).size >= 2 and flickers >= 150  # the case: many single-sample flickers
+    assert P.find_glitches(y).size == 0
+    lost = y.copy()
+    lost[[3000, 9000]] = 0.0
+    assert np.array_equal(P.find_glitches(lost), [3000, 9000])
+
+
 def test_runs_as_other_programs_write_them_are_read(tmp_path):
     """float32 and integer columns, t_s not starting at 0: read as float64 with the same
     profile; a sample rate that disagrees with t_s: refused in one line naming both."""
