@@ -238,21 +238,18 @@ def cause_sensitivity_drift(ctx: Context) -> Finding | None:
         # step of the order stands for that many seconds, and the drift goes on inside every run but
         # the hold the base creep was fitted on (it holds its share already, as with a recorded clock)
         seconds = _seconds_per_play(ctx, k_all, [(f, dt) for f, _, dt, *_ in pairs])
-        if seconds is None:
-            starts = tuple(sorted((r.ident, play[r.ident] - 0.5 * r.duration_s, False) for r in ctx.runs))
-            ext = replace(ctx.model, gain_drift=(k_all, ref, starts))
-        else:
-            starts = tuple(
-                sorted(
-                    (
-                        r.ident,
-                        ref + seconds * (play[r.ident] - ref) - 0.5 * r.duration_s,
-                        not (r.kind == "creep" and ctx.is_fitted(r)),
-                    )
-                    for r in ctx.runs
+        step = 1.0 if seconds is None else seconds  # a step of the order, on the drift's clock
+        starts = tuple(
+            sorted(
+                (
+                    r.ident,
+                    ref + step * (play[r.ident] - ref) - 0.5 * r.duration_s,
+                    seconds is not None and not (r.kind == "creep" and ctx.is_fitted(r)),
                 )
+                for r in ctx.runs
             )
-            ext = replace(ctx.model, gain_drift=(k_all / seconds, ref, starts))
+        )
+        ext = replace(ctx.model, gain_drift=(k_all / step, ref, starts))
     u = ctx.model.unit
     held = (
         f"beyond an offset and a slope; held-out RMS of the repeats' differences {extended:.3g} {units.label(u)} "
