@@ -423,6 +423,10 @@ def test_a_log_creep_too_small_against_an_unpinned_creep_is_said_beside_the_drif
     assert next_plan.hold_findings(result) == {"logarithmic_creep": 1210.0}
     tested = {t["cause"]: t["result"] for t in result.tested}
     assert tested["logarithmic_creep"].startswith("not found (nothing to fit once sensor_offset_drift"), tested
+    # the hold is asked for whatever the finding gained on the runs (the decade after the hold is
+    # what no run shows): its gain across the runs against a drift they show may be none
+    gained_nothing = _replace(result, considered=[_replace(f, gain_pct=0.0) for f in result.considered])
+    assert next_plan.hold_findings(gained_nothing) == {"logarithmic_creep": 1210.0}
     # a log creep too small against a creep the runs do pin (no hold asked for) is no rival: nothing said
     plain = diagnosed(0.0)
     assert plain.findings[0].could_also_be == {} and "could also be" not in plain.summary
