@@ -230,10 +230,14 @@ def _split_from(
     read first takes that lag up: the third test press, second resonance seed 4, a delay of 3.3
     samples named at 40 % before the mode, 54 % with it). Returns (the last finding's cause,
     ``best`` as its round fitted it, on the model without the last finding) or None. A pair named
-    together (:func:`_together`) has made this check already."""
+    together (:func:`_together`) has made this check already. Only where the two were judged on
+    runs in common: an effect split in two shows on the same runs (as a rival does, in
+    :func:`diagnose`); a slew of the steps beside a log creep of the hold is two effects."""
     if prev is None or not findings or findings[-1] is not prev[0] or best.cause not in prev[1]:
         return None
     last, alone = prev[0], prev[1][best.cause]
+    if not set(last.heldout) & set(alone.heldout):
+        return None
     again = _try(last.cause, Context(ctx.runs, alone.model, ctx.fitted_runs, ctx.floor), failed)
     if again is not None and again.accepted:
         return None
