@@ -277,6 +277,7 @@ def _drift_fit(
     clock: dict[str, float] | None = None,
     kept: bool = False,
     witnesses: bool = False,
+    longest_s: float | None = None,
 ) -> _DriftFit | None:
     """See :func:`cause_sensor_offset_drift`. With ``tail_taus`` (a log creep's elements, equal
     gains per half decade: :func:`creep.log_taus`), the drift is fitted again with a log-time
@@ -307,10 +308,16 @@ def _drift_fit(
     creep shapes are left out (:attr:`_DriftFit.unwitnessed`), and in the per-rest form (each rest its own
     polynomial in its run's time, of a degree of :data:`REST_DEGREES` chosen as the wander is) each run under
     drive has one of its own too where its averages pin one (:func:`_pins_a_rate`), an offset only
-    otherwise, rather than one rate shared with the others (a wander's rate is not one between runs)."""
+    otherwise, rather than one rate shared with the others (a wander's rate is not one between runs).
+
+    With ``longest_s``, a run longer than it is left out as a run longer than a window is where the
+    wander is tried (a log creep judged against a wander the model holds already)."""
     long, unwitnessed = drift_witnesses(ctx) if witnesses else (_long_runs(ctx), [])
     windows = wander_windows([r for r, _ in long], clock)
-    too_long = [bool(windows) and r.duration_s > CLOCK_WINDOW_MAX_S for r, _ in long]
+    too_long = [
+        (bool(windows) and r.duration_s > CLOCK_WINDOW_MAX_S) or (longest_s is not None and r.duration_s > longest_s)
+        for r, _ in long
+    ]
     # where the wander is tried, a run longer than a window is left out: the wander turns within it
     # (a quadratic draws it over a quarter of an hour at most), so every form's trend, fitted on its
     # first 60 %, misreads its end (the third test press, seed 0, with the next plan's 1210 s hold
