@@ -277,7 +277,7 @@ def _drift_fit(
     clock: dict[str, float] | None = None,
     kept: bool = False,
     witnesses: bool = False,
-    longest_s: float | None = None,
+    beside_wander: bool = False,
 ) -> _DriftFit | None:
     """See :func:`cause_sensor_offset_drift`. With ``tail_taus`` (a log creep's elements, equal
     gains per half decade: :func:`creep.log_taus`), the drift is fitted again with a log-time
@@ -310,14 +310,11 @@ def _drift_fit(
     drive has one of its own too where its averages pin one (:func:`_pins_a_rate`), an offset only
     otherwise, rather than one rate shared with the others (a wander's rate is not one between runs).
 
-    With ``longest_s``, a run longer than it is left out as a run longer than a window is where the
-    wander is tried (a log creep judged against a wander the model holds already)."""
+    With ``beside_wander`` (a log creep judged against a wander the model holds already), a run
+    longer than a window is left out as it is where the wander is tried."""
     long, unwitnessed = drift_witnesses(ctx) if witnesses else (_long_runs(ctx), [])
     windows = wander_windows([r for r, _ in long], clock)
-    too_long = [
-        (bool(windows) and r.duration_s > CLOCK_WINDOW_MAX_S) or (longest_s is not None and r.duration_s > longest_s)
-        for r, _ in long
-    ]
+    too_long = [(bool(windows) or beside_wander) and r.duration_s > CLOCK_WINDOW_MAX_S for r, _ in long]
     # where the wander is tried, a run longer than a window is left out: the wander turns within it
     # (a quadratic draws it over a quarter of an hour at most), so every form's trend, fitted on its
     # first 60 %, misreads its end (the third test press, seed 0, with the next plan's 1210 s hold

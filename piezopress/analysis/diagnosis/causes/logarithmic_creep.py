@@ -19,7 +19,6 @@ from piezopress.analysis.diagnosis.model import Model, RunData
 from piezopress.analysis.diagnosis.needs import Need, RunSpec
 from piezopress.analysis.diagnosis.residuals import rms
 from piezopress.analysis.diagnosis.slow import (
-    CLOCK_WINDOW_MAX_S,
     DRIFT_WARMUP_TAU_S,
     _drift_fit,
     _long_runs,
@@ -251,8 +250,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         # leaves it out (third test press, a thermal wander, seed 0, the next plan's 1210 s hold
         # played two hours later: a log creep of 0.8 % per decade named beside the wander, 53 % held
         # out, on a press whose own creep ends by 300 s)
-        wander = bool(ctx.model.drift_clock)
-        across = _drift_fit(drift_ctx, tail_taus=tail_taus, longest_s=CLOCK_WINDOW_MAX_S if wander else None)
+        across = _drift_fit(drift_ctx, tail_taus=tail_taus, beside_wander=bool(ctx.model.drift_clock))
         if across is None or across.with_tail is None:
             return None
         b, floor = across.extended, across.floor
