@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -184,6 +185,84 @@ def test_a_constant_widening_is_the_thresholds_pushed_apart_and_none_is_no_widen
     np.testing.assert_allclose(operators.kp(x, alpha, beta, 20.0, widen=widen), whole, atol=1e-12)
     with pytest.raises(ValueError, match="widen must be"):
         operators.kp(x, alpha, beta, 20.0, widen=-widen - 1)
+
+
+def _kp_drive(kind: str, n: int, seed: int) -> np.ndarray:
+    # the drives the weighted output must follow on each of kp's paths: steps held and ringing
+    # (few long monotone runs), a noisy sine (the clamp scan) and a random walk (between)
+    if kind != "held":
+        return _signal(kind, n, seed)
+    rng = np.random.default_rng(seed)
+    x = np.repeat(rng.uniform(-30.0, 180.0, n // 40 + 1), 40)[:n]
+    k = np.arange(n)
+    return x + 8.0 * np.sin(0.7 * k) * np.exp(-0.05 * (k % 40))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    kind=st.sampled_from(["held", "smooth", "noisy", "walk"]),
+    n=st.integers(1, 900),
+    block=st.integers(1, 70),
+    chunk=st.sampled_from([50, 16_384]),
+    widened=st.booleans(),
+    seed=st.integers(0, 10_000),
+)
+def test_kp_weighted_is_the_states_weighted_to_the_bit_block_by_block(kind, n, block, chunk, widened, seed):
+    # the weighted sum made block by block of samples (never the n x cells states) is the
+    # states' own: with a unit weight it is one hysteron's state column to the bit (blocks of
+    # any size, on every path of kp: runs, widened runs, scans), with any weights the matrix
+    # product's to rounding
+    rng = np.random.default_rng(seed)
+    x = _kp_drive(kind, n, seed)
+    alpha = np.sort(rng.uniform(-20.0, 170.0, 6))
+    beta = alpha - rng.uniform(0.0, 120.0, 6)
+    widen = _rate_widening(x, 4.0) if widened else None
+    start = rng.uniform(0.0, 1.0, 6)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(operators, "_KP_WEIGHTED_BLOCK", block)
+        mp.setattr(operators, "_KP_CHUNK", chunk)
+        states = operators.kp(x, alpha, beta, 12.5, start, widen=widen)
+        for k in range(alpha.size):
+            unit = np.eye(alpha.size)[k]
+            got = operators.kp_weighted(x, alpha, beta, 12.5, unit, np.zeros(6), start, widen)
+            assert np.array_equal(got, states[:, k]), k
+        w, offset = rng.uniform(0.0, 2.0, 6), rng.uniform(0.0, 1.0, 6)
+        got = operators.kp_weighted(x, alpha, beta, 12.5, w, offset, start, widen)
+    np.testing.assert_allclose(got, (states - offset) @ w, rtol=0, atol=1e-12 * w.sum())
+
+
+def test_kp_weighted_refuses_weights_or_a_widening_of_the_wrong_shape():
+    x = _signal("walk", 100, 1)
+    alpha, beta = np.array([10.0, 60.0]), np.array([0.0, 30.0])
+    with pytest.raises(ValueError, match=r"one value per hysteron \(2,\)"):
+        operators.kp_weighted(x, alpha, beta, 20.0, np.ones(3), np.zeros(2))
+    with pytest.raises(ValueError, match=r"widen must be .* shape of x \(100,\), got shape \(99,\)"):
+        operators.kp_weighted(x, alpha, beta, 20.0, np.ones(2), np.zeros(2), widen=np.ones(99))
+    assert operators.kp_weighted(np.zeros(0), alpha, beta, 20.0, np.ones(2), np.zeros(2)).shape == (0,)
+
+
+@pytest.mark.parametrize("family", ["plane", "duhem", "plays"])
+@pytest.mark.parametrize("widened", [False, True])
+def test_a_models_outputs_are_its_columns_weighed_in_two_parts(family, widened):
+    # what the diagnosis's forward model and the rate-aware compensator read: the plays' sum and
+    # the plane's (made block by block) or the Duhem elements', each as the columns weighed
+    model = _model(3, levels=8)
+    if family == "duhem":
+        model = replace(model, plane=None, duhem=H.DuhemElements((5.0, 20.0, 60.0), (0.2, 0.3, 0.1), (0.0,) * 3))
+    elif family == "plays":
+        model = replace(model, plane=None)
+    u = _signal("walk", 4000, 5) - model.x0
+    widen = np.abs(np.sin(np.arange(u.size) / 40.0)) * 3.0 if widened else None
+    Y = model.columns(u, widen=widen)
+    plays, extra = model.outputs(u, widen=widen)
+    scale = float(np.abs(Y).max())
+    np.testing.assert_allclose(plays, Y[:, : model.n_play] @ np.array(model.w), rtol=0, atol=1e-12 * scale)
+    if family == "plays":
+        assert extra is None
+    else:
+        np.testing.assert_allclose(
+            extra, Y[:, model.n_play :] @ np.array(model.extra.weights), rtol=0, atol=1e-12 * scale
+        )
 
 
 def test_the_rate_dependence_widens_the_planes_loop_and_the_rate_aware_inverse_undoes_it():

@@ -172,10 +172,9 @@ class RateDependence:
         rho = self.rate(x, fs_hz)
         u = np.asarray(x, float) - model.x0
         widen = self.widen_v_per_kv_s * rho / 1000.0 if self.widen_v_per_kv_s > 0 else None
-        Y = model.columns(u, widen=widen)
-        extra = Y[:, model.n_play :] @ np.array(model.extra.weights) if model.extra is not None else None
+        plays, extra = model.outputs(u, widen=widen)
         loss = self.loss_per_kv_s * rho / 1000.0 if self.loss_per_kv_s > 0 else 0.0
-        return model.y0 + rate_loss_output(model, u, Y[:, : model.n_play] @ np.array(model.w), extra, loss)
+        return model.y0 + rate_loss_output(model, u, plays, extra, loss)
 
 
 #: The rate-aware inverse stops when the drive moves less than this (V) from one pass to the next ...

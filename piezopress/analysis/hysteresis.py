@@ -296,6 +296,13 @@ class PreisachPlane:
         out -= self.rest_state()
         return out
 
+    def output(self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None) -> np.ndarray:
+        """``columns(u, state, widen) @ weights``, block by block of samples
+        (:func:`~piezopress.operators.kp_weighted`): the same to rounding, without the ``n x cells`` array."""
+        a, b, w = self.arrays()
+        rest = self.rest_state()
+        return operators.kp_weighted(u, a, b, self.width, w, rest, rest if state is None else state, widen)
+
     def _membership(self) -> tuple[np.ndarray, np.ndarray]:
         """Rows: cells sharing a rising ramp (one alpha); and sharing a falling ramp (one beta)."""
         a, b, _ = self.arrays()
@@ -519,6 +526,20 @@ class PIModel:
             seen = u if widen is None else Y[:, 0]
             return np.hstack([Y, self.duhem.columns(seen, st[self.n_play :], u_prev=float(st[0]))])
         return Y
+
+    def outputs(
+        self, u: np.ndarray, state: np.ndarray | None = None, widen: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(plays, extra)``: the plays' weighted sum and the plane's or the Duhem elements' (None
+        without), as :meth:`columns` weighed by :meth:`column_weights` in two parts; a plane's
+        hysterons block by block of samples (:meth:`PreisachPlane.output`), never all at once."""
+        if self.plane is None:
+            Y = self.columns(u, state, widen)
+            extra = Y[:, self.n_play :] @ np.array(self.duhem.weights) if self.duhem is not None else None
+            return Y[:, : self.n_play] @ np.array(self.w), extra
+        st = self.rest_state() if state is None else np.asarray(state, float)
+        plays = operators.play(u, np.array(self.r), st[: self.n_play], widen=widen) @ np.array(self.w)
+        return plays, self.plane.output(u, st[self.n_play :], widen)
 
     def column_weights(self) -> np.ndarray:
         w = np.array(self.w)

@@ -355,9 +355,9 @@ class Model:
         (thresholds widened by ``widen``) and the plane's or the Duhem elements' (0 without)."""
         m = self.hysteresis
         u = np.asarray(x, float) - m.x0
-        Y = m.columns(u, widen=widen)
-        p = Y[:, : m.n_play] @ np.array(m.w)
-        plane = Y[:, m.n_play :] @ np.array(m.extra.weights) if m.extra is not None else np.zeros_like(p)
+        p, plane = m.outputs(u, widen=widen)
+        if plane is None:
+            plane = np.zeros_like(p)
         for a in (u, p, plane):
             a.setflags(write=False)
         return u, p, plane
