@@ -433,8 +433,8 @@ def kp_weighted(
                 continue
             for c in range(g1, g2, B):  # widened: the running bound, checked (as _kp_widened_runs)
                 e = min(c + B, g2)
-                lo = ramp(buf[: e - c] if rising else other[: e - c], x[c:e] - widen[c:e], alpha)
-                hi = ramp(other[: e - c] if rising else buf[: e - c], x[c:e] + widen[c:e], beta)
+                lo = ramp(buf[: e - c], x[c:e] - widen[c:e], alpha)
+                hi = ramp(other[: e - c], x[c:e] + widen[c:e], beta)
                 seg = lo if rising else hi
                 seg[0] = np.minimum(np.maximum(state, lo[0]), hi[0])
                 if rising:
