@@ -178,6 +178,11 @@ def cause_sensor_offset_drift(ctx: Context) -> Finding | None:
             f"drive does nothing too (its size fitted beside the drift: {stroke:.3g} {units.label(u)}; "
             f"{bias:.3g} on the rests alone)"
         )
+        if d.hold_shaped:
+            ev += (
+                f", with the creep beyond the model's that {d.hold_shaped} shows, in proportion to the stroke (a "
+                "creep the model misses moves each run by the stroke it holds, a drift of the reading every run alike)"
+            )
     if d.unwitnessed:
         by_why: dict[str, list[str]] = {}
         for r, why in d.unwitnessed:
