@@ -35,6 +35,11 @@ def _runs(per_decade: float, seed: int) -> list[dg.RunData]:
     truth = dg.Model(
         PI, creep=C.CreepModel("kv", 1.0, POLES.taus_s + tuple(lt), POLES.gains + (0.5 * per_decade,) * lt.size)
     )
+    return runs_of(truth, seed)
+
+
+def runs_of(truth: dg.Model, seed: int) -> list[dg.RunData]:
+    """A 120 s hold, a rest and a slow triangle of the press ``truth``, with noise."""
     rng = np.random.default_rng(seed)
     fs = 100.0
     t = np.arange(int(120 * fs)) / fs
