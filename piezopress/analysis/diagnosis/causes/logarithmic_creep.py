@@ -227,11 +227,16 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     # hold, the error a creep model that saturates leaves there (the tail's gamma alone trades off
     # with the Kelvin-Voigt elements beside it, and the model's creep may rise over decades too)
     hold_s = float(run.t_s[-1] - run.t_s[0])
-    beyond = _beyond_next_decade(ext.creep, ctx.model.creep, hold_s)
+    mc = ctx.model.creep
+
+    def tail_on_model(per_decade: float) -> creep_mod.CreepModel:  # the model's own creep and a log tail
+        return _with_tail(mc.static_gain, mc.taus_s, mc.gains, tail_taus, per_decade)
+
+    beyond = _beyond_next_decade(ext.creep, mc, hold_s)
     # what the model's own creep draws there: a rise it extrapolates with elements slower than the
     # hold (a relaxation spectrum to 1000 s fitted on a 121 s hold), which no run pins either
-    own = _beyond_next_decade(ctx.model.creep, creep_mod.CreepModel("kv", 1.0, (), ()), hold_s)
-    unpinned = own >= LOG_CREEP_MIN_PER_DECADE and max(ctx.model.creep.taus_s, default=0.0) > hold_s
+    own = _beyond_next_decade(mc, creep_mod.CreepModel("kv", 1.0, (), ()), hold_s)
+    unpinned = own >= LOG_CREEP_MIN_PER_DECADE and max(mc.taus_s, default=0.0) > hold_s
     rate = gamma
     if not ramp:
         # judged like a drift (:func:`cause_sensor_offset_drift`), on the cycle-averaged residuals of
@@ -247,9 +252,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         # 35 s, no log creep, input delay seed 18: 0.41 % beyond the model, 0.39 % of it the
         # tail's; the slew-limited seed 5, 0.41 and 0.35 %; the documented log creep of seeds
         # 0-9, 0.60-1.82 % the tail's alone
-        c = ctx.model.creep
-        tail_only = _beyond_next_decade(_with_tail(c.static_gain, c.taus_s, c.gains, tail_taus, gamma), c, hold_s)
-        beyond = min(beyond, tail_only)
+        beyond = min(beyond, _beyond_next_decade(tail_on_model(gamma), mc, hold_s))
     else:
         # where the runs show a drift, the hold alone cannot tell it from a slow creep (fitted
         # beside Kelvin-Voigt elements on the hold, a drift cancels them: on the second test press,
@@ -273,9 +276,8 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
         # decade after the hold, against a drift): what the runs judged is the tail across them, so
         # its size and the extension are the tail's, on the model's own creep
         rate = max(across.tail_per_decade, 0.0)
-        c = ctx.model.creep
-        ext = replace(ext, creep=_with_tail(c.static_gain, c.taus_s, c.gains, tail_taus, rate))
-        beyond = _beyond_next_decade(ext.creep, c, hold_s)
+        ext = replace(ext, creep=tail_on_model(rate))
+        beyond = _beyond_next_decade(ext.creep, mc, hold_s)
         names = sorted(r.name for r in across.runs)
         ev += (
             "; the runs show a drift of the reading, so the tail was judged across every long run against it and "
@@ -302,7 +304,7 @@ def cause_logarithmic_creep(ctx: Context) -> Finding | None:
     if small and unpinned:
         too_small += (
             f"; but the model's own creep rises {100 * own:.2g} % there, drawn by elements slower than the "
-            f"{hold_s:.0f} s hold (to {max(ctx.model.creep.taus_s):.0f} s), which no run pins: whether the creep "
+            f"{hold_s:.0f} s hold (to {max(mc.taus_s):.0f} s), which no run pins: whether the creep "
             "keeps rising past them, as a logarithmic creep does, or ends within the decade"
             + (f", a hold of {tell_s:.0f} s tells" if tell_s else ", only a longer hold tells")
         )
