@@ -20,6 +20,14 @@ run's times on one session clock from 3600 s (each run starting 5 s after the on
 as a DAQ program stamps them): the runs must read as the same runs from 0, and their stamps as the
 session's clock (``run_starts``: where no run records a start time).
 
+``--paired`` characterizes each case once and diagnoses it twice: with the metadata ``characterize``
+wrote, and the same runs cut as ``--minimal`` cuts them, each with its own ``fit --base``. It prints
+both matrices and each row's difference in points (the acceptance's "within 5 points", on the same
+press, draw and noise: the difference is the metadata's alone), and records both diagnoses. With
+``--keep`` the full case names the cut case's runs before the cut, so a kept ``--minimal`` bench is
+diagnosed with its metadata without characterizing again; ``--matrix-from FILE --paired`` prints the
+pair of a record over the seeds it holds both ways.
+
 ``--plan FILE`` characterizes with FILE where a case would use the default plan (to judge a
 change of the plan on the same draws before making it the default): the default plan rests before
 its first drive since stop 76, where ``tests/plans/characterize-rest-first.toml`` measured it (the
@@ -56,7 +64,7 @@ characterization is a task, then ``pipelines.batch.run_batch(..., "diagnose")`` 
 cluster; ``--no-batch`` (or Dask missing) runs each case start to end in a process pool.
 
 Run: .venv/bin/python bench/bench_diagnose.py [--rig ours|second|third] [--seeds 20] [--workers 2] [--no-batch]
-         [--record results.jsonl] [--minimal | --stamped] [--plan PLAN.toml] [--follow]
+         [--record results.jsonl] [--minimal | --stamped | --paired] [--plan PLAN.toml] [--follow]
      .venv/bin/python bench/bench_diagnose.py --rig second --matrix-from results.jsonl
          (the matrix of what was recorded)
      .venv/bin/python bench/bench_diagnose.py --gain [--gain-seeds 3] [--gain-out compensated_gain.csv]
@@ -379,6 +387,41 @@ def one(args: tuple) -> tuple[str, tuple[str, ...], float, str | None, dict | No
     return effect, named, gain, base_creep, followed
 
 
+def one_paired(args: tuple) -> tuple[tuple, tuple]:
+    """One case characterized once and diagnosed twice (``--paired``): its runs with the metadata
+    ``characterize`` wrote, and the same runs cut to the run format's four required fields, each
+    with its own ``fit --base``. Returns (full, cut), each as :func:`one` returns it. The difference
+    between the two is the metadata's alone: the same press, draw and noise (issue 20: the matrices
+    within 5 points). With ``keep``, both are kept there (the full case's ``runs`` name the cut
+    case's ``char``), and a later bench diagnoses both again; a kept full case whose runs are not
+    the cut case's is not a pair, and reads as an error row."""
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import fit as F
+
+    rig, effect, seed, keep = args
+    with tempfile.TemporaryDirectory() as tmp:
+        keep = keep or tmp  # without --keep the pair is kept for the length of the case
+        cut = one((rig, effect, seed, True, False, keep))
+        record = kept_case(Path(keep), rig, effect, seed, True) / "runs"
+        if not record.is_file():  # the cut case stopped before its runs were written: the same error
+            return cut, cut
+        runs = Path(record.read_text(encoding="utf-8").strip())
+        runs = runs.with_name(runs.name.removesuffix("-minimal"))  # the same runs before the cut
+        full_case = kept_case(Path(keep), rig, effect, seed, False)
+        if (full_case / "base.json").is_file():
+            kept = Path((full_case / "runs").read_text(encoding="utf-8").strip())
+            if kept.resolve() != runs.resolve():
+                return (effect, (f"error: not a pair ({kept} kept, not {runs})",), float("nan"), None, None), cut
+        else:
+            try:
+                B.write_document(F.fit_bundle([runs], base=True).doc, full_case / "base.json.part")
+            except Exception as exc:  # noqa: BLE001 - a failure is a row of the matrix, not a crash
+                return (effect, (f"error: {type(exc).__name__}",), float("nan"), None, None), cut
+            (full_case / "runs").write_text(str(runs), encoding="utf-8")
+            (full_case / "base.json.part").replace(full_case / "base.json")  # the base last, as in one()
+        return one((rig, effect, seed, False, False, keep)), cut
+
+
 def main() -> None:
     from piezopress.acquisition.rig_config import EFFECTS
 
@@ -424,6 +467,12 @@ def main() -> None:
         "--stamped",
         action="store_true",
         help="as --minimal, and every run's times stamped on one session clock from 3600 s (a DAQ program's)",
+    )
+    ap.add_argument(
+        "--paired",
+        action="store_true",
+        help="each case characterized once and diagnosed twice, with the runs' metadata and with it cut (the same "
+        "runs, each with its own fit --base): both matrices, and each row's difference in points (with --no-batch)",
     )
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
     ap.add_argument(
@@ -479,6 +528,11 @@ def main() -> None:
         a.minimal = "stamped"
         if a.follow:
             raise SystemExit("--follow with --stamped: the next plan's runs would be stamped on the first runs' clock")
+    if a.paired and (a.minimal or a.follow or a.gain or not (a.no_batch or a.matrix_from)):
+        raise SystemExit(
+            "--paired diagnoses each case with its metadata and cut: with --no-batch (or --matrix-from), "
+            "not with --minimal, --stamped, --follow or --gain"
+        )
     if a.keep is not None and (a.follow or a.gain or not a.no_batch):
         raise SystemExit("--keep diagnoses kept runs again: with --no-batch, not with --follow or --gain")
     if a.follow and a.gain:
@@ -508,6 +562,13 @@ def main() -> None:
             f"--effects: {', '.join(unknown)} not hidden by --rig {a.rig} (expected none or one of: "
             f"{', '.join(sorted(known))}; two joined by +)"
         )
+    if a.matrix_from and a.paired:  # both matrices of a record, over the seeds recorded both ways
+        kept = {(r[0], r[4], r[5]): r[:3] for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig}
+        both = sorted({(e, s) for e, s, m in kept if m is True} & {(e, s) for e, s, m in kept if m is False})
+        seeds = sorted({s for _, s in both})
+        over = f"{len(seeds)} seeds ({_ranges(seeds)})"
+        print_paired(a.rig, hidden, [kept[(*k, False)] for k in both], [kept[(*k, True)] for k in both], over, None)
+        return
     if a.matrix_from:  # the matrix of results recorded earlier (a run stopped part way, or several joined)
         results = [r for r in _read_results(a.matrix_from) if r[0] in hidden and r[3] == a.rig and r[5] == a.minimal]
         if a.follow:  # the matrix after the next plan, of the cases recorded with --follow
@@ -522,6 +583,22 @@ def main() -> None:
     from piezopress.pipelines.batch import dask_available
 
     followed = []
+    if a.paired:
+        full, cut = [], []
+        with ProcessPoolExecutor(a.workers) as pool:
+            cases = [(*j, a.keep) for j in jobs]
+            for k, (job, (rf, rc)) in enumerate(zip(jobs, pool.map(one_paired, cases)), 1):
+                full.append(rf[:3])
+                cut.append(rc[:3])
+                _record(a.record, job, rf[:3], False, rf[3])
+                _record(a.record, job, rc[:3], True, rc[3])
+                print(
+                    f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(rf[1])} (metadata cut: {', '.join(rc[1])})",
+                    file=sys.stderr,
+                )
+        over = f"{a.seeds} seeds per row" + (f", the plan {a.plan.name} in place of the default" if a.plan else "")
+        print_paired(a.rig, hidden, full, cut, over, (time.perf_counter() - start, 2 * len(jobs), a.workers))
+        return
     if a.no_batch or a.follow or not dask_available():
         if not (a.no_batch or a.follow):
             print("Dask is not installed: one process pool instead (pip install 'piezopress[fleet]')", file=sys.stderr)
@@ -598,6 +675,49 @@ def _ranges(seeds: list[int]) -> str:
     return ", ".join(out)
 
 
+def row_rate(h: str, rows: list[tuple]) -> float:
+    """A row's figure against its target (%): a pair, both named (target 90); one effect, it named
+    and nothing else (95); clean (``none``), nothing named (95). NaN without a seed."""
+    if not rows:
+        return float("nan")
+    parts = h.split("+")
+    if len(parts) > 1:
+        return 100.0 * sum(1 for r in rows if set(parts) <= set(r[1])) / len(rows)
+    return 100.0 * sum(1 for r in rows if tuple(r[1]) == (h,)) / len(rows)
+
+
+#: How far apart the matrices with the metadata and with it cut may lie (points; issue 20).
+PAIRED_POINTS = 5.0
+
+
+def print_paired(rig_id: str, hidden: list[str], full: list[tuple], cut: list[tuple], over: str, timing) -> bool:
+    """``--paired``: the matrix with the runs' metadata, the matrix of the same runs with it cut,
+    and per row both figures and their difference. Returns whether every row is within
+    :data:`PAIRED_POINTS`."""
+    print_matrix(rig_id, hidden, full, over + ", with the metadata characterize wrote", None)
+    print()
+    print_matrix(
+        rig_id, hidden, cut, over + ", the same runs with the metadata cut to the four required fields", timing
+    )
+    print()
+    width = max(len(h) for h in hidden)
+    print(f"Each row with the metadata and cut (the same runs; a pair: both named; within {PAIRED_POINTS:.0f} points?)")
+    print(f"{'':<{width}}  {'metadata %':>10} {'cut %':>6} {'points':>7}")
+    ok = True
+    for h in hidden:
+        a, b = row_rate(h, [r for r in full if r[0] == h]), row_rate(h, [r for r in cut if r[0] == h])
+        if not (np.isfinite(a) and np.isfinite(b)):
+            print(f"{h:<{width}}  (no seed diagnosed both ways)")
+            ok = False
+            continue
+        near = bool(abs(a - b) <= PAIRED_POINTS)
+        ok &= near
+        far = f"   more than {PAIRED_POINTS:.0f} points apart"
+        print(f"{h:<{width}}  {a:10.0f} {b:6.0f} {b - a:+7.0f}" + ("" if near else far))
+    print(f"{'' if ok else 'NOT '}within {PAIRED_POINTS:.0f} points on every row")
+    return ok
+
+
 def print_matrix(rig_id: str, hidden: list[str], results: list[tuple], over: str, timing: tuple | None) -> None:
     """The confusion matrix of ``results`` ((hidden effect, causes named, gain of the hidden cause))."""
     singles = [p for h in hidden for p in h.split("+")]
@@ -628,7 +748,7 @@ def print_matrix(rig_id: str, hidden: list[str], results: list[tuple], over: str
             continue
         parts = h.split("+")
         if len(parts) > 1:  # a pair: both named (alone: and nothing else); the target is 90 %
-            both = 100.0 * sum(1 for r in rows if set(parts) <= set(r[1])) / len(rows)
+            both = row_rate(h, rows)
             alone_ = 100.0 * sum(1 for r in rows if set(r[1]) == set(parts)) / len(rows)
             print(
                 f"{h:<{width}}  "
@@ -637,8 +757,7 @@ def print_matrix(rig_id: str, hidden: list[str], results: list[tuple], over: str
             )
             ok &= both >= 90.0
             continue
-        alone = (h,) if h != "none" else ("none",)
-        found = 100.0 * sum(1 for r in rows if r[1] == alone) / len(rows)
+        found = row_rate(h, rows)
         gains = [r[2] for r in rows if np.isfinite(r[2])]
         med = f"{np.median(gains):14.0f}" if gains and h != "none" else f"{'-':>14}"
         print(f"{h:<{width}}  " + " ".join(f"{c:>10}" for c in counts) + f" {found:8.0f} {med}   ({len(rows)} seeds)")

@@ -213,3 +213,149 @@ def test_an_effect_the_press_cannot_hide_is_refused_before_any_case_runs(monkeyp
     with pytest.raises(SystemExit, match="hum not hidden by --rig ours"):
         bd.main()
     assert not ran
+
+
+def _paired_fakes(bd, monkeypatch, tmp_path):
+    """``--paired`` on fakes: characterize copies two sample runs and cuts them as ``--minimal``
+    does; ``fit --base`` records the runs it fitted; ``diagnose`` names a delay on the cut runs and
+    a delay and a log creep on the full ones, and checks that it meets the base of its own runs."""
+    import sys
+
+    from piezopress.pipelines import bundle as B
+    from piezopress.pipelines import diagnose as D
+    from piezopress.pipelines import fit as F
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from foreign import foreign_dir
+
+    calls: dict[str, list] = {"characterized": [], "fitted": [], "diagnosed": []}
+
+    def played(out, rig, effect, seed, minimal):
+        assert minimal is True  # the pair is characterized once, the cut made from it
+        calls["characterized"].append(out)
+        out.mkdir(parents=True)
+        for n in ("triangle-0.1hz", "creep-150v"):
+            shutil.copy(ROOT / "sample_runs" / "characterization" / f"{n}.parquet", out / f"{n}.parquet")
+        return foreign_dir(out, out.with_name(out.name + "-minimal")), None
+
+    def fit(dirs, base):
+        calls["fitted"].append([Path(d) for d in dirs])
+        return type("R", (), {"doc": {"runs": [str(d) for d in dirs]}})
+
+    def diagnose(dirs, bundle, out):
+        calls["diagnosed"].append(Path(dirs[0]))
+        assert json.loads(Path(bundle).read_text(encoding="utf-8"))["runs"] == [str(dirs[0])]  # its own base
+        cut = Path(dirs[0]).name.endswith("-minimal")
+        causes = ("input_delay",) if cut else ("input_delay", "logarithmic_creep")
+
+        class Result:
+            findings = [type("F", (), {"cause": c, "gain_pct": 50.0})() for c in causes]
+
+        return Result, None
+
+    monkeypatch.setattr(bd, "_characterized_on", played)
+    monkeypatch.setattr(F, "fit_bundle", fit)
+    monkeypatch.setattr(B, "write_document", lambda doc, path: Path(path).write_text(json.dumps(doc)))
+    monkeypatch.setattr(D, "diagnose", diagnose)
+    return calls
+
+
+def test_paired_diagnoses_one_characterization_with_its_metadata_and_cut(tmp_path, monkeypatch):
+    """``--paired``: the case is characterized once; the runs as characterize wrote them and their
+    cut copy are each fitted and diagnosed, each against its own base, and returned (full, cut).
+    Kept, a later bench diagnoses both again without characterizing or fitting; a kept full case
+    whose runs are not the cut case's is no pair and says so instead of being counted as one."""
+    bd = _bench()
+    calls = _paired_fakes(bd, monkeypatch, tmp_path)
+    keep = tmp_path / "keep"
+    full, cut = bd.one_paired(("ours", "input_delay", 3, str(keep)))
+    assert full[1] == ("input_delay", "logarithmic_creep") and cut[1] == ("input_delay",)
+    assert len(calls["characterized"]) == 1
+    char = calls["characterized"][0]
+    assert calls["fitted"] == [[char.with_name("char-minimal")], [char]]
+    assert calls["diagnosed"] == [char.with_name("char-minimal"), char]
+    full_case = bd.kept_case(keep, "ours", "input_delay", 3, False)
+    assert Path((full_case / "runs").read_text(encoding="utf-8")) == char and (full_case / "base.json").is_file()
+
+    again = bd.one_paired(("ours", "input_delay", 3, str(keep)))
+    assert [r[1] for r in again] == [full[1], cut[1]]
+    assert len(calls["characterized"]) == 1 and len(calls["fitted"]) == 2 and len(calls["diagnosed"]) == 4
+
+    (full_case / "runs").write_text(str(tmp_path / "other-runs"), encoding="utf-8")  # runs of another draw
+    other, cut_again = bd.one_paired(("ours", "input_delay", 3, str(keep)))
+    assert other[1][0].startswith("error: not a pair") and "other-runs" in other[1][0]
+    assert cut_again[1] == cut[1]
+
+    none_kept = bd.one_paired(("ours", "none", 4, None))  # without --keep: a temporary pair, as many calls
+    assert [r[1] for r in none_kept] == [full[1], cut[1]] and len(calls["characterized"]) == 2
+
+
+class _InProcess:
+    """A process pool that runs its map in this process (the fakes are patched here)."""
+
+    def __init__(self, workers):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def map(self, fn, cases):
+        return map(fn, cases)
+
+
+def test_paired_prints_both_matrices_and_the_rows_more_than_5_points_apart(tmp_path, monkeypatch, capsys):
+    """The bench prints the matrix with the metadata, the matrix of the same runs cut, and each
+    row's two figures and difference, naming a row more than 5 points apart; both diagnoses are
+    recorded, and ``--matrix-from --paired`` prints the same comparison from the record."""
+    import pytest
+
+    bd = _bench()
+    named = {  # (effect, seed): (with the metadata, cut)
+        ("input_delay", 0): (("input_delay",), ("input_delay",)),
+        ("input_delay", 1): (("input_delay",), ("input_delay", "logarithmic_creep")),
+        ("none", 0): (("none",), ("none",)),
+        ("none", 1): (("none",), ("none",)),
+    }
+
+    def paired(args):
+        rig, effect, seed, keep = args
+        return tuple(
+            (effect, n, 60.0 if effect != "none" else float("nan"), "poles", None) for n in named[effect, seed]
+        )
+
+    monkeypatch.setattr(bd, "one_paired", paired)
+    monkeypatch.setattr(bd, "ProcessPoolExecutor", _InProcess)
+    record = tmp_path / "rows.jsonl"
+    argv = ["bench_diagnose.py", "--rig", "ours", "--no-batch", "--paired", "--seeds", "2"]
+    monkeypatch.setattr("sys.argv", [*argv, "--effects", "input_delay", "none", "--record", str(record)])
+    bd.main()
+    out = capsys.readouterr().out
+    assert "with the metadata characterize wrote" in out and "the same runs with the metadata cut" in out
+    table = out[out.index("Each row with the metadata and cut") :]
+    lines = {ln.split()[0]: ln for ln in table.splitlines()[2:] if ln.strip()}
+    assert (
+        lines["input_delay"].split()[1:4] == ["100", "50", "-50"] and "more than 5 points apart" in lines["input_delay"]
+    )
+    assert lines["none"].split()[1:4] == ["100", "100", "+0"] and "apart" not in lines["none"]
+    assert "NOT within 5 points on every row" in table
+    rows = [json.loads(ln) for ln in record.read_text(encoding="utf-8").splitlines()]
+    assert len(rows) == 8 and sum(bool(r.get("minimal")) for r in rows) == 4
+
+    monkeypatch.setattr(
+        "sys.argv", [*argv[:3], "--paired", "--effects", "input_delay", "none", "--matrix-from", str(record)]
+    )
+    bd.main()
+    again = capsys.readouterr().out
+    assert again[again.index("Each row with the metadata and cut") :] == table
+    assert "2 seeds (0-1)" in again
+
+    for bad in (["--minimal"], ["--follow"]):
+        monkeypatch.setattr("sys.argv", [*argv, *bad])
+        with pytest.raises(SystemExit, match="--paired"):
+            bd.main()
+    monkeypatch.setattr("sys.argv", ["bench_diagnose.py", "--paired"])  # the Dask batch path: not paired
+    with pytest.raises(SystemExit, match="with --no-batch"):
+        bd.main()
