@@ -343,10 +343,13 @@ def _delay_by_rate_contrast(ctx: Context) -> Finding | None:
 
 
 def _judge_samples(ctx: Context, fit, held, ext, n: float, base, rates: list[float], moved: str = "") -> Finding | None:
-    """The finding of a delay of ``n`` samples at every rate (what each run's rate makes of it)."""
-    fs = ctx.steps()[0].fs_hz if ctx.steps() else rates[0]
+    """The finding of a delay of ``n`` samples at every rate (what each run's rate makes of it),
+    read in time at the steps' slowest rate, where it is longest (the rate of the first step
+    before stop 93, which the order of the steps decided)."""
+    steps = ctx.steps()
+    fs = min(r.fs_hz for r in steps) if steps else rates[0]
     if n / fs <= CHAIN_LAG_S:
-        return None  # no longer than the chain's own lag at the steps' rate
+        return None  # no longer than the chain's own lag at the steps' slowest rate
     at = ", ".join(f"{1e3 * n / r:.3g} ms at {r / 1e3:g} kHz" for r in rates)
     ev = (
         f"the whole response lags the model by {n:.3g} samples at every sample rate ({at}): a delay counted "
