@@ -14,12 +14,13 @@ STRUCTURE_OPT = $(if $(STRUCTURE),--structure '$(STRUCTURE)',)
 SAMPLES ?= sample_runs
 REPORT ?= report
 
-.PHONY: demo test test-all lint bench clean help refit report sample-runs expected-metrics
+.PHONY: demo test test-integration test-all lint bench clean help refit report sample-runs expected-metrics
 
 help:
 	@echo "make demo      build the environment; characterize, fit, validate, diagnose and report on the virtual rig"
-	@echo "make test      build the environment and run the fast test suite"
-	@echo "make test-all  also run the slow tests"
+	@echo "make test      build the environment and run the fast test suite (under 5 minutes on 2 cores)"
+	@echo "make test-integration   the chains on whole presses and real data sets (CI runs them too)"
+	@echo "make test-all  every test: the fast suite, the integration tests and the slow tests"
 	@echo "make lint      ruff check (the rules in pyproject.toml; CI runs it)"
 	@echo "make bench     run the benchmark scripts in bench/"
 	@echo "make refit RUNS=dir   rebuild $(BUILD)/bundle.json from a run directory; only stages whose inputs changed"
@@ -43,6 +44,11 @@ demo: $(STAMP)
 TEST_WORKERS ?= auto
 test: $(STAMP)
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
+
+# The chains on whole simulated presses and the real data sets (marked integration): CI runs them
+# after the fast suite.
+test-integration: $(STAMP)
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope -m 'integration and not slow'
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -87,6 +87,7 @@ def _series(c, fs):
     return mode_fit.lowpass_delayed(c, fs, (2 * math.pi * 1500.0, 0.7, 1.0e-4))
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(("ratio", "zz"), [(2.3, 0.15), (3.5, 0.05)])
 def test_an_antiresonance_is_named_through_the_drive_chain(ratio, zz):
     """Steps through a low-pass and a delay in series, the mode with zeros above it: the series
@@ -104,6 +105,7 @@ def test_an_antiresonance_is_named_through_the_drive_chain(ratio, zz):
     assert shown < (1 - mode_fit.ANTIRESONANCE_MARGIN) * found.candidates["lowpass_delay"]
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     "make",
     [

@@ -33,6 +33,7 @@ def test_a_press_of_the_pi_family_keeps_the_thesis_structure(sample_base_bundle)
     assert fit["model"]["family"] == "modified_pi"
 
 
+@pytest.mark.integration
 def test_a_loop_of_another_family_gets_the_searched_structure_and_a_base_that_fits_it(tmp_path):
     press = tp.clean_press(np.random.default_rng([0, 97]))
     char.characterize(tmp_path / "char", backend=press)

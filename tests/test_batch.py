@@ -71,6 +71,7 @@ def test_read_presses_from_a_manifest_csv(tmp_path):
         B.read_presses(str(tmp_path / "nothing-*"))
 
 
+@pytest.mark.integration
 def test_batch_fit_serially_rows_say_why_and_bundles_equal_the_single_press_fit(tmp_path):
     presses = B.read_presses(str(_presses(tmp_path / "in") / "press-*"))
     res = B.run_batch(presses, "fit", tmp_path / "out", serial=True)
@@ -104,6 +105,7 @@ def test_batch_fit_serially_rows_say_why_and_bundles_equal_the_single_press_fit(
     assert list((tmp_path / "out").glob("press-a.replaced-*"))
 
 
+@pytest.mark.integration
 def test_batch_on_a_local_dask_cluster_gives_the_serial_rows(tmp_path):
     pytest.importorskip("dask.distributed")
     _presses(tmp_path / "in")

@@ -308,6 +308,7 @@ def third_char(tmp_path_factory):
     return out, [runformat.read_run(p) for p in sorted(out.glob("*.parquet"))]
 
 
+@pytest.mark.integration
 def test_the_below_rest_run_is_told_from_the_signals_and_kept_where_the_model_draws_both(third_char, monkeypatch):
     _, runs = third_char
     sweeps = identification.quasi_static_sweeps(runs)
@@ -323,6 +324,7 @@ def test_the_below_rest_run_is_told_from_the_signals_and_kept_where_the_model_dr
     assert [r.name for r in kept] == [r.name for r in sweeps if r.name not in names] and "left out" in why, why
 
 
+@pytest.mark.integration
 def test_base_and_diagnose_keep_to_the_range_the_thesis_model_was_fitted_on(third_char, tmp_path):
     from piezopress.pipelines import bundle as B
     from piezopress.pipelines import diagnose as D

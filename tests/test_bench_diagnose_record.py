@@ -10,6 +10,8 @@ import json
 import shutil
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -131,6 +133,7 @@ def test_follow_plays_the_next_plan_on_the_same_press_and_refits_only_where_aske
     assert len(calls["played"]) == 2  # no plan: nothing played
 
 
+@pytest.mark.integration
 def test_keep_diagnoses_the_kept_runs_and_base_again_without_characterizing_or_fitting(tmp_path, monkeypatch):
     """``--keep``: the first bench characterizes and fits into the kept case; a later one (changed
     diagnosis code) diagnoses those very runs against that very base, and names what the first did.
@@ -170,6 +173,7 @@ def test_keep_diagnoses_the_kept_runs_and_base_again_without_characterizing_or_f
     assert len(cases) == 6
 
 
+@pytest.mark.integration
 def test_a_case_stopped_part_way_is_characterized_again_into_a_fresh_directory(tmp_path, monkeypatch):
     """A bench stopped while a case was characterizing leaves its runs without a base: the next bench
     with ``--keep`` plays that case again, and ``characterize`` refuses a directory that exists (so the

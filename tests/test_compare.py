@@ -104,6 +104,7 @@ def test_an_extension_that_hurts_a_row_is_never_recommended():
     assert ab.recommend([ab.Candidate("e", ("a",), {"r": ab.SAME})]).reasons["e"].startswith("left out: no row")
 
 
+@pytest.mark.integration
 def test_the_rows_of_one_comparison_are_judged_together():
     """A/A over ten rows of three repeats (the second test press's spreads, 1-15 % of the mean):
     judged row by row, some row differs in about one comparison in six (16 % of 1000); judged
@@ -226,6 +227,7 @@ def test_compare_cli_prints_the_table_and_the_report_shows_it(tmp_path):
 # --------------------------------------------------------------------------- diagnose --gain on the press
 
 
+@pytest.mark.integration
 def test_diagnose_gain_on_the_press_leaves_out_an_extension_that_hurts_there(tmp_path):
     """On the sample press the log-creep extension halves the creep but widens the 0.1 Hz
     loop: measured on the press, it is not recommended, and the extended bundle says what the

@@ -453,6 +453,7 @@ def test_the_random_force_plan_is_a_band_limited_trajectory_between_its_bounds()
 # --------------------------------------------------------------------------- end to end
 
 
+@pytest.mark.integration
 def test_the_slew_extension_gains_on_the_press(tmp_path):
     # one pass, the slew limit alone tried: overshoot and the 50 Hz loop recover; the other rows stay
     cfg = G.effect_rig("amplifier_slew_limit", seed=3)

@@ -19,6 +19,8 @@ from piezopress.pipelines import summary
 ROOT = Path(__file__).resolve().parents[1]
 from conftest import DATASETS, needs_datasets  # noqa: E402
 
+pytestmark = pytest.mark.integration
+
 
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory):

@@ -65,6 +65,7 @@ def test_a_bundle_round_trips_the_spectrum_form():
     assert C.CreepModel.from_dict(m.to_dict()) == m
 
 
+@pytest.mark.integration
 def test_fit_keeps_creep_when_no_form_agrees_with_the_sweeps(tmp_path, monkeypatch):
     """Issue 19: an imperfect loop model vetoed a 1.8 % creep that the hold measures; now the
     creep is kept from the hold alone (the spectrum, no alternation), and the reason says why."""
@@ -96,6 +97,7 @@ def test_two_poles_cancelling_each_other_are_no_creep():
     assert C.MAX_PLAUSIBLE_ELEMENT_GAIN == 1.0
 
 
+@pytest.mark.integration
 def test_where_the_creep_is_kept_from_the_hold_fit_refits_the_loop_in_its_own_structure(tmp_path, monkeypatch):
     """The first loop holds the sweeps' own creep, so the hold's creep after it counts it twice.
     fit fits the loop again with that creep removed, in the structure its search chose (searched

@@ -64,6 +64,7 @@ def test_which_runs_the_slew_reaches():
     }
 
 
+@pytest.mark.integration
 def test_a_delay_that_lags_every_run_is_named_beside_the_slew():
     runs = _read(_runs(), lambda r: replace(BASE, delay_s=DELAY_S))
     f = ID.cause_input_delay(_context(runs))
@@ -79,6 +80,7 @@ def _found_beside_the_slew() -> tuple[Context, object]:
     return ctx, found
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("gains", "refused"),
     [

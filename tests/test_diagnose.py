@@ -6,9 +6,10 @@ base model, runs diagnose, and asserts that the top finding names the hidden cau
 held-out gain above `MIN_TEST_GAIN_PCT`. The clean rig must give no findings; two hidden
 effects at once must both be found.
 
-Each diagnosis takes 15-45 s: the fast suite keeps one hidden effect on this rig (the delay,
-through the CLI: :func:`test_cli_diagnose_json_progress_and_simulate`) and one on the second
-press (``tests/test_diagnose_second_rig.py``); the rest are marked slow (``make test-all``),
+Each diagnosis takes 15-45 s: the integration tests (``make test-integration``, which CI runs after
+the fast suite) keep one hidden effect on this rig (the delay, through the CLI:
+:func:`test_cli_diagnose_json_progress_and_simulate`) and one on the second press
+(``tests/test_diagnose_second_rig.py``); the rest are marked slow (``make test-all``),
 and ``bench/bench_diagnose.py`` is the full measurement over 20 seeds.
 """
 
@@ -134,8 +135,9 @@ def test_unexplained_structure_is_listed_not_named():
     assert lines[at + 1].startswith("        tone: "), lines[at : at + 2]
 
 
+@pytest.mark.integration
 def test_cli_diagnose_json_progress_and_simulate(tmp_path):
-    """The representative hidden effect of this rig in the fast suite: a 0.3 ms delay named
+    """The representative hidden effect of this rig in the integration tests: a 0.3 ms delay named
     alone, its value recovered, through the CLI (--json: the document on stdout, the human
     text on stderr)."""
     runner = CliRunner()
@@ -281,7 +283,7 @@ def test_the_progress_printer_draws_a_line_per_cause_on_a_terminal(monkeypatch):
 from conftest import DATASETS, needs_datasets  # noqa: E402
 
 
-@pytest.mark.slow  # test_diagnose_coverage.py diagnoses both shared data sets in the fast suite
+@pytest.mark.slow  # test_diagnose_coverage.py diagnoses both shared data sets in the integration tests
 @needs_datasets("smarthysteresis")
 def test_diagnose_runs_on_real_data_and_reports_in_its_unit(tmp_path):
     runner = CliRunner()

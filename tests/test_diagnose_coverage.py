@@ -270,6 +270,7 @@ def test_no_plan_when_every_cause_was_tested_and_imported_runs_assume_the_defaul
 # --------------------------------------------------------------------------- duplicate names
 
 
+@pytest.mark.integration
 def test_runs_that_share_a_name_never_crash(tmp_path):
     """Two segments imported from one file get the same default name (its stem): 2200 and
     1800 rows, as Test_Vi_Do_Di.dat's two compensated segments."""
@@ -483,6 +484,7 @@ IMPORTS = {
 }
 
 
+@pytest.mark.integration
 @needs_datasets()
 @pytest.mark.parametrize("name", list(IMPORTS))
 def test_on_the_shared_data_sets_diagnose_says_what_it_tested_what_not_why_and_the_next_plan(tmp_path, name):

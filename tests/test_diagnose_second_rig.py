@@ -29,7 +29,7 @@ from piezopress.resources import shipped
 
 HERE = Path(__file__).resolve().parent
 SEED = 20261122
-#: One representative runs in the fast suite; the rest are marked slow (``make test-all``).
+#: One representative runs with the integration tests (CI); the rest are marked slow (``make test-all``).
 FAST = ("rate_dependent_hysteresis",)
 
 
@@ -67,6 +67,7 @@ def test_the_clean_second_press_gives_no_finding(tmp_path):
     assert result.summary.startswith("No")
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("effect", [pytest.param(e, marks=() if e in FAST else pytest.mark.slow) for e in dg.CAUSES])
 def test_a_cause_hidden_in_the_second_press_is_named_alone(tmp_path, effect):
     rng = np.random.default_rng([SEED, list(dg.CAUSES).index(effect)])

@@ -245,6 +245,7 @@ def _sweep_runs(noise: float, seed: int = 4, s_curve_n: float = 0.0):
     return runs
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     ("noise", "s_curve_n", "thesis_kept"), [(0.3, 0.0, True), (0.005, 0.0, False), (0.1, 20.0, True)]
 )

@@ -72,6 +72,7 @@ def runs():
     return [foreign_run(runformat.read_run(CHAR / f"{n}.parquet"), custom=True) for n in names]
 
 
+@pytest.mark.integration
 def test_the_structure_given_is_the_one_fitted_recorded_and_in_the_digest(runs):
     label = "n=6 gamma=2 m=2"
     found = ident.identify(runs, structure=label)

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from test_delay_beside_slew import _runs  # the steps and triangles of 0-150 V at 20 kHz
 
 from piezopress.analysis import diagnosis as dg
@@ -41,6 +42,7 @@ def test_the_chain_the_base_holds_is_said_with_its_figures():
     assert held_slew(CHAINED) == ""
 
 
+@pytest.mark.integration
 def test_a_press_lagging_by_its_own_chain_reads_not_found_beyond_what_the_base_holds():
     rng = np.random.default_rng(5)
     runs = []

@@ -147,6 +147,7 @@ def test_json_prints_an_error_object_on_failure(tmp_path):
     assert "empty" in doc["error"] and doc["type"], res.output
 
 
+@pytest.mark.integration
 def test_diagnose_with_a_base_bundle_without_a_mode_tests_every_cause_without_a_traceback(tmp_path):
     """Issue 24: `fit --base` on steps of 50-150 V only prints "shaper: not fitted"; diagnose
     with that bundle crashed in the slew limit's fit (`ext.slew_v_per_s` None)."""

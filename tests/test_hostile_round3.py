@@ -288,6 +288,7 @@ def test_a_diagnosis_killed_outright_stays_running_and_is_not_taken_for_finished
     assert diag.read_status(out)[0] == diag.COMPLETE
 
 
+@pytest.mark.integration
 def test_a_sigterm_during_diagnose_marks_the_directory_interrupted(tmp_path):
     import signal
     import subprocess
@@ -525,6 +526,7 @@ def test_mixes_of_presses_generated_are_refused_exactly_when_two_presses_meet(se
         check_one_rig(runs)
 
 
+@pytest.mark.integration
 def test_report_refuses_another_press_diagnosis_unless_allowed(tmp_path):
     from piezopress import runformat
     from piezopress.pipelines.sources import rig_identity

@@ -38,6 +38,7 @@ def identified(foreign_runs):
     return found, stages
 
 
+@pytest.mark.integration
 def test_each_section_is_informed_by_the_runs_its_signals_suit(identified):
     found, stages = identified
     assert set(found.sections) == {"hysteresis", "creep", "shaper"} and not found.not_fitted
@@ -51,6 +52,7 @@ def test_each_section_is_informed_by_the_runs_its_signals_suit(identified):
     assert found.drive_v[0] == pytest.approx(0.0, abs=1.0) and found.drive_v[1] == pytest.approx(150.0, abs=1.0)
 
 
+@pytest.mark.integration
 def test_the_entry_point_returns_a_checked_bundle_that_compensates(identified):
     found, _ = identified
     bundle = found.bundle()
@@ -64,6 +66,7 @@ def test_the_entry_point_returns_a_checked_bundle_that_compensates(identified):
     assert np.max(np.abs(back - ref)) < 0.05  # N, on a 120 N swing
 
 
+@pytest.mark.integration
 def test_the_pipeline_writes_the_sections_the_entry_point_fits(tmp_path, identified):
     """`fit` (pipelines.fit.fit_all) adds provenance only: its models are the entry point's."""
     from piezopress.pipelines import fit as F

@@ -98,6 +98,7 @@ def chains(tmp_path_factory):
     return {name: _chain(IndependentPress(**kw), tmp_path_factory.mktemp(name)) for name, kw in EFFECTS.items()}
 
 
+@pytest.mark.integration
 def test_the_chain_works_on_a_press_it_did_not_make(chains):
     uncompensated, compensated = chains["clean"]
     # measured: uncompensated 9.91 / 8.16 / 9.29 % (full, increasing, random);
@@ -108,6 +109,7 @@ def test_the_chain_works_on_a_press_it_did_not_make(chains):
     assert max(v for k, v in compensated.items() if k != "tri-75n-0.1hz") <= 1.0
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("effect", ["delay", "rate"])
 def test_fast_effects_do_not_leak_into_the_static_compensation(chains, effect):
     # Compensated 0.1 Hz max hysteresis, % (75, 150, 225, 300 N, increasing, random):

@@ -17,6 +17,8 @@ from conftest import import_args, needs_datasets
 
 from piezopress.piezocli.main import cli
 
+pytestmark = pytest.mark.integration
+
 ROOT = Path(__file__).resolve().parents[1]
 BUNDLE = ROOT / "sample_runs" / "bundle.json"
 CHAR_SWEEP = ROOT / "sample_runs" / "characterization" / "triangle-0.1hz.parquet"

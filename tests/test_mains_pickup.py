@@ -105,6 +105,7 @@ def _with_hum(src: Path, dst: Path, amp: float, hz: float, seed: int = 0) -> Pat
     return dst
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("hz", [50.0, 60.0])
 def test_diagnose_names_a_hum_added_to_the_reading(tmp_path, sample_base_bundle, hz):
     from piezopress.pipelines import diagnose as D

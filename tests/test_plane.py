@@ -399,6 +399,7 @@ def _sweeps(out_of):
     return [(name, v, out_of(v)) for name, v in drives]
 
 
+@pytest.mark.integration
 def test_the_family_search_draws_a_preisach_loop_the_plays_cannot():
     import third_press as tp
 
@@ -440,6 +441,7 @@ def test_the_fleet_row_names_the_family():
     assert _bundle_figures(pi)["model_family"] == "modified Prandtl-Ishlinskii"
 
 
+@pytest.mark.integration
 def test_fit_sweeps_reports_the_family_it_chose(monkeypatch):
     """With creep kept, the hysteresis is refitted on the chosen structure: the family and why it
     won are the first search's, never 'no other family tried'."""

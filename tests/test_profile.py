@@ -359,6 +359,7 @@ def test_diagnose_names_the_same_causes_with_full_and_minimal_metadata_on_the_se
     assert named["full"] == named["custom"] and effect in named["full"], named
 
 
+@pytest.mark.integration
 def test_without_the_monitor_column_the_mode_is_the_rigs(tmp_path):
     """Issue 18: no channel beyond the required ones is needed. Without ``monitor_v`` the
     drive chain is identified with the mode: the virtual rig's mode (6440 rad/s, damping
@@ -401,6 +402,7 @@ def test_without_the_monitor_column_the_second_press_mode_and_no_finding(tmp_pat
     assert [f.cause for f in result.findings] == []
 
 
+@pytest.mark.integration
 @needs_datasets("smarthysteresis", "aye-ang-2018")
 @pytest.mark.parametrize("which", ["smart", "aye"])
 def test_the_real_data_sets_fit_and_diagnose_the_same_with_full_and_minimal_metadata(tmp_path, which):

@@ -196,6 +196,7 @@ def test_every_writer_refuses_then_replaces_keeping_the_old_version(command, tmp
     assert kept[1].read_bytes() != b"precious"
 
 
+@pytest.mark.integration
 def test_report_replaced_twice_keeps_both_old_reports(tmp_path):
     out = tmp_path / "r"
     assert invoke("report", "--bundle", BUNDLE, "--out", out)[0] == 0

@@ -133,6 +133,7 @@ def read_metrics(path):
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.integration
 def test_writes_every_file_and_prints_the_table_and_the_page(full):
     out, output = full
     for name in (
@@ -168,6 +169,7 @@ def test_writes_every_file_and_prints_the_table_and_the_page(full):
         assert section in md, section
 
 
+@pytest.mark.integration
 def test_metrics_csv_is_byte_identical_for_the_same_inputs(inputs, full, tmp_path):
     out, _ = full
     res = invoke(
@@ -185,6 +187,7 @@ def test_metrics_csv_is_byte_identical_for_the_same_inputs(inputs, full, tmp_pat
     assert (tmp_path / "again" / "metrics.csv").read_bytes() == (out / "metrics.csv").read_bytes()
 
 
+@pytest.mark.integration
 def test_metrics_csv_layout(full):
     out, _ = full
     text = (out / "metrics.csv").read_text()
@@ -213,6 +216,7 @@ def test_metrics_csv_layout(full):
     )
 
 
+@pytest.mark.integration
 def test_table_6_13_equals_the_summary_tables(inputs, full):
     """The 6.13 figures are the summary tables' values (to the %.6g of the file: rel 1e-5)."""
     out, _ = full
@@ -243,6 +247,7 @@ def test_table_6_13_equals_the_summary_tables(inputs, full):
     assert [(r["test"], r["metric"]) for r in detail] == list(zip(c.run, c.metric)) + list(zip(v.run, v.metric))
 
 
+@pytest.mark.integration
 def test_html_is_self_contained(full):
     out, _ = full
     page = (out / "report.html").read_text()
@@ -255,12 +260,14 @@ def test_html_is_self_contained(full):
     assert "Table 6.13" in page and "Model quality" in page
 
 
+@pytest.mark.integration
 def test_a_run_that_does_not_suit_its_metric_is_listed(full):
     out, output = full
     md = (out / "report.md").read_text()
     assert "tri-75n-0.1hz: does not suit its metric" in md and "tri-75n-0.1hz: does not suit its metric" in output
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(
     "given, expected, absent",
     [
@@ -297,6 +304,7 @@ def test_missing_pieces_are_said_not_crashed_on(inputs, tmp_path, given, expecte
         assert "Model quality" in md and (tmp_path / "r" / "model_residuals.png").is_file()
 
 
+@pytest.mark.integration
 def test_refuses_a_non_empty_out_with_one_line(inputs, tmp_path):
     out = tmp_path / "busy"
     out.mkdir()
@@ -311,6 +319,7 @@ def test_refuses_a_non_empty_out_with_one_line(inputs, tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
 
 
+@pytest.mark.integration
 def test_replace_keeps_the_old_report_under_a_timestamped_name(inputs, tmp_path):
     out = tmp_path / "r"
     assert invoke("report", "--bundle", inputs["bundle"], "--out", out).exit_code == 0
@@ -327,6 +336,7 @@ def test_replace_keeps_the_old_report_under_a_timestamped_name(inputs, tmp_path)
     assert not list(tmp_path.glob(".*partial"))
 
 
+@pytest.mark.integration
 def test_an_empty_out_dir_is_accepted_and_inputs_are_checked(inputs, tmp_path):
     (tmp_path / "empty").mkdir()
     assert invoke("report", "--bundle", inputs["bundle"], "--out", tmp_path / "empty").exit_code == 0

@@ -96,6 +96,7 @@ def render(browser: str, page: Path, width: int, tmp_path: Path) -> dict:
     return json.loads(m.group(1).replace("&quot;", '"').replace("&amp;", "&").replace("&lt;", "<").replace("&gt;", ">"))
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("width", [1300, 900])
 def test_every_figure_loads_and_nothing_overflows_the_page(sample_report, tmp_path, width):
     browser = chromium()
@@ -156,6 +157,7 @@ def markdown_tables(text: str) -> list[list[list[str]]]:
     return tables
 
 
+@pytest.mark.integration
 def test_the_markdown_holds_the_same_tables_as_the_page(sample_report):
     parser = _Tables()
     parser.feed((sample_report / "report.html").read_text(encoding="utf-8"))
@@ -164,6 +166,7 @@ def test_the_markdown_holds_the_same_tables_as_the_page(sample_report):
     assert md == parser.tables
 
 
+@pytest.mark.integration
 def test_the_page_opens_with_the_verdict_and_links_every_section(sample_report):
     page = (sample_report / "report.html").read_text(encoding="utf-8")
     md = (sample_report / "report.md").read_text(encoding="utf-8")

@@ -47,6 +47,7 @@ def recorded_warnings(directory: Path) -> dict[str, list[str]]:
     return out
 
 
+@pytest.mark.integration
 def test_every_warning_of_the_run_metadata_is_in_the_verdict_with_its_runs_and_count(report):
     recorded = recorded_warnings(SAMPLES / "validation") | recorded_warnings(SAMPLES / "characterization")
     assert len(recorded) >= 10  # the sample set has them: shaper skipped on 9 runs, drive clipped on 5
@@ -77,6 +78,7 @@ def test_every_warning_of_the_run_metadata_is_in_the_verdict_with_its_runs_and_c
     assert "| 9 |" in verdict.replace(" ", "").replace("|9|", "| 9 |") and "989 samples" in verdict
 
 
+@pytest.mark.integration
 def test_the_verdict_rows_are_the_runs_nearest_their_targets(report):
     metrics = pd.read_csv(__import__("io").StringIO(report.metrics_csv()))
     for row in report.verdict.rows:
@@ -138,6 +140,7 @@ def test_a_figure_beyond_its_target_fails_the_verdict_with_its_margin():
     assert verdict.summary.startswith("Verdict: FAIL") and verdict.rows[0].passed is None
 
 
+@pytest.mark.integration
 def test_the_provenance_line_names_rig_backend_dates_software_and_digests(report):
     line = report.verdict.provenance
     run = runformat.read_run(SAMPLES / "validation" / "creep-300n.parquet")

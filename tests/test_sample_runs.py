@@ -25,6 +25,7 @@ def regenerated():
     return rep, pd.read_csv(io.StringIO(rep.metrics_csv()))
 
 
+@pytest.mark.integration
 def test_every_expected_metric_is_within_its_tolerance(regenerated):
     _, got = regenerated
     expected = pd.read_csv(SAMPLES / "expected_metrics.csv")
@@ -38,6 +39,7 @@ def test_every_expected_metric_is_within_its_tolerance(regenerated):
     )
 
 
+@pytest.mark.integration
 def test_metrics_csv_is_byte_identical_for_the_same_inputs(regenerated):
     rep, _ = regenerated
     again = R.build_report(

@@ -51,6 +51,7 @@ def test_the_tests_clock_orders_runs_and_never_overlaps_them():
     assert clock == {"a": 0.0, "b": pytest.approx(10.0), "c": pytest.approx(300.0)}  # b after a ends; x untimed
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("gain", [0.004, -0.006])
 def test_a_repeat_read_with_another_gain_is_named_with_its_rate(tmp_path, sample_base_bundle, gain):
     from piezopress.pipelines import diagnose as D

@@ -420,6 +420,7 @@ def test_identify_mode_validates_its_input():
         identify_mode_runs([t], [monitor, monitor], [force])
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("chain", ["delay", "first_order"])
 def test_the_drive_chain_is_told_apart_and_the_mode_found_through_it(chain):
     """Steps whose applied drive is not recorded: a pure delay (a FIFO, a filter's group delay)
@@ -456,6 +457,7 @@ def _steps_through(make, fs=20_000.0, wn=2 * np.pi * 800.0, zeta=0.06, noise=0.0
     return ts, cmds, ys
 
 
+@pytest.mark.integration
 def test_a_lowpass_and_a_delay_in_series_are_identified_apart():
     """An amplifier's and a filter's bandwidth (a second-order low-pass at 900 Hz, damping 0.8)
     and a board's latency (0.3 ms) in series: the series chain is named, its delay within 10 %
@@ -486,6 +488,7 @@ def _two_rate_steps(make, wn=2 * np.pi * 800.0, zeta=0.06, noise=0.05):
     return ts + [t], cmds + [c], ys + [y + np.random.default_rng(7).normal(0, noise, t.size)]
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize(("delay_s", "samples"), [(3.0e-4, 0.0), (0.5e-4, 2.5), (0.0, 8.0)])
 def test_steps_at_two_rates_tell_a_delay_in_samples_from_one_in_seconds(delay_s, samples):
     """A series chain (a 900 Hz low-pass, damping 0.8) whose delay is ``delay_s`` plus
@@ -524,6 +527,7 @@ def test_a_delay_in_samples_never_draws_a_negative_delay():
     )
 
 
+@pytest.mark.integration
 def test_a_pure_delay_is_not_read_as_a_lowpass_in_series():
     """Three parameters fit a pure delay at least as well as one; the margin keeps the simpler
     chain where the steps show nothing more."""
@@ -588,6 +592,7 @@ def _current_limited_amplifier(
     return signal.lfilter(np.ravel(bd), ad, out)
 
 
+@pytest.mark.integration
 def test_a_slew_limit_inside_the_chain_is_identified_with_its_lowpass():
     """A current-limited amplifier (20 V/ms) of its own bandwidth read through a filtered load
     cell: the slew alone draws the large steps' rise but fits the mode with the chain's lag as
@@ -626,6 +631,7 @@ def test_a_chain_without_a_slew_limit_is_not_given_one():
     assert found.chain == "lowpass_delay", found.candidates
 
 
+@pytest.mark.integration
 def test_the_ringing_decides_a_slew_limits_chain_where_the_residual_cannot(monkeypatch):
     """A press whose loop no chain draws leaves a residual floor that squeezes every chain's
     gain (the third test press: 1.12 N through the slew alone, 0.92 through the series). With

@@ -163,6 +163,7 @@ def test_fit_on_the_third_press_keeps_its_creep_and_finds_its_mode(tmp_path):
     assert wn == pytest.approx(2 * np.pi * press.mode_hz, rel=0.10)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("effect", ["input_delay", "hysteresis_order"])
 def test_fit_base_on_the_third_press_keeps_a_creep_it_can_fit(tmp_path, effect):
     """The thesis's creep form fitted two poles cancelling each other (a gain of 4.3e6) on a

@@ -36,6 +36,7 @@ def test_step_and_creep_metrics_do_not_depend_on_where_the_clock_starts(offset_s
     assert b.percent == pytest.approx(a.percent, rel=1e-9), "the same samples in the creep's windows"
 
 
+@pytest.mark.integration
 def test_diagnosis_does_not_depend_on_where_the_clock_starts(sample_base_bundle, tmp_path):
     """The sample runs from 0 and from 1000 s (both cut to the required metadata): the same
     causes named, with the same held-out gains. Before the fix the log creep (71 %) and the

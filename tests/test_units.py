@@ -116,6 +116,7 @@ def fitted(work, imported):
     return out
 
 
+@pytest.mark.integration
 @needs_datasets
 @pytest.mark.parametrize("base", [False, True], ids=["auto", "base"])
 @pytest.mark.parametrize("name", ["smart", "aye"])
@@ -149,6 +150,7 @@ def test_fit_from_a_sweep_alone_carries_um(fitted, name, base):
     assert (comp.creep is None) == ("creep" not in doc) and comp.shaper is None and comp.max_rate_per_s is None
 
 
+@pytest.mark.integration
 @needs_datasets
 @pytest.mark.parametrize("name", ["smart", "aye"])
 def test_displacement_predictions_are_not_clipped_at_zero(fitted, imported, name):
@@ -168,6 +170,7 @@ def test_displacement_predictions_are_not_clipped_at_zero(fitted, imported, name
         assert np.sqrt(np.mean((pred - y)[half] ** 2)) < 0.03 * np.ptp(y)  # follows the data, within 3 % of the range
 
 
+@pytest.mark.integration
 @needs_datasets
 def test_compensate_takes_a_reference_in_um(fitted, work):
     path = fitted["smart", False][0]
@@ -208,6 +211,7 @@ def test_compensate_takes_a_reference_in_um(fitted, work):
     assert res.exit_code == 1 and "reference_um" in res.output
 
 
+@pytest.mark.integration
 @needs_datasets
 def test_diagnose_a_displacement_run_reports_in_um(fitted, imported, work):
     out_dir = work / "diag-aye"
@@ -247,6 +251,7 @@ def test_diagnose_a_displacement_run_reports_in_um(fitted, imported, work):
     assert sim.data["predicted"].max() < 0  # the whole Aye-Ang record reads below zero
 
 
+@pytest.mark.integration
 @needs_datasets
 def test_report_of_a_displacement_bundle_speaks_um(fitted):
     rep = R.build_report(bundle=fitted["smart", False][0])
