@@ -42,13 +42,14 @@ demo: $(STAMP)
 # once (--dist loadscope), and each worker's OpenMP on one thread (OpenBLAS's is one already:
 # piezopress/__init__.py). TEST_WORKERS=0: one process, as plain pytest runs.
 TEST_WORKERS ?= auto
+PYTEST_XDIST = OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
 test: $(STAMP)
-	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope
+	$(PYTEST_XDIST)
 
 # The chains on whole simulated presses and the real data sets (marked integration): CI runs them
 # after the fast suite.
 test-integration: $(STAMP)
-	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadscope -m 'integration and not slow'
+	$(PYTEST_XDIST) -m 'integration and not slow'
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
