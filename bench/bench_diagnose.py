@@ -585,17 +585,15 @@ def main() -> None:
     followed = []
     if a.paired:
         full, cut = [], []
-        with ProcessPoolExecutor(a.workers) as pool:
-            cases = [(*j, a.keep) for j in jobs]
-            for k, (job, (rf, rc)) in enumerate(zip(jobs, pool.map(one_paired, cases)), 1):
-                full.append(rf[:3])
-                cut.append(rc[:3])
-                _record(a.record, job, rf[:3], False, rf[3])
-                _record(a.record, job, rc[:3], True, rc[3])
-                print(
-                    f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(rf[1])} (metadata cut: {', '.join(rc[1])})",
-                    file=sys.stderr,
-                )
+        for k, job, (rf, rc) in _each_case(one_paired, jobs, [(*j, a.keep) for j in jobs], a.workers):
+            full.append(rf[:3])
+            cut.append(rc[:3])
+            _record(a.record, job, rf[:3], False, rf[3])
+            _record(a.record, job, rc[:3], True, rc[3])
+            print(
+                f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(rf[1])} (metadata cut: {', '.join(rc[1])})",
+                file=sys.stderr,
+            )
         over = f"{a.seeds} seeds per row" + (f", the plan {a.plan.name} in place of the default" if a.plan else "")
         print_paired(a.rig, hidden, full, cut, over, (time.perf_counter() - start, 2 * len(jobs), a.workers))
         return
@@ -603,21 +601,17 @@ def main() -> None:
         if not (a.no_batch or a.follow):
             print("Dask is not installed: one process pool instead (pip install 'piezopress[fleet]')", file=sys.stderr)
         results = []
-        with ProcessPoolExecutor(a.workers) as pool:
-            cases = [(*j, a.minimal, a.follow, a.keep) for j in jobs]
-            for k, (job, r) in enumerate(zip(jobs, pool.map(one, cases)), 1):
-                results.append(r[:3])
-                # with --follow a first diagnosis that failed has nothing to follow: it counts as it stands
-                f = r[4] if r[4] is not None or not a.follow else {"played": None}
-                _record(a.record, job, r[:3], a.minimal, r[3], f)
-                line = f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(r[1])}"
-                if f is not None:
-                    after = _after(r[:3], f)
-                    followed.append(after)
-                    line += (
-                        f" -> after the next plan: {', '.join(after[1]) if f.get('played') else '(no plan: as first)'}"
-                    )
-                print(line, file=sys.stderr)
+        for k, job, r in _each_case(one, jobs, [(*j, a.minimal, a.follow, a.keep) for j in jobs], a.workers):
+            results.append(r[:3])
+            # with --follow a first diagnosis that failed has nothing to follow: it counts as it stands
+            f = r[4] if r[4] is not None or not a.follow else {"played": None}
+            _record(a.record, job, r[:3], a.minimal, r[3], f)
+            line = f"  {k}/{len(jobs)} {job[1]} seed {job[2]}: {', '.join(r[1])}"
+            if f is not None:
+                after = _after(r[:3], f)
+                followed.append(after)
+                line += f" -> after the next plan: {', '.join(after[1]) if f.get('played') else '(no plan: as first)'}"
+            print(line, file=sys.stderr)
     else:
         results = run_as_batch(jobs, a.workers, a.record, a.minimal)
     wall = time.perf_counter() - start
@@ -628,6 +622,14 @@ def main() -> None:
     if a.follow:
         print()
         print_matrix(a.rig, hidden, followed, over + "; after each diagnosis's next-plan.toml was played", None)
+
+
+def _each_case(fn, jobs: list[tuple], cases: list[tuple], workers: int):
+    """``(k, job, result)`` for each case run by ``fn`` in one process pool of ``workers``, in the
+    jobs' order as each ends (``--no-batch``, ``--follow`` and ``--paired`` alike; k counts from 1)."""
+    with ProcessPoolExecutor(workers) as pool:
+        for k, (job, r) in enumerate(zip(jobs, pool.map(fn, cases)), 1):
+            yield k, job, r
 
 
 def _after(first: tuple, followed: dict) -> tuple:
