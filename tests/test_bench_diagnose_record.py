@@ -344,7 +344,7 @@ def test_paired_prints_both_matrices_and_the_rows_more_than_5_points_apart(tmp_p
         lines["input_delay"].split()[1:4] == ["100", "50", "-50"] and "more than 5 points apart" in lines["input_delay"]
     )
     assert lines["none"].split()[1:4] == ["100", "100", "+0"] and "apart" not in lines["none"]
-    assert "NOT within 5 points on every row" in table
+    assert "NOT within 5 points on every row: input_delay" in table
     rows = [json.loads(ln) for ln in record.read_text(encoding="utf-8").splitlines()]
     assert len(rows) == 8 and sum(bool(r.get("minimal")) for r in rows) == 4
 
@@ -355,6 +355,17 @@ def test_paired_prints_both_matrices_and_the_rows_more_than_5_points_apart(tmp_p
     again = capsys.readouterr().out
     assert again[again.index("Each row with the metadata and cut") :] == table
     assert "2 seeds (0-1)" in again
+
+    # a record of some rows: the rows it holds within 5 points, the others said as not measured
+    monkeypatch.setattr(
+        "sys.argv", [*argv[:3], "--paired", "--effects", "none", "amplifier_slew_limit", "--matrix-from", str(record)]
+    )
+    bd.main()
+    part = capsys.readouterr().out
+    assert (
+        "within 5 points on the 1 of 2 rows diagnosed both ways; not diagnosed both ways: amplifier_slew_limit" in part
+    )
+    assert "NOT within" not in part
 
     for bad in (["--minimal"], ["--follow"]):
         monkeypatch.setattr("sys.argv", [*argv, *bad])
