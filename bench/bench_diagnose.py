@@ -713,7 +713,8 @@ def print_paired(rig_id: str, hidden: list[str], full: list[tuple], cut: list[tu
             missing.append(h)
             continue
         near = bool(abs(a - b) <= PAIRED_POINTS)
-        apart += [] if near else [h]
+        if not near:
+            apart.append(h)
         far = f"   more than {PAIRED_POINTS:.0f} points apart"
         print(f"{h:<{width}}  {a:10.0f} {b:6.0f} {b - a:+7.0f}" + ("" if near else far))
     if apart:
