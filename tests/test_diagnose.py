@@ -435,14 +435,25 @@ def test_a_log_creep_too_small_against_an_unpinned_creep_is_said_beside_the_drif
     assert next_plan.hold_findings(plain) == {}
 
 
-@pytest.mark.parametrize("first_given_second", [5.0, 30.0])
-def test_a_finding_that_a_later_one_explains_is_named_as_that_one_alone(monkeypatch, first_given_second):
+@pytest.mark.parametrize(
+    ("first_given_second", "second_after_first", "split"),
+    [(5.0, 54.0, True), (30.0, 54.0, False), (15.0, 54.0, False), (15.0, 40.0, True)],
+)
+def test_a_finding_that_a_later_one_explains_is_named_as_that_one_alone(
+    monkeypatch, first_given_second, second_after_first, split
+):
     """One effect is not split into two names. The third test press, second resonance seed 4: a
     delay (40 %) and the second mode (36 %) both cleared the bar in the first round, the delay was
     named first and the mode after it (54 %), and the delay was never asked again. It is now asked
     with the mode's own extension in the model: no finding there (5 %), the mode is named alone, in
     its place, with its gain on the model without the delay, and the delay is tried again and said
-    not found; still a finding (30 %), both stay named."""
+    not found; still a finding (30 %), both stay named.
+
+    Two effects are not merged into one either (the second test press, delay + interference seed 1,
+    metadata cut): where the delay still predicts 15 % better on the mode fitted alone (at least
+    ``SPLIT_RETEST_GAIN_PCT``, under the bar) and the model with both predicts 28 % better than the
+    mode alone (0.46 against 0.64), both stay named, the evidence saying why; where the model with
+    both predicts only 6 % better (0.60 against 0.64), the mode is named alone."""
     from dataclasses import replace as _replace
 
     from piezopress.analysis.diagnosis import search
@@ -468,7 +479,8 @@ def test_a_finding_that_a_later_one_explains_is_named_as_that_one_alone(monkeypa
         m = ctx.model
         if m.wn:
             return None
-        return finding("second_resonance", ctx, 54.0 if m.drive_delay_s else 36.0, _replace(m, wn=8000.0, zeta=0.04))
+        gain = second_after_first if m.drive_delay_s else 36.0
+        return finding("second_resonance", ctx, gain, _replace(m, wn=8000.0, zeta=0.04))
 
     causes = dict(search.CAUSES)
     causes["input_delay"] = _replace(causes["input_delay"], run=delay, needs=())
@@ -477,12 +489,18 @@ def test_a_finding_that_a_later_one_explains_is_named_as_that_one_alone(monkeypa
     result = dg.diagnose(model, [run], causes=["input_delay", "second_resonance"])
     named = {f.cause: f.gain_pct for f in result.findings}
     tested = {t["cause"]: t["result"] for t in result.tested}
-    if first_given_second < dg.MIN_GAIN_PCT:
+    assert search.SPLIT_RETEST_GAIN_PCT <= 15.0 and first_given_second < dg.MIN_GAIN_PCT or not split
+    if split:
         assert named == {"second_resonance": 36.0}, result.summary
         (f,) = result.findings
         assert "named in place of input_delay" in f.evidence and "one effect, not two" in f.evidence
         assert f.model.wn and not f.model.drive_delay_s  # the model without the delay
         assert tested["input_delay"].startswith("not found"), tested
+        if first_given_second >= search.SPLIT_RETEST_GAIN_PCT:  # said how little both gain
+            assert "the model with both predicts the held-out runs 6 % better than it" in f.evidence
     else:
-        assert named == {"input_delay": 40.0, "second_resonance": 54.0}, result.summary
+        assert named == {"input_delay": 40.0, "second_resonance": second_after_first}, result.summary
         assert all("named in place of" not in f.evidence for f in result.findings)
+        mode = next(f for f in result.findings if f.cause == "second_resonance")
+        kept = "the model with both predicts the held-out runs 28 % better than second_resonance alone"
+        assert (kept in mode.evidence and "two effects" in mode.evidence) == (first_given_second < dg.MIN_GAIN_PCT)
