@@ -269,8 +269,8 @@ def _split_from(
             best,
             evidence=f"{best.evidence}; named beside {last.cause}, which was named first (held-out gain "
             f"{last.gain_pct:.0f} %): fitted again on the model with {best.cause} alone, {last.cause} had "
-            f"{'nothing to fit' if again is None else f'a held-out gain of {again.gain_pct:.0f} %'}, but the "
-            f"model with both predicts the held-out runs {both:.0f} % "
+            f"a held-out gain of {again.gain_pct:.0f} %, but the model with both predicts the held-out runs "
+            f"{both:.0f} % "
             f"better than {best.cause} alone ({best.extended_rms:.3g} against {alone.extended_rms:.3g} "
             f"{units.label(best.model.unit)} RMS): two effects",
         )
