@@ -10,8 +10,8 @@ from piezopress.errors import ImportFormatError
 from piezopress.piezocli.main import cli, next_command, reports_errors
 from piezopress.pipelines.importing import import_file
 
-# The two shared data sets, imported with one command each (also in docs/import.md; the
-# tests run exactly these commands).
+# The two shared data sets, imported with one command each (also in the README's "Importing
+# measured data"; the tests run exactly these commands).
 HELP = """Convert a CSV/TSV measurement (SOURCE) into a run file (--out, never overwritten unless --replace,
 which keeps the old one).
 

@@ -1,7 +1,7 @@
 """``piezopress import`` / ``inspect`` and :mod:`piezopress.pipelines.importing`.
 
 The two shared data sets are imported with exactly the commands documented in
-docs/import.md (and in ``piezopress import --help``); everything else runs on small
+the README's "Importing measured data" (and in ``piezopress import --help``); everything else runs on small
 synthetic tables written to ``tmp_path``.
 """
 
@@ -25,7 +25,7 @@ from piezopress.runformat import read_run
 ROOT = Path(__file__).resolve().parents[1]
 from conftest import DATASETS  # noqa: E402
 
-DOCS = ROOT / "docs" / "import.md"
+DOCS = ROOT / "README.md"  # its "Importing measured data": the one documented form
 DOC_PREFIX = "../shared/datasets/"  # how the documented commands name the data sets
 
 SMART = "smarthysteresis/hysteresis_v_150_1hz.csv"
