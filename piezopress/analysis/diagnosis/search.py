@@ -270,8 +270,7 @@ def _split_from(
             evidence=f"{best.evidence}; named beside {last.cause}, which was named first (held-out gain "
             f"{last.gain_pct:.0f} %): fitted again on the model with {best.cause} alone, {last.cause} had "
             f"a held-out gain of {again.gain_pct:.0f} %, but the model with both predicts the held-out runs "
-            f"{both:.0f} % "
-            f"better than {best.cause} alone ({best.extended_rms:.3g} against {alone.extended_rms:.3g} "
+            f"{both:.0f} % better than {best.cause} alone ({best.extended_rms:.3g} against {alone.extended_rms:.3g} "
             f"{units.label(best.model.unit)} RMS): two effects",
         )
     return last.cause, replace(
